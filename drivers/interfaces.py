@@ -1,0 +1,110 @@
+"""The three device interfaces that procedures use (DESIGN.md, "Devices and fakes").
+
+A procedure only ever sees these. A driver takes its transport (a ROS 2 node, a pyserial
+port, a python-can bus) and implements one of them; its fake sits next to it and behaves
+like the device. Times are seconds on the rig clock (`Clock.now()`), units are SI.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class JointState:
+    """One arm sample: positions (rad, m for joint 3), velocities, efforts (N m, N)."""
+
+    t: float
+    position: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+    name: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A rigid transform: position (m) and rotation matrix (3x3) in a named frame."""
+
+    t: float
+    position: np.ndarray
+    rotation: np.ndarray
+    frame: str = ""
+
+    def matrix(self) -> np.ndarray:
+        T = np.eye(4)
+        T[:3, :3] = self.rotation
+        T[:3, 3] = self.position
+        return T
+
+
+@dataclass(frozen=True)
+class ForceSample:
+    """One load-cell sample: tension (N, positive when the object is stretched)."""
+
+    t: float
+    force: float
+    raw: int = 0
+    seq: int = 0
+
+
+@dataclass(frozen=True)
+class TrackerFrame:
+    """One mocap frame: rigid bodies by name (None when occluded) and labelled markers (m)."""
+
+    t: float
+    bodies: dict[str, Pose | None] = field(default_factory=dict)
+    markers: dict[str, np.ndarray | None] = field(default_factory=dict)
+
+
+@runtime_checkable
+class Arm(Protocol):
+    """A dVRK arm in the CRTK vocabulary (joints 1-3 of a PSM for this rig)."""
+
+    name: str
+
+    def measured_js(self) -> JointState: ...
+
+    def setpoint_js(self) -> JointState: ...
+
+    def measured_cp(self) -> Pose: ...
+
+    def servo_jp(self, position: np.ndarray) -> None: ...
+
+    def servo_jf(self, effort: np.ndarray) -> None: ...
+
+    def move_jp(self, position: np.ndarray, wait: bool = True, timeout: float = 10.0) -> bool: ...
+
+    def hold(self) -> None: ...
+
+
+@runtime_checkable
+class ForceSensor(Protocol):
+    """A tension sensor between the tool tips."""
+
+    def read(self) -> ForceSample:
+        """The newest sample; raises if the stream is stale or disconnected."""
+        ...
+
+    def samples(self) -> list[ForceSample]:
+        """Every sample received since the last call, oldest first."""
+        ...
+
+    def tare(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+@runtime_checkable
+class Tracker(Protocol):
+    """An optical motion-capture system."""
+
+    def frames(self) -> list[TrackerFrame]:
+        """Every frame received since the last call, oldest first."""
+        ...
+
+    def latest(self) -> TrackerFrame: ...
+
+    def close(self) -> None: ...

@@ -1,0 +1,82 @@
+"""The `rig` command line.
+
+Commands are imported only when invoked so that `rig --help` stays fast (ROS 2 and
+Pinocchio take a second or more to import). Each entry maps a command name to the
+`module:attribute` of its click command and a one-line summary for the listing.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import click
+
+from rig import __version__
+
+# name -> (module:attribute, summary shown by `rig --help`)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "link-lengths": ("procedures.link_lengths:command", "Mocap link-length and joint-axis fit of a PSM (thesis 4.1.1, A.1)."),
+    "calibrate-rcm": ("procedures.calibrate_rcm:command", "Remote-centre-of-motion pivot calibration from mocap (A.2, Table 6.1)."),
+    "register": ("procedures.register:command", "Arm-to-arm base registration for cooperative work (7.7.1)."),
+    "identify": ("procedures.identify:command", "Excitation, recording and dynamic identification (5.1-5.5)."),
+    "friction-ramp": ("procedures.friction_ramp:command", "Stick-slip force-ramp and constant-velocity friction tests of joint 3 (5.6)."),
+    "cooperative": ("procedures.cooperative:command", "Cooperative manipulation with force tracking (6.3, 7.7)."),
+    "discrepancy": ("procedures.discrepancy:command", "Find where model and measurement disagree, name the effect, add it."),
+    "sim": ("procedures.sim:command", "Serve the simulated rig over the real device protocols (ROS 2, serial)."),
+    "selftest": ("procedures.selftest:command", "Short run of the simulated rig: PID step on every arm, object tension."),
+    "loadcell-calibrate": ("procedures.loadcell_calibrate:command", "Two-point load-cell calibration with known masses, stored for later runs."),
+    "runs": ("rig.runs_cli:runs_command", "List recorded runs (time, procedure, status, key result)."),
+    "export": ("rig.runs_cli:export_command", "Export an arm's q, dq, tau from a run as CSV (wpi-psm format)."),
+}
+
+
+class LazyGroup(click.Group):
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        if name not in COMMANDS:
+            return None
+        target, _ = COMMANDS[name]
+        module_name, attr = target.split(":")
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name != module_name:
+                raise
+            return _unavailable(name)
+        return getattr(module, attr)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = [(name, COMMANDS[name][1]) for name in self.list_commands(ctx)]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
+
+
+def _unavailable(name: str) -> click.Command:
+    @click.command(name=name, help=COMMANDS[name][1], context_settings={"ignore_unknown_options": True})
+    @click.argument("args", nargs=-1, type=click.UNPROCESSED)
+    def missing(args: tuple[str, ...]) -> None:
+        raise click.ClickException(f"'rig {name}' is not part of this build yet (see the open issues)")
+
+    return missing
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="rig")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
+              envvar="RIG_CONFIG", help="Rig configuration (TOML). Default: ./rig.toml if present, else the built-in simulated rig.")
+@click.pass_context
+def main(ctx: click.Context, config_path: str | None) -> None:
+    """Drive the dVRK cooperative-manipulation rig (or its simulation).
+
+    Every procedure is recorded under logs/. With no rig.toml, every command runs on the
+    built-in simulated rig (PSM1, PSM2, a spring object with a load cell, a mocap system).
+    Units are SI: m, rad, N, N m, s.
+    """
+    ctx.obj = {"config_path": config_path}
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

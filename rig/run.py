@@ -1,0 +1,441 @@
+"""The run engine: one recorded procedure run, and the safe stop it owns (STYLE item 4).
+
+    with Run("identify", parameters=params, config=cfg, seed=7) as run:
+        arm = run.claim(psm1)                     # held on any exit
+        with run.step("excite", total=n) as step:
+            for k in range(n):
+                ...; run.recorder.joint_state("/PSM1/measured_js", t, q, dq, tau)
+                step.advance()
+        run.finish({"summary": {...}, ...})
+    emit_result(run.result, as_json)
+
+On entry the run creates `runs_root()/<UTC time>-<procedure>/`, opens `run.mcap` and
+writes `run_start`. On exit, whatever the reason, it
+
+1. puts every claimed arm in its safe state (`hold()`), each in its own try, so a failing
+   hold is reported but never hides the original error nor skips the other arms;
+2. closes the recording with `run_stop` (status, error, counts);
+3. writes `result.json` (the procedure's result plus status, procedure, run_dir, timings);
+4. re-raises the exception, if any.
+
+Status: "completed" on a normal exit; "aborted" for AbortRun (safety checks raise it with
+a reason), Ctrl-C (KeyboardInterrupt) and SIGTERM (converted to AbortRun while the run is
+active); "failed" for any other exception. Signals arriving while the run is finalising are
+reported and deferred, so a second Ctrl-C cannot cut the file short.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import os
+import signal
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Callable, Iterator, TextIO
+
+import click
+
+from rig.paths import run_dir_name, runs_root
+from rig.records import Recorder, to_json
+
+EXIT_FAILED = 1
+EXIT_ABORTED = 3
+EXIT_INTERRUPTED = 130  # the shell's convention for SIGINT
+
+
+class AbortRun(Exception):
+    """Stop the run safely: a limit was hit, a sensor went stale, the user asked.
+
+    `reason` is one line for a person ("joint 2 velocity 1.9 rad/s above limit 1.5").
+    The run engine sets `run_dir` when the exception leaves a Run.
+    """
+
+    def __init__(self, reason: str):
+        super().__init__(reason)
+        self.reason = reason
+        self.run_dir: Path | None = None
+
+
+class Step:
+    """Progress of one named step; `advance()` as work is done (see Run.step)."""
+
+    def __init__(self, run: "Run", name: str, index: int, total: int | None):
+        self.run, self.name, self.index, self.total = run, name, index, total
+        self.done = 0
+        self.started = time.monotonic()
+        self._last_print = 0.0
+        self._last_fraction = -1.0
+
+    def advance(self, n: int = 1) -> None:
+        self.done += n
+        self._show()
+
+    def update(self, done: int) -> None:
+        self.done = done
+        self._show()
+
+    def _show(self, final: bool = False) -> None:
+        if self.total is None or not self.run.progress:
+            return
+        now = time.monotonic()
+        fraction = min(self.done / self.total, 1.0) if self.total else 1.0
+        tty = self.run._stream_is_tty
+        # Redraw a terminal line at most 10 times a second; in a log file print a line
+        # per 10 % so CI logs show progress without thousands of lines.
+        if tty and not final and now - self._last_print < 0.1:
+            return
+        if not tty and not final and fraction - self._last_fraction < 0.1:
+            return
+        self._last_print, self._last_fraction = now, fraction
+        width = 24
+        bar = "#" * int(width * fraction) + "-" * (width - int(width * fraction))
+        line = (f"{self.run._label(self)} [{bar}] {self.done}/{self.total} "
+                f"{now - self.started:6.1f} s")
+        if tty:
+            self.run._write("\r" + line + ("\n" if final else ""))
+        elif not final:
+            self.run._write(line + "\n")
+
+
+class Run:
+    """A recorded procedure run; use as a context manager (see the module docstring).
+
+    Args:
+        procedure: procedure name, used in the folder name and the start record.
+        parameters: the procedure's parameters (a ParameterSet gives units too).
+        config: the rig configuration snapshot (anything JSON-serialisable).
+        seed: the random seed of the simulated rig, if any.
+        steps: the procedure's step names, to number steps as "[2/5]".
+        root: parent folder of the run folder (default: `runs_root()`).
+        progress: print steps and progress to `stream` (stderr).
+        recorder_options: passed to Recorder (compression, chunk_size, queue_limit).
+    """
+
+    def __init__(self, procedure: str, parameters: dict | None = None, config: Any = None,
+                 seed: Any = None, *, steps: list[str] | None = None, root: Path | None = None,
+                 progress: bool = True, stream: TextIO | None = None,
+                 recorder_options: dict | None = None):
+        if not procedure or "/" in procedure or procedure != procedure.strip():
+            raise ValueError(f"procedure name must be a plain word, got {procedure!r}")
+        self.procedure = procedure
+        self.parameters = parameters if parameters is not None else {}
+        self.config = config
+        self.seed = seed
+        self.steps = list(steps) if steps else None
+        self.root = Path(root) if root is not None else None
+        self.progress = progress
+        self.stream = stream
+        self.recorder_options = recorder_options or {}
+        self.dir: Path | None = None
+        self.recorder: Recorder | None = None
+        self.result: dict | None = None
+        self.status: str | None = None
+        self._claimed: list = []
+        self._step_times: dict[str, float] = {}
+        self._current_step: Step | None = None
+        self._step_count = 0
+        self._old_handlers: dict[int, Any] = {}
+        self._finalising = False
+        self._deferred_signals: list[str] = []
+
+    # ------------------------------------------------------------------ the run
+    def __enter__(self) -> "Run":
+        root = self.root if self.root is not None else runs_root()
+        root.mkdir(parents=True, exist_ok=True)
+        self.utc_start = datetime.now(timezone.utc)
+        self._t0 = time.monotonic()
+        while True:  # two runs in the same microsecond: take the next microsecond
+            candidate = root / run_dir_name(self.procedure, self.utc_start)
+            try:
+                candidate.mkdir()
+                break
+            except FileExistsError:
+                self.utc_start = self.utc_start.replace(microsecond=(self.utc_start.microsecond + 1) % 1_000_000)
+        self.dir = candidate
+        self.recorder = Recorder(self.dir / "run.mcap", **self.recorder_options)
+        describe = getattr(self.parameters, "describe", None)
+        self.recorder.start(self.procedure,
+                            parameters=describe() if callable(describe) else self.parameters,
+                            config=self.config, seed=self.seed, utc_start=self.utc_start,
+                            extra={"run_dir": str(self.dir)})
+        self._stream_is_tty = bool(getattr(self._out(), "isatty", lambda: False)())
+        self._install_signal_handlers()
+        self._write(f"rig {self.procedure}: recording to {self.dir}\n")
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        self._finalising = True
+        self._defer_signals()
+        try:
+            self._finalise(exc)
+        finally:
+            self._restore_signal_handlers()
+        return False  # never swallow: the caller (or exit_on_abort) decides what to show
+
+    def claim(self, arm):
+        """Remember an arm this run moves; it gets `hold()` when the run ends. Returns it."""
+        if not any(a is arm for a in self._claimed):
+            self._claimed.append(arm)
+        return arm
+
+    @property
+    def claimed(self) -> list:
+        return list(self._claimed)
+
+    @contextmanager
+    def step(self, name: str, total: int | None = None) -> Iterator[Step]:
+        """A named step with optional progress (`total` units of work, `advance()` each).
+
+        Prints the step on start and end to stderr and times it into result.json.
+        """
+        self._step_count += 1
+        step = Step(self, name, self._step_count, total)
+        self._current_step = step
+        self._write(f"{self._label(step)} ...\n")
+        ok = False
+        try:
+            yield step
+            ok = True
+        finally:
+            elapsed = time.monotonic() - step.started
+            self._step_times[name] = round(self._step_times.get(name, 0.0) + elapsed, 6)
+            step._show(final=True)
+            self._write(f"{self._label(step)} {'done' if ok else 'stopped'} in {elapsed:.2f} s\n")
+            if ok:
+                self._current_step = None
+
+    def finish(self, result: dict) -> dict:
+        """Set the procedure's result; returns the result document (updated on exit with
+        status and timings, and written to result.json when the run ends)."""
+        if not isinstance(result, dict):
+            raise TypeError(f"the result must be a dict, got {type(result).__name__}")
+        self.result = dict(result)
+        return self.result
+
+    def elapsed(self) -> float:
+        """Seconds since the run started (monotonic wall clock)."""
+        return time.monotonic() - self._t0
+
+    # ------------------------------------------------------------- finalising
+    def _finalise(self, exc: BaseException | None) -> None:
+        status, reason = classify(exc)
+        self.status = status
+        stopped_in = self._current_step.name if (exc is not None and self._current_step) else None
+        held, hold_errors = self._hold_all()
+        for err in hold_errors:
+            self._write(f"rig {self.procedure}: could not hold {err['arm']}: {err['error']}\n")
+        stop_extra = {"held": held, "hold_errors": hold_errors, "steps": self._step_times}
+        if stopped_in:
+            stop_extra["step"] = stopped_in
+        recorder_error = None
+        try:
+            self.recorder.close(status, reason, extra=stop_extra)
+        except Exception as err:  # reported in result.json; the original error still wins
+            recorder_error = f"{type(err).__name__}: {err}"
+            self._write(f"rig {self.procedure}: the recording could not be finished: {recorder_error}\n")
+            if status == "completed":
+                status, reason = "failed", recorder_error
+                self.status = status
+        utc_stop = datetime.now(timezone.utc)
+        doc = self.result if self.result is not None else {}
+        doc.update({
+            "status": status,
+            "procedure": self.procedure,
+            "run_dir": str(self.dir),
+            "timings": {"utc_start": self.utc_start.isoformat(), "utc_stop": utc_stop.isoformat(),
+                        "duration_s": round(self.elapsed(), 6), "steps": self._step_times},
+        })
+        if status != "completed":
+            doc["error"] = reason
+            if stopped_in:
+                doc["step"] = stopped_in
+        if held:
+            doc["held"] = held
+        if hold_errors:
+            doc["hold_errors"] = hold_errors
+        if recorder_error:
+            doc["recording_error"] = recorder_error
+        self.result = doc
+        try:
+            write_result(self.dir / "result.json", doc)
+        except Exception as err:
+            if exc is None:
+                raise
+            # the original error is the one to see; this one is secondary
+            self._write(f"rig {self.procedure}: could not write result.json: {err}\n")
+        if exc is not None:
+            try:  # lets exit_on_abort name the folder for Ctrl-C and failures too
+                exc.run_dir = self.dir
+            except AttributeError:
+                pass
+        if status == "completed":
+            self._write(f"rig {self.procedure}: completed in {self.elapsed():.1f} s ({self.dir})\n")
+
+    def _hold_all(self) -> tuple[list[str], list[dict]]:
+        held, errors = [], []
+        for arm in self._claimed:
+            name = str(getattr(arm, "name", type(arm).__name__))
+            try:
+                arm.hold()
+                held.append(name)
+            except BaseException as err:  # noqa: BLE001 - one arm failing must not spare the rest
+                errors.append({"arm": name, "error": f"{type(err).__name__}: {err}"})
+        return held, errors
+
+    # ------------------------------------------------------------------ signals
+    def _install_signal_handlers(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return  # Python delivers signals to the main thread only; its owner handles them
+
+        def on_sigterm(signum, frame):
+            if self._finalising:
+                self._note_deferred("SIGTERM")
+                return
+            raise AbortRun("SIGTERM received (the process was asked to stop)")
+
+        self._old_handlers[signal.SIGTERM] = signal.signal(signal.SIGTERM, on_sigterm)
+
+    def _defer_signals(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return
+
+        def later(signum, frame):
+            self._note_deferred(signal.Signals(signum).name)
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous = signal.signal(sig, later)
+            self._old_handlers.setdefault(sig, previous)
+
+    def _note_deferred(self, name: str) -> None:
+        self._deferred_signals.append(name)
+        self._write(f"rig {self.procedure}: {name} while making the arms safe and closing "
+                    f"the recording; finishing first\n")
+
+    def _restore_signal_handlers(self) -> None:
+        for sig, handler in self._old_handlers.items():
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        self._old_handlers.clear()
+
+    # ------------------------------------------------------------------ output
+    def _out(self) -> TextIO:
+        return self.stream if self.stream is not None else sys.stderr
+
+    def _write(self, text: str) -> None:
+        if not self.progress:
+            return
+        try:
+            out = self._out()
+            out.write(text)
+            out.flush()
+        except (OSError, ValueError):  # a closed or broken stderr must not break the run
+            pass
+
+    def _label(self, step: Step) -> str:
+        of = f"/{len(self.steps)}" if self.steps else ""
+        return f"[{step.index}{of}] {step.name}"
+
+
+def classify(exc: BaseException | None) -> tuple[str, str | None]:
+    """(status, reason) for how a run ended."""
+    if exc is None:
+        return "completed", None
+    if isinstance(exc, AbortRun):
+        return "aborted", exc.reason
+    if isinstance(exc, KeyboardInterrupt):
+        return "aborted", "interrupted (Ctrl-C)"
+    if isinstance(exc, SystemExit):
+        return "aborted", f"exit requested (code {exc.code})"
+    text = str(exc)
+    return "failed", f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _finite(value: Any) -> Any:
+    # JSON has no NaN or infinity; strict readers (jq, browsers) reject Python's NaN token.
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value
+
+
+def result_json(result: dict, indent: int | None = 2) -> str:
+    """The result as strict JSON (numpy values converted, NaN and inf as null)."""
+    return to_json(_finite(json.loads(to_json(result, allow_nan=True))), indent=indent, allow_nan=False)
+
+
+def write_result(path: Path, result: dict) -> None:
+    """Write result.json atomically (a reader never sees half a file)."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(result_json(result) + "\n")
+    os.replace(tmp, path)
+
+
+# ---------------------------------------------------------------------- CLI helpers
+json_option = click.option("--json", "as_json", is_flag=True,
+                           help="Print the result as one JSON document on stdout (report on stderr).")
+
+
+def emit_result(result: dict, as_json: bool, report: str | None = None) -> None:
+    """Show a run's result: with `as_json`, the result as one JSON document on stdout and
+    the human report on stderr; otherwise the report on stdout.
+
+    `report` defaults to the result's "summary" (or top-level scalars) as `key: value` lines.
+    """
+    text = report if report is not None else format_report(result)
+    if as_json:
+        if text:
+            click.echo(text, err=True)
+        click.echo(result_json(result, indent=None))
+    elif text:
+        click.echo(text)
+
+
+def format_report(result: dict) -> str:
+    summary = result.get("summary")
+    if not isinstance(summary, dict):
+        summary = {k: v for k, v in result.items()
+                   if isinstance(v, (int, float, str, bool)) and k not in ("run_dir",)}
+    lines = [f"{k}: {_short(v)}" for k, v in summary.items()]
+    head = f"{result.get('procedure', 'run')}: {result.get('status', '')}".rstrip(": ")
+    if result.get("error"):
+        head += f" ({result['error']})"
+    if result.get("run_dir"):
+        lines.append(f"run folder: {result['run_dir']}")
+    return "\n".join([head] + lines)
+
+
+def _short(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return str(value)
+
+
+def exit_on_abort(fn: Callable) -> Callable:
+    """Decorator for a procedure's click command: an AbortRun or Ctrl-C becomes one line
+    on stderr and a non-zero exit (3 aborted, 130 interrupted); other errors propagate."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        name = click.get_current_context(silent=True)
+        name = name.info_name if name is not None else fn.__name__
+        try:
+            return fn(*args, **kwargs)
+        except AbortRun as exc:
+            where = f" (run folder {exc.run_dir})" if exc.run_dir else ""
+            click.echo(f"rig {name}: aborted: {exc.reason}{where}", err=True)
+            sys.exit(EXIT_ABORTED)
+        except KeyboardInterrupt as exc:
+            run_dir = getattr(exc, "run_dir", None)
+            where = f" (run folder {run_dir})" if run_dir else ""
+            click.echo(f"rig {name}: aborted: interrupted (Ctrl-C){where}", err=True)
+            sys.exit(EXIT_INTERRUPTED)
+
+    return wrapper

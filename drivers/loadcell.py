@@ -612,6 +612,7 @@ class _StreamingLoadCell:
         self.identity: Identity | None = None
 
     _seq_bits = 32
+    connect_timeout = 2.5  # s, covers the Arduino bootloader after a DTR reset
 
     # ---- reader-thread side
     def _fail(self, error: LoadCellError) -> None:
@@ -747,8 +748,8 @@ class _StreamingLoadCell:
                         f"{ERROR_NAMES.get(rpayload[1], f'error {rpayload[1]:#04x}')}")
                 # an error about a different (garbled) command, or a stray reply: keep waiting
 
-    def identify(self) -> Identity:
-        ident = decode_identity(self.command(CMD_IDENTIFY))
+    def identify(self, timeout: float = 0.5) -> Identity:
+        ident = decode_identity(self.command(CMD_IDENTIFY, timeout=timeout))
         if ident.protocol != PROTOCOL_VERSION:
             raise LoadCellError(f"load cell on {self.name} speaks protocol {ident.protocol}, "
                                 f"this driver speaks {PROTOCOL_VERSION}; update the firmware or the package")
@@ -792,7 +793,16 @@ class _StreamingLoadCell:
 
     def _setup(self, rate_hz: int, start: bool) -> None:
         try:
-            self.identify()
+            # an Uno/Nano resets when the port opens and its bootloader listens for ~1.5 s,
+            # so the first IDENTIFYs may go unanswered
+            deadline = time.monotonic() + self.connect_timeout
+            while True:
+                try:
+                    self.identify(timeout=0.25)
+                    break
+                except LoadCellCommandError:
+                    if time.monotonic() > deadline or self._error is not None:
+                        raise
             if self.identity is not None and rate_hz > self.identity.max_rate_hz:
                 raise LoadCellError(
                     f"load cell on {self.name}: {rate_hz} Hz asked, the "

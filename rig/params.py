@@ -190,16 +190,16 @@ def with_parameters(declarations: Sequence[Parameter], dest: str = "parameters")
             if p.type is bool:
                 option = click.option(f"{p.option}/--no-{p.option[2:]}", p.name,
                                       default=bool(p.default), help=p.help_text())
-            elif p.choices is not None:
-                option = click.option(p.option, p.name, default=p.default,
-                                      required=p.default is None,
-                                      type=click.Choice([str(c) for c in p.choices]),
-                                      callback=lambda ctx, param, v, p=p: None if v is None else p.convert(v),
-                                      help=p.help_text())
             else:
-                option = click.option(p.option, p.name, default=p.default,
-                                      required=p.default is None, type=_Checked(p),
-                                      help=p.help_text())
+                # Click (8.3+) treats an explicit default=None as a value that satisfies
+                # required=True, so a required option gets no default at all.
+                extra = {"required": True} if p.default is None else {"default": p.default}
+                if p.choices is not None:
+                    option = click.option(p.option, p.name, type=click.Choice([str(c) for c in p.choices]),
+                                          callback=lambda ctx, param, v, p=p: None if v is None else p.convert(v),
+                                          help=p.help_text(), **extra)
+                else:
+                    option = click.option(p.option, p.name, type=_Checked(p), help=p.help_text(), **extra)
             wrapper = option(wrapper)
         return wrapper
 

@@ -70,7 +70,7 @@ class Step:
         self.done = 0
         self.started = time.monotonic()
         self._last_print = 0.0
-        self._last_fraction = -1.0
+        self._last_decile = 0
 
     def advance(self, n: int = 1) -> None:
         self.done += n
@@ -90,9 +90,10 @@ class Step:
         # per 10 % so CI logs show progress without thousands of lines.
         if tty and not final and now - self._last_print < 0.1:
             return
-        if not tty and not final and fraction - self._last_fraction < 0.1:
+        decile = int(10 * fraction + 1e-9)
+        if not tty and not final and decile <= self._last_decile:
             return
-        self._last_print, self._last_fraction = now, fraction
+        self._last_print, self._last_decile = now, decile
         width = 24
         bar = "#" * int(width * fraction) + "-" * (width - int(width * fraction))
         line = (f"{self.run._label(self)} [{bar}] {self.done}/{self.total} "
@@ -424,8 +425,12 @@ def exit_on_abort(fn: Callable) -> Callable:
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        name = click.get_current_context(silent=True)
-        name = name.info_name if name is not None else fn.__name__
+        ctx = click.get_current_context(silent=True)
+        # under `rig`, the name it was invoked by; run on its own, the command's name
+        if ctx is None:
+            name = fn.__name__
+        else:
+            name = ctx.info_name if ctx.parent is not None else (ctx.command.name or ctx.info_name)
         try:
             return fn(*args, **kwargs)
         except AbortRun as exc:

@@ -220,6 +220,7 @@ class FrameParser:
         self.bad_length = 0
         self.resyncs = 0
         self.bytes_discarded = 0
+        self._skipping = False  # inside a run of garbage (one resync however it is fed)
 
     @property
     def pending(self) -> int:
@@ -229,6 +230,12 @@ class FrameParser:
     def _skip(self, n: int) -> None:
         del self._buf[:n]
         self.bytes_discarded += n
+
+    def _skip_garbage(self, n: int) -> None:
+        if not self._skipping:
+            self.resyncs += 1
+            self._skipping = True
+        self._skip(n)
 
     def _reject(self, kind: str, ftype: int) -> None:
         if self.on_reject is not None:
@@ -258,17 +265,16 @@ class FrameParser:
                 # a trailing A5 may be the first half of the next sync
                 keep = 1 if buf.endswith(SYNC[:1]) else 0
                 if len(buf) - keep > 0:
-                    self.resyncs += 1
-                    self._skip(len(buf) - keep)
+                    self._skip_garbage(len(buf) - keep)
                 return out
             if i > 0:
-                self.resyncs += 1
-                self._skip(i)
+                self._skip_garbage(i)
             if len(buf) < 4:
                 return out
             length, ftype = buf[2], buf[3]
             if length > self.max_payload:
                 self.bad_length += 1
+                self._skipping = False
                 self._reject("bad_length", ftype)
                 self._skip(2)  # drop this sync; the next search finds the real one
                 continue
@@ -278,6 +284,7 @@ class FrameParser:
             if crc16_ccitt_false(bytes(buf[2:end - 2])) == (buf[end - 2] | buf[end - 1] << 8):
                 out.append(Frame(ftype, bytes(buf[4:end - 2])))
                 self.frames += 1
+                self._skipping = False
                 del buf[:end]
                 continue
             # The CRC failed. If a valid frame starts inside, this one was cut short and
@@ -290,6 +297,7 @@ class FrameParser:
                 if verdict:
                     break
                 j = buf.find(SYNC, j + 1, end)
+            self._skipping = False
             if j > 0:
                 self.truncated += 1
                 self._reject("truncated", ftype)
@@ -306,9 +314,10 @@ class FrameParser:
             if self._buf.startswith(SYNC) and n >= 3:
                 self.truncated += 1
                 self._reject("truncated", self._buf[3] if n > 3 else 0)
+                self._skip(n)
             else:
-                self.resyncs += 1
-            self._skip(n)
+                self._skip_garbage(n)
+        self._skipping = False
         return n
 
 
@@ -392,6 +401,7 @@ class ClockMapper:
         self._block_start: float | None = None
         self._block_min: tuple[float, float] | None = None
         self._global_min = math.inf
+        self._last_t = -math.inf
 
     def device_seconds(self, t_us: int) -> float:
         """Unwrapped device time (s) since the first sample's micros() epoch."""
@@ -416,7 +426,10 @@ class ClockMapper:
         offset = self.offset(dev)
         if self._block_min is not None:
             offset = min(offset, self._block_min[1])
-        return min(dev + offset, host_rx)
+        # never after its arrival; never before the previous sample (a new fit may step back)
+        t = max(min(dev + offset, host_rx), self._last_t)
+        self._last_t = t
+        return t
 
     def offset(self, dev: float) -> float:
         """Estimated host - device clock offset (s) at device time `dev` (s)."""
@@ -628,10 +641,11 @@ class _StreamingLoadCell:
                     f"load cell on {self.name}: no sample for {age * 1e3:.0f} ms "
                     f"(stale timeout {self.stale_timeout * 1e3:.0f} ms); check the cable and power"))
 
-    def _on_raw_sample(self, s: RawSample, rx: float, elapsed_periods: float | None = None) -> None:
+    def _on_raw_sample(self, s: RawSample, rx: float, elapsed_periods: float | None = None) -> bool:
+        """Deliver one decoded sample; False if it was out of order (counted, not delivered)."""
         st = self._stats
         if not self._seq.accept(s.seq, elapsed_periods):
-            return
+            return False
         t = self._clockmap.map(s.t_us, rx)
         cal = self.calibration
         force = cal.newtons(s.counts) if cal is not None else math.nan
@@ -648,6 +662,7 @@ class _StreamingLoadCell:
             self._last_rx = rx
         if self.on_sample is not None:
             self.on_sample(sample, rx)
+        return True
 
     def _on_reply(self, ftype: int, payload: bytes) -> None:
         self._stats.replies += 1

@@ -403,7 +403,7 @@ class Recording:
     path: Path
     metadata: dict[str, dict] = field(default_factory=dict)
     messages: dict[str, list] = field(default_factory=dict)
-    schemas: dict[str, str] = field(default_factory=dict)  # topic -> schema name
+    schemas: dict[str, str] = field(default_factory=dict)  # every topic -> schema name
     finalised: bool = False
     problem: str = ""
 
@@ -474,10 +474,10 @@ def read_recording(path: str | os.PathLike, topics: Iterable[str] | None = None,
                 elif isinstance(record, Channel):
                     if record.id not in channels:
                         channels[record.id] = record
+                        schema = schemas.get(record.schema_id)
+                        rec.schemas[record.topic] = schema.name if schema else ""
                         if wanted is None or record.topic in wanted:
                             rec.messages.setdefault(record.topic, [])
-                            schema = schemas.get(record.schema_id)
-                            rec.schemas[record.topic] = schema.name if schema else ""
                 elif isinstance(record, Schema):
                     schemas.setdefault(record.id, record)
                 elif isinstance(record, Metadata):

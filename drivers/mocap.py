@@ -1,0 +1,253 @@
+"""Motion capture over ROS 2: rigid-body poses as geometry_msgs/PoseStamped per body.
+
+Common mocap bridges publish one PoseStamped topic per rigid body: vrpn_client_ros on
+`/vrpn_client_node/<body>/pose`, mocap4r2 and optitrack bridges on similar names. This
+driver subscribes to `/<prefix>/<body>/pose` (prefix "mocap" by default) on a node it is
+given (it never creates or spins one: the caller's executor does), and assembles the
+per-body messages into TrackerFrames by header stamp.
+
+Assembly: messages with the same stamp form one frame. A frame is emitted when every body
+has reported for it, when every body has already reported a later stamp (topics are
+ordered, so the missing ones will not come), or when the newest stamp seen is more than
+`assembly_window` s past it (a body that stopped publishing, e.g. occluded in a bridge
+that drops lost bodies). Bodies without a message in a frame are None. A message for a
+stamp at or before the last emitted frame is late: it is counted and dropped, never
+merged into a later frame. A stream that has not delivered a message for `stale_timeout`
+s makes `frames()`/`latest()` raise MocapStaleError naming the body and topic; frames
+received before that are kept and returned by the next `frames()` call after recovery.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from drivers.interfaces import Pose, TrackerFrame
+from drivers.quaternion import quat_xyzw_to_matrix
+
+
+class MocapStaleError(RuntimeError):
+    """A body's pose stream stopped for longer than the tracker's stale timeout."""
+
+
+@dataclass
+class MocapStats:
+    """Counters a procedure reports (DESIGN.md: dropped frames are counted, never hidden).
+
+    received: messages accepted per body; late: messages for an already emitted frame
+    (dropped); duplicate: a second message for the same body and stamp (dropped);
+    out_of_order: messages older than that body's newest but still merged in time;
+    overflow: frames discarded because nobody read `frames()` for `max_buffer` frames;
+    frames: frames emitted; incomplete: frames with at least one body None;
+    missing: per body, frames in which it was None; latency: mean and max of
+    (node clock at receipt - header stamp) in s, meaningful when both share a clock.
+    """
+
+    received: dict[str, int] = field(default_factory=dict)
+    late: int = 0
+    duplicate: int = 0
+    out_of_order: int = 0
+    overflow: int = 0
+    frames: int = 0
+    incomplete: int = 0
+    missing: dict[str, int] = field(default_factory=dict)
+    latency_mean: float = float("nan")
+    latency_max: float = float("nan")
+
+
+def pose_topic(prefix: str, body: str) -> str:
+    """The PoseStamped topic of `body` under `prefix` ("" for `/<body>/pose`)."""
+    prefix = prefix.strip("/")
+    return f"/{prefix}/{body}/pose" if prefix else f"/{body}/pose"
+
+
+class RosMocapTracker:
+    """Tracker over ROS 2 PoseStamped topics, one per rigid body.
+
+    node: an rclpy Node that someone else spins (STYLE item 1: the driver gets its
+    transport). bodies: rigid-body names. prefix: topic prefix (see `pose_topic`).
+    stale_timeout: s without a message on any body's topic before reads raise.
+    assembly_window: s of stamp time after which an incomplete frame is emitted.
+    reliable: subscribe RELIABLE (only matches reliable publishers) instead of the
+    default BEST_EFFORT (matches both kinds, what bridges such as vrpn use).
+    clock: monotonic seconds for the stale check (injectable for tests).
+    Times in TrackerFrame.t are the header stamps in s; positions in m.
+    """
+
+    def __init__(self, node, bodies: Sequence[str], *, prefix: str = "mocap",
+                 stale_timeout: float = 0.5, assembly_window: float = 0.05,
+                 max_buffer: int = 100_000, qos_depth: int = 100, reliable: bool = False,
+                 clock: Callable[[], float] = time.monotonic):
+        from geometry_msgs.msg import PoseStamped
+        from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy
+
+        if not bodies:
+            raise ValueError("RosMocapTracker needs at least one body name")
+        if len(set(bodies)) != len(bodies):
+            raise ValueError(f"duplicate body names in {list(bodies)}")
+        self.node = node
+        self.bodies = tuple(bodies)
+        self.prefix = prefix
+        self.topics = {b: pose_topic(prefix, b) for b in self.bodies}
+        self.stale_timeout = float(stale_timeout)
+        self.assembly_window_ns = int(round(assembly_window * 1e9))
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._cond = threading.Condition(self._lock)
+        self._pending: dict[int, dict[str, Pose]] = {}
+        self._newest_stamp: dict[str, int] = {b: -1 for b in self.bodies}
+        self._last_emitted = -1
+        self._buffer: deque[TrackerFrame] = deque()
+        self._max_buffer = int(max_buffer)
+        self._latest: TrackerFrame | None = None
+        t0 = clock()
+        self._last_rx: dict[str, float] = {b: t0 for b in self.bodies}
+        self._ever_rx: dict[str, bool] = {b: False for b in self.bodies}
+        self._latency_sum = 0.0
+        self._latency_n = 0
+        self.stats = MocapStats(received={b: 0 for b in self.bodies},
+                                missing={b: 0 for b in self.bodies})
+        qos = QoSProfile(depth=qos_depth, history=HistoryPolicy.KEEP_LAST,
+                         reliability=ReliabilityPolicy.RELIABLE if reliable
+                         else ReliabilityPolicy.BEST_EFFORT)
+        self._subs = [node.create_subscription(PoseStamped, self.topics[b],
+                                               self._make_callback(b), qos)
+                      for b in self.bodies]
+
+    # -- receiving (executor thread)
+
+    def _make_callback(self, body: str):
+        def on_pose(msg) -> None:
+            self._on_pose(body, msg)
+        return on_pose
+
+    def _on_pose(self, body: str, msg) -> None:
+        stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+        o = msg.pose.orientation
+        p = msg.pose.position
+        pose = Pose(t=stamp * 1e-9, position=np.array([p.x, p.y, p.z], dtype=float),
+                    rotation=quat_xyzw_to_matrix(np.array([o.x, o.y, o.z, o.w], dtype=float)),
+                    frame=msg.header.frame_id)
+        now_ros = self.node.get_clock().now().nanoseconds
+        with self._cond:
+            self._last_rx[body] = self._clock()
+            self._ever_rx[body] = True
+            if stamp <= self._last_emitted:
+                self.stats.late += 1
+                return
+            slot = self._pending.setdefault(stamp, {})
+            if body in slot:
+                self.stats.duplicate += 1
+                return
+            if stamp < self._newest_stamp[body]:
+                self.stats.out_of_order += 1
+            slot[body] = pose
+            self.stats.received[body] += 1
+            self._newest_stamp[body] = max(self._newest_stamp[body], stamp)
+            latency = (now_ros - stamp) * 1e-9
+            self._latency_sum += latency
+            self._latency_n += 1
+            self.stats.latency_mean = self._latency_sum / self._latency_n
+            self.stats.latency_max = (latency if not np.isfinite(self.stats.latency_max)
+                                      else max(self.stats.latency_max, latency))
+            if self._flush():
+                self._cond.notify_all()
+
+    def _flush(self, force: bool = False) -> bool:
+        """Emit pending frames that can no longer change, oldest first (lock held)."""
+        emitted = False
+        newest = max(self._pending) if self._pending else -1
+        for stamp in sorted(self._pending):
+            slot = self._pending[stamp]
+            complete = len(slot) == len(self.bodies)
+            overtaken = all(self._newest_stamp[b] > stamp for b in self.bodies if b not in slot)
+            expired = newest - stamp > self.assembly_window_ns
+            if not (complete or overtaken or expired or force):
+                break  # keep frames in stamp order: later ones wait for this one
+            del self._pending[stamp]
+            bodies = {b: slot.get(b) for b in self.bodies}
+            frame = TrackerFrame(t=stamp * 1e-9, bodies=bodies, markers={})
+            if not complete:
+                self.stats.incomplete += 1
+                for b in self.bodies:
+                    if b not in slot:
+                        self.stats.missing[b] += 1
+            if len(self._buffer) >= self._max_buffer:
+                self._buffer.popleft()
+                self.stats.overflow += 1
+            self._buffer.append(frame)
+            self._latest = frame
+            self._last_emitted = stamp
+            self.stats.frames += 1
+            emitted = True
+        return emitted
+
+    # -- Tracker interface (caller thread)
+
+    def stale_ages(self) -> dict[str, float]:
+        """Seconds since each body's last message (since construction if none yet)."""
+        now = self._clock()
+        with self._lock:
+            return {b: now - self._last_rx[b] for b in self.bodies}
+
+    def check_stale(self) -> None:
+        """Raise MocapStaleError if any body's stream is older than stale_timeout."""
+        ages = self.stale_ages()
+        stale = {b: a for b, a in ages.items() if a > self.stale_timeout}
+        if stale:
+            parts = []
+            for b, a in stale.items():
+                never = "" if self._ever_rx[b] else " (never received)"
+                parts.append(f"{b!r} on {self.topics[b]}: no message for {a:.3f} s{never}")
+            raise MocapStaleError("mocap stream stale beyond "
+                                  f"{self.stale_timeout:g} s: " + "; ".join(parts)
+                                  + ". Check the mocap bridge is running, the body is tracked "
+                                    "and ROS_DOMAIN_ID matches.")
+
+    def frames(self) -> list[TrackerFrame]:
+        """Every frame assembled since the last call, oldest first.
+
+        Raises MocapStaleError (keeping the buffered frames) if a stream is stale.
+        """
+        self.check_stale()
+        with self._lock:
+            out = list(self._buffer)
+            self._buffer.clear()
+        return out
+
+    def latest(self) -> TrackerFrame:
+        """The newest assembled frame; raises MocapStaleError if a stream is stale."""
+        self.check_stale()
+        with self._lock:
+            if self._latest is None:
+                raise MocapStaleError("no mocap frame assembled yet from "
+                                      + ", ".join(self.topics.values()))
+            return self._latest
+
+    def wait_for_frames(self, count: int, timeout: float) -> bool:
+        """Block until `count` frames are buffered (needs the node spun elsewhere)."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while len(self._buffer) < count:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(left)
+        return True
+
+    def flush_pending(self) -> None:
+        """Emit every pending (incomplete) frame now, e.g. at the end of a recording."""
+        with self._cond:
+            self._flush(force=True)
+            self._cond.notify_all()
+
+    def close(self) -> None:
+        """Stop receiving: destroys this tracker's subscriptions (not the node)."""
+        for s in self._subs:
+            self.node.destroy_subscription(s)
+        self._subs = []

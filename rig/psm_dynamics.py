@@ -224,6 +224,8 @@ class PSMDynamics:
         self.Fc, self.Fv, self.Fo, self.Ia = d.Fc.copy(), d.Fv.copy(), d.Fo.copy(), d.Ia.copy()
         self.slope = d.slope
         self.n_params = 10 * len(BODY_NAMES) + 4 * 3
+        self._lower = np.tril_indices(self.model.nv, -1)
+        self._Ia_diag = np.diag(self.Ia)
 
     # -- parameters -------------------------------------------------------------------
     def standard_params(self) -> np.ndarray:
@@ -236,8 +238,8 @@ class PSMDynamics:
     # -- dynamics ---------------------------------------------------------------------
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
         Mt = pin.crba(self.model, self.data, self.G @ q)
-        Mt = np.triu(Mt) + np.triu(Mt, 1).T
-        return self.GT @ Mt @ self.G + np.diag(self.Ia)
+        Mt[self._lower] = Mt.T[self._lower]  # crba fills the upper triangle only
+        return self.GT @ Mt @ self.G + self._Ia_diag
 
     def coriolis(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """C(q, dq) dq (N m, N)."""

@@ -57,6 +57,7 @@ CMD_STATUS = 0x15
 REPLY = 0x80  # a reply's type is the command's type | REPLY
 T_ERROR = 0xFF
 
+KNOWN_TYPES = frozenset({T_SAMPLE, T_ERROR, *(c | r for c in range(0x10, 0x16) for r in (0, REPLY))})
 COMMAND_NAMES = {CMD_IDENTIFY: "IDENTIFY", CMD_TARE: "TARE", CMD_SET_RATE: "SET_RATE",
                  CMD_START: "START", CMD_STOP: "STOP", CMD_STATUS: "STATUS"}
 
@@ -200,8 +201,9 @@ class FrameParser:
     Counters (events, not bytes, except `bytes_discarded`):
       frames       valid frames returned
       crc_errors   complete frames whose CRC did not match
-      truncated    frames cut short: a valid frame starts inside them (a corrupted LEN
-                   byte that makes a frame swallow the next one looks the same on the wire)
+      truncated    frames cut short: a frame header (sync, sane LEN, known TYPE) starts
+                   inside them (a corrupted LEN byte that makes a frame swallow the next
+                   one looks the same on the wire)
       bad_length   LEN byte above MAX_PAYLOAD (cannot be a frame; skipped)
       resyncs      times bytes were skipped to find the next sync that belonged to no
                    counted frame (garbage, line noise, a partial frame at start-up)
@@ -241,18 +243,13 @@ class FrameParser:
         if self.on_reject is not None:
             self.on_reject(kind, ftype)
 
-    def _valid_at(self, j: int) -> bool | None:
-        """Whether a valid frame starts at buffer offset j; None if more bytes are needed."""
+    def _header_at(self, j: int) -> bool | None:
+        """Whether a plausible frame header (sync, LEN <= max, known TYPE) is at offset j;
+        None if its bytes have not arrived yet."""
         buf = self._buf
         if len(buf) < j + 4:
             return None
-        length = buf[j + 2]
-        if length > self.max_payload:
-            return False
-        end = j + length + FRAME_OVERHEAD
-        if len(buf) < end:
-            return None
-        return crc16_ccitt_false(bytes(buf[j + 2:end - 2])) == (buf[end - 2] | buf[end - 1] << 8)
+        return buf[j + 2] <= self.max_payload and buf[j + 3] in KNOWN_TYPES
 
     def feed(self, data: bytes) -> list[Frame]:
         """Append bytes; return every complete valid frame now available, oldest first."""
@@ -287,14 +284,14 @@ class FrameParser:
                 self._skipping = False
                 del buf[:end]
                 continue
-            # The CRC failed. If a valid frame starts inside, this one was cut short and
-            # the next frame's bytes were read as its tail: keep that next frame.
+            # The CRC failed. If a frame header starts inside, this frame was cut short and
+            # the next frame's bytes were read as its tail: resume at that header.
             j = buf.find(SYNC, 1, end)
             while j > 0:
-                verdict = self._valid_at(j)
-                if verdict is None:
-                    return out  # decide when the inner frame is complete
-                if verdict:
+                plausible = self._header_at(j)
+                if plausible is None:
+                    return out  # decide when the header's bytes are here
+                if plausible:
                     break
                 j = buf.find(SYNC, j + 1, end)
             self._skipping = False
@@ -1133,6 +1130,9 @@ class FakeLoadCellFirmware:
 
     def _fault(self, frame: bytes) -> bytes:
         kind = self._inject.popleft() if self._inject else None
+        if kind == "swap" and self._swap_held is not None:
+            self._inject.appendleft(kind)  # one swap at a time: apply it after this pair
+            kind = None
         if kind is None and self.corrupt_probability > 0 and self.rng.random() < self.corrupt_probability:
             kind = "crc"
         if kind is None:
@@ -1150,10 +1150,8 @@ class FakeLoadCellFirmware:
         if kind == "skip":
             return b""
         # swap: hold this frame back and send it right after the next one
-        if self._swap_held is None:
-            self._swap_held = frame
-            return b""
-        return frame
+        self._swap_held = frame
+        return b""
 
     def _send_sample(self, s: RawSample) -> None:
         frame = self._fault(sample_frame(s))

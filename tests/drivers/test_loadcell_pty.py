@@ -1,0 +1,249 @@
+"""The host driver against the firmware fake over a real pseudo-terminal, opened by pyserial."""
+
+from __future__ import annotations
+
+import statistics
+import time
+
+import pytest
+import serial
+
+from drivers.loadcell import (
+    ADC_HX711,
+    STANDARD_GRAVITY,
+    FakeLoadCellFirmware,
+    LoadCell,
+    LoadCellCalibration,
+    LoadCellCommandError,
+    LoadCellDisconnected,
+)
+
+
+class Tension:
+    """A settable tension source (N), like the simulated object's spring."""
+
+    def __init__(self, value: float = 0.0) -> None:
+        self.value = value
+
+    def __call__(self) -> float:
+        return self.value
+
+
+def truth_calibration(fake: FakeLoadCellFirmware) -> LoadCellCalibration:
+    return LoadCellCalibration(newtons_per_count=1 / fake.model.gain, zero_counts=fake.model.offset)
+
+
+@pytest.fixture
+def rig():
+    """(fake, open serial port) pairs; everything is unplugged and closed afterwards."""
+    made = []
+
+    def make(tension=None, **kw):
+        fake = FakeLoadCellFirmware(tension or Tension(), **kw).start()
+        port = serial.Serial(fake.port_path, baudrate=250000)
+        made.append((fake, port))
+        return fake, port
+
+    yield make
+    for fake, port in made:
+        fake.unplug()
+        port.close()
+
+
+def exchange(port: serial.Serial, sent: bytes, n_reply: int) -> bytes:
+    port.reset_input_buffer()
+    port.write(sent)
+    port.timeout = 0.5
+    return port.read(n_reply)
+
+
+def hx(s: str) -> bytes:
+    return bytes.fromhex(s.replace(" ", ""))
+
+
+def test_fake_answers_commands_and_errors_byte_for_byte(rig):
+    fake, port = rig()
+    pairs = [
+        ("A5 5A 00 10 3E 0F", "A5 5A 07 90 01 01 00 00 01 E8 03 65 0A"),  # IDENTIFY
+        ("A5 5A 02 12 F4 01 8F 8B", "A5 5A 02 92 F4 01 D5 B0"),  # SET_RATE 500
+        ("A5 5A 02 12 00 00 AB 44", "A5 5A 02 FF 12 03 B9 F3"),  # SET_RATE 0: bad argument
+        ("A5 5A 00 42 89 75", "A5 5A 02 FF 42 01 44 DD"),  # unknown command
+        ("A5 5A 00 15 9B A0", "A5 5A 02 FF 15 02 0F 7A"),  # bad CRC
+        ("A5 5A 01 12 05 18 CE", "A5 5A 02 FF 12 04 5E 83"),  # bad length
+        ("A5 5A 00 14 BA 4F", "A5 5A 00 94 32 DE"),  # STOP
+    ]
+    for sent, reply in pairs:
+        assert exchange(port, hx(sent), len(hx(reply))) == hx(reply), sent
+    # a command that stops half-way is answered after 50 ms
+    assert exchange(port, hx("A5 5A 02 12 F4"), 8) == hx("A5 5A 02 FF 12 06 1C A3")
+    # two tares at once: the second is refused, the first answers with the mean counts
+    port.write(hx("A5 5A 01 11 40 2A 83") * 2)
+    port.timeout = 1.0
+    busy, tare = port.read(8), port.read(11)
+    assert busy == hx("A5 5A 02 FF 11 05 2C C6")
+    assert tare[:4] == hx("A5 5A 05 91") and int.from_bytes(tare[4:8], "little", signed=True) == 137
+    assert fake.model.rx_errors == 4  # unknown, bad CRC, bad length, incomplete (not argument/busy)
+    assert not fake.model.streaming
+
+
+def test_samples_arrive_at_500_hz_with_mapped_times(rig):
+    fake, port = rig(Tension(2.0), record_write_times=True)
+    lc = LoadCell(port, truth_calibration(fake))
+    time.sleep(1.0)
+    got = lc.samples()
+    assert 480 <= len(got) <= 520
+    assert [s.seq for s in got] == list(range(got[0].seq, got[0].seq + len(got)))
+    dt = [b.t - a.t for a, b in zip(got, got[1:])]
+    assert statistics.median(dt) == pytest.approx(0.002, abs=1e-4)
+    # the mapped time is the fake's conversion time (host clock), to within a millisecond
+    err = [abs(s.t - fake.sample_times[s.seq]) for s in got[100:]]
+    assert statistics.median(err) < 0.5e-3 and max(err) < 2e-3
+    assert all(s.force == pytest.approx(2.0, abs=2e-3) for s in got)  # quantisation 3 mN
+    st = lc.stats()
+    assert st.problems() == 0 and st.samples == len(got)
+    lc.close()
+
+
+def test_two_point_calibration_recovers_the_true_gain(rig):
+    tension = Tension(0.0)
+    fake, port = rig(tension, noise=0.02, seed=4)
+    lc = LoadCell(port, None)
+    m1, m2 = 0.0, 0.5
+    c1 = lc.collect_counts(0.4)
+    tension.value = m2 * STANDARD_GRAVITY
+    time.sleep(0.01)
+    c2 = lc.collect_counts(0.4)
+    sem = lambda c: statistics.stdev(c) / len(c) ** 0.5  # noqa: E731
+    cal = LoadCellCalibration.from_two_points(m1, statistics.fmean(c1), m2, statistics.fmean(c2), sem(c1), sem(c2))
+    assert cal.newtons_per_count == pytest.approx(1 / fake.model.gain, rel=3e-3)
+    assert abs(cal.newtons_per_count - 1 / fake.model.gain) < 4 * cal.newtons_per_count_std + 1e-6
+    lc.calibration = cal
+    tension.value = 3.0
+    time.sleep(0.05)
+    lc.samples()
+    time.sleep(0.3)
+    forces = [s.force for s in lc.samples()]
+    assert statistics.fmean(forces) == pytest.approx(3.0, abs=0.01)
+    assert statistics.stdev(forces) == pytest.approx(0.02, rel=0.25)  # the fake's noise, N rms
+    lc.close()
+
+
+def test_tare_zeroes_the_present_load(rig):
+    tension = Tension(1.0)
+    fake, port = rig(tension)
+    lc = LoadCell(port, truth_calibration(fake))
+    time.sleep(0.05)
+    assert lc.read().force == pytest.approx(1.0, abs=3e-3)
+    lc.tare(conversions=32)
+    time.sleep(0.02)
+    assert lc.read().force == pytest.approx(0.0, abs=3e-3)
+    tension.value = 2.5
+    time.sleep(0.02)
+    assert lc.read().force == pytest.approx(1.5, abs=3e-3)
+    lc.close()
+
+
+def test_unplug_raises_disconnected_within_100_ms(rig):
+    fake, port = rig(Tension(1.0))
+    lc = LoadCell(port, truth_calibration(fake))
+    time.sleep(0.1)
+    lc.read()
+    t0 = time.monotonic()
+    fake.unplug()
+    with pytest.raises(LoadCellDisconnected, match="disconnected") as exc:
+        while True:
+            lc.read()
+            time.sleep(0.0005)
+    elapsed = time.monotonic() - t0
+    print(f"unplug -> LoadCellDisconnected in {elapsed * 1e3:.1f} ms: {exc.value}")
+    assert elapsed < 0.1
+    st = lc.stats()
+    assert st.samples >= 40 and st.lost == 0
+    lc.close()
+
+
+def test_silent_device_is_stale_within_the_timeout(rig):
+    fake, port = rig(Tension(1.0))
+    lc = LoadCell(port, truth_calibration(fake), stale_timeout=0.05)
+    time.sleep(0.05)
+    lc.read()
+    t0 = time.monotonic()
+    fake.inject("skip", 1000)  # the firmware keeps counting but sends nothing
+    with pytest.raises(LoadCellDisconnected, match="stale timeout 50 ms"):
+        while True:
+            lc.read()
+            time.sleep(0.0005)
+    assert 0.045 < time.monotonic() - t0 < 0.1
+    lc.close()
+
+
+def test_injected_faults_are_each_counted(rig):
+    fake, port = rig(Tension(1.0), seed=2)
+    lc = LoadCell(port, truth_calibration(fake))
+    time.sleep(0.05)
+    for kind, n in [("crc", 5), ("truncate", 3), ("garbage", 4), ("skip", 6), ("swap", 2)]:
+        fake.inject(kind, n)
+        time.sleep(0.06)
+    fake.corrupt_probability = 0.05
+    time.sleep(0.4)
+    fake.corrupt_probability = 0.0
+    time.sleep(0.05)
+    st = lc.stats()
+    random_crc = fake.injected["crc"] - 5
+    assert random_crc > 3
+    assert st.crc_errors == fake.injected["crc"]
+    assert st.truncated == 3
+    assert st.resyncs == 4
+    assert st.out_of_order == 2  # each swapped pair delivers its late frame out of order
+    # lost = skipped + corrupt + truncated + the two late frames counted as gaps first
+    assert st.lost == 6 + fake.injected["crc"] + 3 + 2
+    lc.read()  # still healthy
+    lc.close()
+
+
+def test_saturation_is_flagged_and_clipped(rig):
+    tension = Tension(1.0)
+    fake, port = rig(tension, adc_limits=(-1000, 1000))
+    lc = LoadCell(port, truth_calibration(fake))
+    time.sleep(0.05)
+    tension.value = 10.0  # 137 + 3277 counts, past the 1000-count limit
+    time.sleep(0.05)
+    s = lc.read()
+    assert s.raw == 1000
+    assert lc.stats().saturated > 10
+    lc.close()
+
+
+def test_drift_and_noise_are_settable(rig):
+    fake, port = rig(Tension(0.0), seed=5)
+    lc = LoadCell(port, truth_calibration(fake))
+    fake.drift = 10.0  # N/s, since the fake started
+    time.sleep(0.2)
+    f1 = lc.read().force
+    time.sleep(0.2)
+    f2 = lc.read().force
+    assert f2 - f1 == pytest.approx(2.0, abs=0.2)
+    lc.close()
+
+
+def test_micros_wraparound_keeps_sample_times_continuous(rig):
+    fake, port = rig(Tension(0.5), micros_start=2**32 - 200_000)  # wraps 0.2 s in
+    lc = LoadCell(port, truth_calibration(fake))
+    time.sleep(0.5)
+    got = lc.samples()
+    dt = [b.t - a.t for a, b in zip(got, got[1:])]
+    assert len(got) > 200 and max(dt) < 0.01 and min(dt) >= 0
+    assert got[-1].t - got[0].t == pytest.approx((len(got) - 1) * 0.002, abs=0.01)
+    lc.close()
+
+
+def test_hx711_build_refuses_500_hz(rig):
+    fake, port = rig(Tension(0.5), adc=ADC_HX711, max_rate_hz=80)
+    with pytest.raises(Exception, match="allows 80 Hz"):
+        LoadCell(port, truth_calibration(fake), rate_hz=500)
+    lc = LoadCell(port, truth_calibration(fake), rate_hz=80)
+    with pytest.raises(LoadCellCommandError, match="bad argument"):
+        lc.set_rate(81)
+    time.sleep(0.3)
+    assert 20 <= len(lc.samples()) <= 28
+    lc.close()

@@ -39,8 +39,9 @@ class MocapStaleError(RuntimeError):
 class MocapStats:
     """Counters a procedure reports (DESIGN.md: dropped frames are counted, never hidden).
 
-    received: messages accepted per body; late: messages for an already emitted frame
-    (dropped); duplicate: a second message for the same body and stamp (dropped);
+    received: messages accepted per body; late: a body's message arriving after its
+    frame was emitted without it (dropped); duplicate: a second message for the same body
+    and stamp (dropped);
     out_of_order: messages older than that body's newest but still merged in time;
     overflow: frames discarded because nobody read `frames()` for `max_buffer` frames;
     frames: frames emitted; incomplete: frames with at least one body None;
@@ -102,6 +103,8 @@ class RosMocapTracker:
         self._pending: dict[int, dict[str, Pose]] = {}
         self._newest_stamp: dict[str, int] = {b: -1 for b in self.bodies}
         self._last_emitted = -1
+        self._emitted_bodies: dict[int, frozenset[str]] = {}  # recent frames, for duplicates
+        self._emitted_order: deque[int] = deque()
         self._buffer: deque[TrackerFrame] = deque()
         self._max_buffer = int(max_buffer)
         self._latest: TrackerFrame | None = None
@@ -138,7 +141,12 @@ class RosMocapTracker:
             self._last_rx[body] = self._clock()
             self._ever_rx[body] = True
             if stamp <= self._last_emitted:
-                self.stats.late += 1
+                # a repeat of a message already in an emitted frame is a duplicate; a body
+                # arriving after its frame left is late. Both are dropped.
+                if body in self._emitted_bodies.get(stamp, ()):
+                    self.stats.duplicate += 1
+                else:
+                    self.stats.late += 1
                 return
             slot = self._pending.setdefault(stamp, {})
             if body in slot:
@@ -183,6 +191,10 @@ class RosMocapTracker:
             self._buffer.append(frame)
             self._latest = frame
             self._last_emitted = stamp
+            self._emitted_bodies[stamp] = frozenset(slot)
+            self._emitted_order.append(stamp)
+            if len(self._emitted_order) > 1000:
+                del self._emitted_bodies[self._emitted_order.popleft()]
             self.stats.frames += 1
             emitted = True
         return emitted

@@ -32,8 +32,11 @@ class ReferenceArm:
     (sample-major) multiply the standard parameters of ``param_layout``.
     """
 
-    body_names = ("link1", "link2", "link3", "tool", "counterweight1", "counterweight2",
-                  "parallel_link", "parallel_top")
+    # In tree order. Joints are added depth first: Pinocchio's CRBA assumes each joint's
+    # subtree occupies a contiguous range of velocity indices (RNEA and the regressor do not),
+    # and silently returns a wrong M(q) otherwise.
+    body_names = ("link1", "link2", "link3", "tool", "parallel_link", "parallel_top",
+                  "counterweight1", "counterweight2")
     joint_names = ("joint1", "joint2", "joint3")
 
     def __init__(self, seed: int = 0, sign_steepness: float = DEFAULT_SIGN_STEEPNESS,
@@ -47,10 +50,10 @@ class ReferenceArm:
             [0.0, 1.0, 0.0],    # pitch
             [0.0, 0.0, 1.0],    # insertion
             [0.0, 0.0, 0.0],    # tool, rigidly fixed to the insertion stage
-            [0.0, -1.0, 0.0],   # counterweight arm turns against the pitch
-            [0.0, 0.0, -0.5],   # counterweight slides back at half the insertion
             [0.0, -1.0, 0.0],   # parallelogram link keeps its orientation
             [0.0, 1.0, 0.0],    # top link of the parallelogram
+            [0.0, -1.0, 0.0],   # counterweight arm turns against the pitch
+            [0.0, 0.0, -0.5],   # counterweight slides back at half the insertion
         ])
         self.param_layout = ParamLayout(len(self.body_names), 3, self.body_names, self.joint_names)
         self.q_min, self.q_max, self.dq_max = Q_MIN.copy(), Q_MAX.copy(), DQ_MAX.copy()
@@ -66,10 +69,10 @@ class ReferenceArm:
         j2 = m.addJoint(j1, pin.JointModelRY(), T(0, 0, 0.15), "pitch")
         j3 = m.addJoint(j2, pin.JointModelPX(), T(0.30, 0, 0), "insertion")
         m.addJoint(j3, pin.JointModelRZ(), T(0.10, 0, 0), "tool_fixed")
-        j5 = m.addJoint(j1, pin.JointModelRY(), T(0, 0, 0.15), "cw_arm")
-        m.addJoint(j5, pin.JointModelPX(), T(-0.10, 0, 0), "cw_slide")
-        j7 = m.addJoint(j2, pin.JointModelRY(), T(0.10, 0, 0), "parallel")
-        m.addJoint(j7, pin.JointModelRY(), T(0, 0, 0.12), "parallel_top")
+        j5 = m.addJoint(j2, pin.JointModelRY(), T(0.10, 0, 0), "parallel")
+        m.addJoint(j5, pin.JointModelRY(), T(0, 0, 0.12), "parallel_top")
+        j7 = m.addJoint(j1, pin.JointModelRY(), T(0, 0, 0.15), "cw_arm")
+        m.addJoint(j7, pin.JointModelPX(), T(-0.10, 0, 0), "cw_slide")
         # Placeholder inertias: every computation here takes parameters explicitly.
         for j in range(1, m.njoints):
             m.appendBodyToJoint(j, pin.Inertia(1.0, np.zeros(3), np.eye(3) * 1e-2), pin.SE3.Identity())

@@ -50,10 +50,12 @@ def lowpass(x: np.ndarray, rate: float, cutoff: float = DEFAULT_CUTOFF_HZ,
     sos = design_lowpass(rate, cutoff, order)
     x = np.asarray(x, dtype=float)
     n = x.shape[axis]
-    need = _padlen(sos) + 1
+    # Shorter than the filter's impulse response, the output would be edge transient only.
+    need = max(_padlen(sos) + 1, settling_samples(rate, cutoff, order))
     if n < need:
-        raise SignalError(f"signal of {n} samples is too short for an order-{order} zero-phase "
-                          f"filter: it needs at least {need} samples")
+        raise SignalError(f"signal of {n} samples is too short for an order-{order} {cutoff} Hz "
+                          f"zero-phase filter at {rate} Hz: it needs at least {need} samples "
+                          f"({need / rate:.2f} s)")
     return scipy.signal.sosfiltfilt(sos, x, axis=axis)
 
 

@@ -28,6 +28,12 @@ def exciting_trajectory(arm, seed=0, duration=30.0, rate=200.0, fill=0.8, freque
 
 
 @pytest.fixture(scope="session")
+def make_trajectory():
+    """The trajectory helper (tests import nothing by module name under --import-mode=importlib)."""
+    return exciting_trajectory
+
+
+@pytest.fixture(scope="session")
 def arm():
     return ReferenceArm(seed=0)
 

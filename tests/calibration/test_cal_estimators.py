@@ -9,8 +9,6 @@ from calibration.estimators import (Identification, check_physical, normalised_c
 from calibration.layout import pseudo_inertia
 from calibration.reference_arm import ReferenceArm
 
-from conftest import exciting_trajectory
-
 
 def identification(arm, base, q, dq, ddq, W, tau, **kw):
     return Identification(base.regressor(W), tau, base, arm.param_layout, nominal=arm.nominal_params(),
@@ -18,7 +16,7 @@ def identification(arm, base, q, dq, ddq, W, tau, **kw):
 
 
 @pytest.mark.parametrize("method", ["ols", "wls", "sdp"])
-def test_noiseless_recovery(arm, base, trajectory, method):
+def test_noiseless_recovery(arm, base, trajectory, method, make_trajectory):
     t, q, dq, ddq, W = trajectory
     tau = (W @ arm.true_params()).reshape(-1, 3)
     fit = getattr(identification(arm, base, q, dq, ddq, W, tau), method)()
@@ -30,7 +28,7 @@ def test_noiseless_recovery(arm, base, trajectory, method):
     assert np.linalg.norm(fit.beta - beta_true) < 1e-4 * np.linalg.norm(beta_true)
     assert fit.checks["all_pass"], fit.checks
     # On fresh samples of another trajectory, too: the model generalises.
-    _, q2, dq2, ddq2 = exciting_trajectory(arm, seed=5, duration=10.0, rate=50.0)
+    _, q2, dq2, ddq2 = make_trajectory(arm, seed=5, duration=10.0, rate=50.0)
     W2 = arm.regressor_batch(q2, dq2, ddq2)
     tau2 = (W2 @ arm.true_params()).reshape(-1, 3)
     err = validation_errors(tau2, fit.predict(base.regressor(W2), 3))
@@ -58,12 +56,12 @@ def test_noisy_recovery_within_expected_error(arm, base, trajectory):
     assert ident.wls().weights == pytest.approx(1 / (ident.ols().residual_norm / np.sqrt(tau.size)), rel=0.1)
 
 
-def test_sdp_feasible_where_ols_is_not():
+def test_sdp_feasible_where_ols_is_not(make_trajectory):
     """Few samples, large noise and bodies on the boundary of physical consistency (point
     masses): OLS gives torques no physical arm produces; the SDP does not."""
     arm = ReferenceArm(seed=0, point_mass_bodies=("link3", "tool", "counterweight2"))
     base = base_parameters_of(arm.regressor_batch, arm.param_layout, arm.q_min, arm.q_max, arm.dq_max)
-    t, q, dq, ddq = exciting_trajectory(arm, seed=3, duration=2.0, rate=200.0)
+    t, q, dq, ddq = make_trajectory(arm, seed=3, duration=2.0, rate=200.0)
     W = arm.regressor_batch(q, dq, ddq)
     tau = (W @ arm.true_params()).reshape(-1, 3)
     tau = tau + 0.05 * np.abs(tau).max(0) * np.random.default_rng(3).normal(size=tau.shape)
@@ -138,9 +136,9 @@ def test_rank_deficient_trajectory_is_named(arm, base, trajectory):
         identification(arm, base, q, dq, ddq, W, tau)
 
 
-def test_nearly_dependent_trajectory_is_named(arm, base):
+def test_nearly_dependent_trajectory_is_named(arm, base, make_trajectory):
     # Tiny motion about one pose: the regressor is numerically rank deficient.
-    t, q, dq, ddq = exciting_trajectory(arm, seed=2, duration=5.0, rate=50.0, fill=1e-6)
+    t, q, dq, ddq = make_trajectory(arm, seed=2, duration=5.0, rate=50.0, fill=1e-6)
     W = arm.regressor_batch(q, dq, ddq)
     tau = (W @ arm.true_params()).reshape(-1, 3)
     with pytest.raises(RankDeficientError, match="condition number"):

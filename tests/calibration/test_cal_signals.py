@@ -1,0 +1,81 @@
+"""Zero-phase filtering, differentiation, trimming, and their errors."""
+
+import numpy as np
+import pytest
+
+from calibration.signals import (SignalError, design_lowpass, differentiate, lowpass, process,
+                                 settling_samples)
+
+RATE = 200.0
+
+
+def sine(f, n=6000, phase=0.3):
+    t = np.arange(n) / RATE
+    w = 2 * np.pi * f
+    return t, np.sin(w * t + phase), w * np.cos(w * t + phase), -w * w * np.sin(w * t + phase)
+
+
+def test_zero_phase_no_delay():
+    t, x, _, _ = sine(0.5)
+    y = lowpass(x, RATE)
+    k = settling_samples(RATE)
+    # Delay from the phase of the fitted sinusoid: zero-phase means < 1 microsecond.
+    w = 2 * np.pi * 0.5
+    A = np.column_stack([np.sin(w * t), np.cos(w * t)])[k:-k]
+    cx = np.linalg.lstsq(A, x[k:-k], rcond=None)[0]
+    cy = np.linalg.lstsq(A, y[k:-k], rcond=None)[0]
+    delay = (np.arctan2(cx[1], cx[0]) - np.arctan2(cy[1], cy[0])) / w
+    assert abs(delay) < 1e-6
+    # A one-pass filter of the same order would lag by tens of milliseconds.
+    import scipy.signal
+    y1 = scipy.signal.sosfilt(design_lowpass(RATE), x)
+    c1 = np.linalg.lstsq(A, y1[k:-k], rcond=None)[0]
+    assert (np.arctan2(cx[1], cx[0]) - np.arctan2(c1[1], c1[0])) / w > 0.05
+
+
+def test_passband_and_stopband():
+    _, x, _, _ = sine(0.5)
+    _, noise, _, _ = sine(20.0)
+    k = settling_samples(RATE)
+    y = lowpass(x + 0.5 * noise, RATE)
+    assert np.abs(y - x)[k:-k].max() < 2e-3
+
+
+@pytest.mark.parametrize("method", ["central", "savgol"])
+def test_derivative_of_sine(method):
+    _, x, dx, _ = sine(0.65)
+    d = differentiate(x, RATE, method)
+    assert np.abs(d - dx)[10:-10].max() < 1e-3 * np.abs(dx).max()
+
+
+def test_process_gives_accelerations_and_trims():
+    t, q, dq, ddq = sine(0.4)
+    tau = 2.0 * ddq + 0.5
+    noisy = dq + 0.05 * np.random.default_rng(0).normal(size=dq.shape)
+    p = process(q[:, None], noisy[:, None], tau[:, None], RATE)
+    k = settling_samples(RATE)
+    assert p.kept == slice(k, 6000 - k)
+    assert p.q.shape == (6000 - 2 * k, 1)
+    ref = ddq[p.kept]
+    assert np.sqrt(np.mean((p.ddq[:, 0] - ref) ** 2)) < 0.02 * np.abs(ref).max()
+    np.testing.assert_allclose(p.tau[:, 0], tau[p.kept], atol=1e-3 * np.abs(tau).max())
+
+
+def test_errors():
+    with pytest.raises(SignalError, match="Nyquist"):
+        lowpass(np.zeros(1000), RATE, cutoff=150.0)
+    with pytest.raises(SignalError, match="too short.*order-8"):
+        lowpass(np.zeros(200), RATE)
+    with pytest.raises(SignalError, match="rate"):
+        design_lowpass(0.0)
+    with pytest.raises(SignalError, match="order"):
+        design_lowpass(RATE, order=0)
+    with pytest.raises(SignalError, match="method"):
+        differentiate(np.zeros(10), RATE, "spline")
+    with pytest.raises(SignalError, match="trim"):
+        process(np.zeros((100, 1)), np.zeros((100, 1)), np.zeros((100, 1)), RATE, trim=60)
+
+
+def test_settling_grows_with_order_and_rate():
+    assert settling_samples(RATE, order=4) < settling_samples(RATE, order=8)
+    assert settling_samples(1000.0) > settling_samples(RATE)

@@ -9,7 +9,8 @@ per channel). Foxglove and `ros2 bag` open the file; `mcap_ros2` decodes it.
 Timing: every write method takes `t`, the sample time in seconds on the run clock; it
 becomes the header stamp and the MCAP log_time and publish_time in integer ns.
 
-Threading: the calling thread only encodes a sample (a snapshot of its values, so the
+Threading: the sample methods may be called from any thread (a driver's reader thread
+records its own stream); the calling thread only encodes a sample (a snapshot of its values, so the
 caller may reuse its arrays) and appends it to a queue. A writer thread owns the MCAP
 writer: chunking and zstd compression never stall a 1 kHz control loop, and a Ctrl-C or
 SIGTERM raised in the main thread can never interrupt the MCAP writer half way through a
@@ -138,8 +139,8 @@ _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none"
 class Recorder:
     """Writes one run's `run.mcap`.
 
-    Use `start(...)` once, then the sample methods from one thread (the procedure's), then
-    `close(status, error)`; `close` drains the queue, writes `run_stop` and finishes the
+    Use `start(...)` once, then the sample methods (from any thread), then
+    `close(status, error)` from the thread that owns the run; `close` drains the queue, writes `run_stop` and finishes the
     file (summary, indexes, footer) so any MCAP reader can seek in it.
 
     Args:

@@ -302,6 +302,18 @@ class Run:
 
         self._old_handlers[signal.SIGTERM] = signal.signal(signal.SIGTERM, on_sigterm)
 
+        # Ctrl-C stays a KeyboardInterrupt, but one that checks the flag, so a second
+        # Ctrl-C at the very start of the safe stop is deferred too. A handler someone
+        # else installed (or SIG_IGN) is left alone.
+        def on_sigint(signum, frame):
+            if self._finalising:
+                self._note_deferred("SIGINT")
+                return
+            raise KeyboardInterrupt
+
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            self._old_handlers[signal.SIGINT] = signal.signal(signal.SIGINT, on_sigint)
+
     def _defer_signals(self) -> None:
         if threading.current_thread() is not threading.main_thread():
             return

@@ -266,3 +266,18 @@ def test_recording_the_device_dataclasses(tmp_path):
     o = msgs["/mocap/base/pose"][0][1].pose.orientation
     assert (o.x, o.y) == (0.0, 0.0) and o.z == pytest.approx(math.sqrt(0.5)) and o.w == pytest.approx(math.sqrt(0.5))
     assert msgs["/loadcell/force"][0][1].wrench.force.x == 3.5
+
+
+def test_a_process_that_exits_without_close_still_leaves_a_finished_file(tmp_path):
+    import subprocess
+
+    path = tmp_path / "run.mcap"
+    script = ("import sys; from rig.records import Recorder\n"
+              f"r = Recorder({str(path)!r}); r.start('unit')\n"
+              "for i in range(300): r.scalar('/x', i * 1e-3, float(i))\n"
+              "sys.exit(0)\n")
+    subprocess.run([sys.executable, "-c", script], check=True, timeout=20)
+    rec = read_recording(path)
+    assert rec.finalised and rec.counts() == {"/x": 300}
+    assert rec.stop["status"] == "failed"
+    assert rec.stop["error"] == "process exited without closing the recording"

@@ -79,7 +79,7 @@ class PIDGains:
 
     kp: np.ndarray = field(default_factory=lambda: np.array([200.0, 200.0, 600.0]))
     kd: np.ndarray = field(default_factory=lambda: np.array([8.0, 8.0, 25.0]))
-    ki: np.ndarray = field(default_factory=lambda: np.array([20.0, 20.0, 60.0]))
+    ki: np.ndarray = field(default_factory=lambda: np.array([300.0, 300.0, 900.0]))
     integral_limit: np.ndarray = field(default_factory=lambda: np.array([2.0, 2.0, 6.0]))  # N m, N
 
 
@@ -235,6 +235,10 @@ class SimWorld:
         # With backlash half of the rotor inertia sits on the motor side of the play.
         self.Im = np.where(self.backlash > 0, 0.5 * self.Ia, 1.0)
         self.Ij = np.where(self.backlash > 0, 0.5 * self.Ia, self.Ia)
+        # Transmission stiffness outside the play (N m/rad, N/m) and its damping: stiff, yet
+        # sqrt(k / Im) h < 1 at 1 kHz so the explicit step stays stable.
+        self.backlash_k = np.tile([1.0e4, 1.0e4, 5.0e4], len(arms))
+        self.backlash_c = np.tile([20.0, 20.0, 100.0], len(arms))
         self.kp = np.concatenate([a.spec.pid.kp for a in arms])
         self.kd = np.concatenate([a.spec.pid.kd for a in arms])
         self.ki = np.concatenate([a.spec.pid.ki for a in arms])

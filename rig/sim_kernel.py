@@ -45,7 +45,7 @@ def tip_and_jacobian(q, base, r_offset):
 # Rows of the constants array passed to `step` (one column per joint of the rig).
 CONSTANT_ROWS = ("Ij", "Im", "Fc", "Fs", "vs", "asym", "posfric", "period", "Fv", "Fo", "offset",
                  "kspring", "qspring", "visc2", "dahl_level", "dahl_sigma", "backlash", "kp", "kd",
-                 "ki", "ilim", "effort_limit", "quantum")
+                 "ki", "ilim", "effort_limit", "quantum", "backlash_k", "backlash_c")
 # Rows of the state array (updated in place).
 STATE_ROWS = ("q", "dq", "qm", "dqm", "dahl", "q_des", "dq_des", "integral", "tau_cmd", "tau_applied")
 
@@ -57,9 +57,10 @@ def step(h, Mt, nle, G, state, c, modes, edges, rest, obj, bases, r_offset, tens
     q, dq, qm, dqm, dahl = state[0], state[1], state[2], state[3], state[4]
     q_des, dq_des, integral, tau_cmd, tau_applied = state[5], state[6], state[7], state[8], state[9]
     (Ij, Im, Fc, Fs, vs, asym, posfric, period, Fv, Fo, offset, kspring, qspring, visc2,
-     dahl_level, dahl_sigma, backlash, kp, kd, ki, ilim, effort_limit, quantum) = (
+     dahl_level, dahl_sigma, backlash, kp, kd, ki, ilim, effort_limit, quantum,
+     backlash_k, backlash_c) = (
         c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12], c[13],
-        c[14], c[15], c[16], c[17], c[18], c[19], c[20], c[21], c[22])
+        c[14], c[15], c[16], c[17], c[18], c[19], c[20], c[21], c[22], c[23], c[24])
     stiffness, damping, string = obj[0], obj[1], obj[2] > 0.5
     n3 = q.shape[0]
     n_arms = n3 // 3
@@ -129,9 +130,9 @@ def step(h, Mt, nle, G, state, c, modes, edges, rest, obj, bases, r_offset, tens
                 stretch = d - gap
             elif d < -gap:
                 stretch = d + gap
-            c = 2000.0 * stretch
+            c = backlash_k[j] * stretch
             if stretch != 0.0:
-                c += 20.0 * (dqm[j] - dq[j])
+                c += backlash_c[j] * (dqm[j] - dq[j])
             coupling[j] = c
             drive = c
         rhs[j] = drive + ext[j] - bias[j] - smooth

@@ -1,0 +1,172 @@
+import numpy as np
+import pytest
+
+from rig import config
+from rig.psm_dynamics import PSMDynamics, PSMParameters, DriveParameters
+from rig.sim import ArmSpec, HiddenEffects, ObjectSpec, SensorNoise, SimWorld, world_from_config
+
+
+def _world(**kw):
+    return world_from_config(config.load(), **kw)
+
+
+def test_same_seed_same_run_different_seed_different_noise():
+    a, b, c = _world(seed=7), _world(seed=7), _world(seed=8)
+    for w in (a, b, c):
+        w.servo_jp("PSM1", np.array([0.05, -0.05, 0.13]))
+        w.advance(0.3)
+    ma, mb, mc = a.measured_js("PSM1"), b.measured_js("PSM1"), c.measured_js("PSM1")
+    assert all(np.array_equal(x, y) for x, y in zip(ma, mb))
+    assert not np.array_equal(ma[1], mc[1])
+
+
+def test_pid_step_settles():
+    w = _world(with_object=False)
+    w.advance(0.5)
+    target = np.array([0.05, 0.05, 0.13])
+    w.servo_jp("PSM1", target)
+    err = []
+    for _ in range(2000):
+        w.step()
+        err.append(np.abs(w.true_state("PSM1")[0] - target))
+    err = np.array(err)
+    assert np.all(err[-1] < [2e-3, 2e-3, 5e-4])
+    # settled (within 10% of the step) after 1 s and stays there
+    assert np.all(err[1000:] < 0.1 * np.array([0.05, 0.05, 0.01]))
+
+
+def test_frictionless_unforced_plant_conserves_energy():
+    params = PSMParameters(drive=DriveParameters(Fc=np.zeros(3), Fv=np.zeros(3), Fo=np.zeros(3)))
+    spec = ArmSpec("A", params=params, noise=SensorNoise.off(), q0=np.array([0.3, 0.2, 0.12]))
+    w = SimWorld([spec], dt=1e-4)
+    w.power_off("A")
+    w.set_state("A", np.array([0.3, 0.2, 0.12]), np.array([0.4, -0.3, 0.02]))
+    dyn = PSMDynamics(params)
+    e0 = dyn.energy(*w.true_state("A"))
+    energies = []
+    for _ in range(10):
+        w.advance(0.1)
+        energies.append(dyn.energy(*w.true_state("A")))
+    drift = np.max(np.abs(np.array(energies) - e0))
+    # symplectic Euler: bounded O(h) energy error, no secular drift
+    assert drift < 2e-3 * max(1.0, abs(e0))
+    assert np.ptp(w.true_state("A")[0]) > 0  # it did move
+
+
+def test_effort_command_accelerates_as_the_model_says():
+    spec = ArmSpec("A", noise=SensorNoise.off(), q0=np.array([0.0, 0.0, 0.12]))
+    w = SimWorld([spec], dt=1e-4)
+    dyn = PSMDynamics()
+    q = np.array([0.0, 0.0, 0.12])
+    tau = dyn.gravity_torque(q) + dyn.Fo + np.array([0.5, 0.0, 0.0]) + dyn.Fc * np.array([1, 0, 0])
+    w.servo_jf("A", tau)
+    w.advance(0.02)
+    q1, dq1 = w.true_state("A")
+    expected = dyn.forward_dynamics(q, np.array([1e-3, 0, 0]), tau)[0]
+    assert dq1[0] / 0.02 == pytest.approx(expected, rel=0.15)
+    assert dq1[0] > 0
+
+
+def test_stiction_holds_below_breakaway_and_slips_above():
+    effects = HiddenEffects(stiction=np.array([0.0, 0.0, 1.0]))
+    spec = ArmSpec("A", effects=effects, noise=SensorNoise.off(), q0=np.array([0.0, 0.0, 0.12]))
+    w = SimWorld([spec])
+    dyn = PSMDynamics()
+    g = dyn.gravity_torque(np.array([0.0, 0.0, 0.12]))
+    hold = g + dyn.Fo
+    w.advance(0.2)
+    w.servo_jp("A", np.array([0.0, 0.0, 0.12]))
+    w.advance(0.5)
+    q0 = w.true_state("A")[0].copy()
+    w.servo_jf("A", hold + np.array([0, 0, 0.9]))   # below Fs = 1 N
+    w.advance(0.5)
+    assert abs(w.true_state("A")[0][2] - q0[2]) < 1e-6
+    w.servo_jf("A", hold + np.array([0, 0, 1.2]))   # above it: slips
+    w.advance(0.2)
+    assert w.true_state("A")[0][2] - q0[2] > 1e-3
+
+
+def test_spring_object_tension_is_stiffness_times_stretch():
+    w = _world()
+    p1, p2 = w.tip_world("PSM1"), w.tip_world("PSM2")
+    assert np.linalg.norm(p2 - p1) == pytest.approx(0.10, abs=1e-9)
+    # pull PSM2's tip 5 mm away along the object and hold both
+    q2 = w.true_state("PSM2")[0]
+    q2[2] += 0.0  # insertion unchanged
+    w.servo_jp("PSM2", q2 + np.array([0.05, 0, 0]))
+    w.advance(1.0)
+    length = np.linalg.norm(w.tip_world("PSM2") - w.tip_world("PSM1"))
+    assert w.tension() == pytest.approx(2450.0 * (length - 0.10), abs=0.05)
+
+
+def test_string_goes_slack_and_pulls_only():
+    cfg = config.parse({"object": {"kind": "string", "stiffness": 20000.0, "rest_length": 0.12}}, "t")
+    w = world_from_config(cfg)
+    w.advance(0.1)
+    assert w.tension() == 0.0
+    cfg = config.parse({"object": {"kind": "string", "stiffness": 20000.0, "rest_length": 0.095}}, "t")
+    w = world_from_config(cfg)
+    w.advance(0.5)
+    assert w.tension() > 1.0
+
+
+def test_three_arms_hold_a_triangle_of_elements():
+    doc = {"arms": {"PSM1": {}, "PSM2": {"base_xyz": [1.0728, 0, 0], "base_rpy": [0, 0, np.pi]},
+                    "PSM3": {"base_xyz": [0.5364, 0.5730, 0], "base_rpy": [0, 0, -np.pi / 2]}},
+           "object": {"arms": ["PSM1", "PSM2", "PSM3"], "rest_length": 0.098}}
+    w = world_from_config(config.parse(doc, "t"))
+    assert w.object_elements == [("PSM1", "PSM2"), ("PSM1", "PSM3"), ("PSM2", "PSM3")]
+    lengths = [np.linalg.norm(w.tip_world(b) - w.tip_world(a)) for a, b in w.object_elements]
+    assert np.allclose(lengths, 0.10, atol=2e-4)  # an equilateral triangle of tips
+    w.advance(1.0)
+    assert all(2.0 < w.tension(i) < 6.0 for i in range(3))
+
+
+def test_backlash_separates_encoder_from_joint():
+    effects = HiddenEffects(backlash=np.array([0.0, 0.0, 0.002]))
+    spec = ArmSpec("A", effects=effects, noise=SensorNoise.off())
+    w = SimWorld([spec])
+    w.advance(0.3)
+    for target in (0.14, 0.12):
+        w.servo_jp("A", np.array([0.0, 0.0, target]))
+        w.advance(0.6)
+    # after reversing, the encoder (motor side) and the joint differ by up to half the play
+    diff = w.qm[2] - w.q[2]
+    assert 2e-4 < abs(diff) <= 0.0011
+
+
+def test_effort_delay_shifts_the_measured_effort():
+    effects = HiddenEffects(time_delay=0.02)
+    w = SimWorld([ArmSpec("A", effects=effects, noise=SensorNoise.off())])
+    w.servo_jf("A", np.array([0.0, 0.0, 0.0]))
+    w.advance(0.05)
+    w.servo_jf("A", np.array([0.3, 0.0, 0.0]))
+    w.advance(0.01)
+    assert w.measured_js("A")[2][0] == 0.0
+    w.advance(0.011)
+    assert w.measured_js("A")[2][0] == pytest.approx(0.3)
+
+
+def test_payload_changes_the_true_plant():
+    heavy = SimWorld([ArmSpec("A", effects=HiddenEffects(payload_mass=0.3), noise=SensorNoise.off())])
+    light = SimWorld([ArmSpec("A", noise=SensorNoise.off())])
+    for w in (heavy, light):
+        w.servo_jp("A", np.array([0.0, 0.0, 0.12]))
+        w.advance(1.0)
+    # holding the insertion against gravity takes about m g more effort
+    extra = heavy.setpoint_js("A")[2][2] - light.setpoint_js("A")[2][2]
+    assert extra == pytest.approx(-0.3 * 9.81, rel=0.05)
+
+
+def test_measurement_noise_and_quantisation():
+    w = SimWorld([ArmSpec("A")], seed=2)
+    w.advance(0.5)
+    v = np.array([w.measured_js("A")[1] for _ in range(2000)])
+    assert v.std(axis=0) == pytest.approx(SensorNoise().velocity_noise, rel=0.1)
+    q = w.measured_js("A")[0]
+    assert np.allclose(q / SensorNoise().position_quantum, np.round(q / SensorNoise().position_quantum))
+
+
+def test_object_needs_known_arms():
+    with pytest.raises(ValueError, match="PSM9"):
+        SimWorld([ArmSpec("PSM1"), ArmSpec("PSM2")], ObjectSpec(arms=("PSM1", "PSM9")))

@@ -239,7 +239,9 @@ class ExcitationDesigner:
     def _fit_full(self, traj: FourierTrajectory):
         """Scale the motion about the mean position until every full-rate sample is in limits."""
         Q, DQ, DDQ = traj.sample(self.t_full)
-        qc = Q.mean(axis=0)
+        # Scale about the mean position, or the nearest point of the range if the mean is
+        # outside it (only then can some scale bring every sample inside).
+        qc = np.clip(Q.mean(axis=0), self.q_min, self.q_max)
         scale = 1.0
         for j in range(self.nj):
             dev = Q[:, j] - qc[j]

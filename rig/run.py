@@ -35,7 +35,7 @@ import sys
 import threading
 import time
 from contextlib import contextmanager
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any, Callable, Iterator, TextIO
 
@@ -157,7 +157,7 @@ class Run:
                 candidate.mkdir()
                 break
             except FileExistsError:
-                self.utc_start = self.utc_start.replace(microsecond=(self.utc_start.microsecond + 1) % 1_000_000)
+                self.utc_start += timedelta(microseconds=1)
         self.dir = candidate
         self.recorder = Recorder(self.dir / "run.mcap", **self.recorder_options)
         describe = getattr(self.parameters, "describe", None)

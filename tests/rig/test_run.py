@@ -246,3 +246,23 @@ def test_an_abort_is_one_clear_line_and_a_non_zero_exit(logs):
     assert result.stdout == ""
     assert result.stderr.startswith("rig demo: aborted: joint 2 velocity 1.9 rad/s above limit 1.5 rad/s (run folder ")
     assert result.stderr.count("\n") == 1
+
+
+def test_runs_started_in_the_same_microsecond_get_their_own_folders(logs, monkeypatch):
+    import rig.run as engine
+    from datetime import datetime, timezone
+
+    frozen = datetime(2026, 11, 21, 5, 2, 3, 999999, tzinfo=timezone.utc)
+
+    class Frozen(datetime):
+        @classmethod
+        def now(cls, tz=None):
+            return frozen
+
+    monkeypatch.setattr(engine, "datetime", Frozen)
+    with Run("selftest", progress=False) as first:
+        pass
+    with Run("selftest", progress=False) as second:
+        pass
+    assert first.dir.name == "20261121T050203999999Z-selftest"
+    assert second.dir.name == "20261121T050204000000Z-selftest"

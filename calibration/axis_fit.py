@@ -29,6 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.ndimage import median_filter
 from scipy.spatial.transform import Rotation
 
 from calibration.fit_error import FitError
@@ -110,7 +111,8 @@ def _swept_range(X: np.ndarray, vis: np.ndarray, n: np.ndarray, centre: np.ndarr
         R, _, ok = rigid_body_poses(X[full])
         rel = np.einsum("kij,lj->kil", R, R[0])  # R_k R_0^T: rotation since the first frame
         theta = Rotation.from_matrix(rel).as_rotvec() @ n
-        theta = np.unwrap(theta)
+        # a 5-frame running median keeps single noisy frames from widening max - min
+        theta = median_filter(np.unwrap(theta), size=min(5, len(theta)), mode="nearest")
         return float(theta.max() - theta.min())
     ranges = []
     for p in range(X.shape[1]):
@@ -118,7 +120,8 @@ def _swept_range(X: np.ndarray, vis: np.ndarray, n: np.ndarray, centre: np.ndarr
         if len(v) < 2:
             continue
         xy = v @ U
-        ang = np.unwrap(np.arctan2(xy[:, 1], xy[:, 0]))
+        ang = median_filter(np.unwrap(np.arctan2(xy[:, 1], xy[:, 0])), size=min(5, len(xy)),
+                            mode="nearest")
         ranges.append(ang.max() - ang.min())
     return float(np.median(ranges)) if ranges else 0.0
 

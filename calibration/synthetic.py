@@ -69,18 +69,23 @@ def hinge_scene(rng: np.random.Generator, *, angle_range: tuple[float, float] = 
                 n_frames: int = 300, n_markers: int = 3, noise: float = 0.25e-3,
                 marker_radius: tuple[float, float] = (0.05, 0.12),
                 axial_spread: float = 0.06, azimuth_spread: float = 1.0,
-                ref_distance: float = 0.15) -> HingeScene:
+                ref_distance: float = 0.15, direction: np.ndarray | None = None,
+                point: np.ndarray | None = None) -> HingeScene:
     """Markers of a body swept over `angle_range` (rad, linearly over n_frames) about a
     random axis, and a static reference body ~ref_distance m away; isotropic Gaussian
     marker noise `noise` (m) on every marker in every frame. The moving markers sit on
-    one side of the axis within `azimuth_spread` rad, like a marker body on a link."""
+    one side of the axis within `azimuth_spread` rad, like a marker body on a link.
+    direction, point: the axis in the reference body frame (random when None)."""
     R_ref = random_rotation(rng)
     p_ref = rng.uniform(-0.5, 0.5, 3)
     ref_template = marker_template(rng, 3, 0.04)
-    direction = rng.normal(size=3)
-    direction /= np.linalg.norm(direction)
-    point = rng.normal(size=3) * ref_distance / np.sqrt(3)  # in the reference body frame
-    point -= (point @ direction) * direction
+    rand_dir = rng.normal(size=3)
+    rand_point = rng.normal(size=3) * ref_distance / np.sqrt(3)  # in the reference body frame
+    direction = rand_dir if direction is None else np.asarray(direction, float)
+    direction = direction / np.linalg.norm(direction)
+    if point is None:
+        point = rand_point - (rand_point @ direction) * direction
+    point = np.asarray(point, float)
     # moving markers at radii and axial positions around the axis
     e1 = np.cross(direction, [1.0, 0.0, 0.0])
     if np.linalg.norm(e1) < 0.1:

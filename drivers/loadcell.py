@@ -823,7 +823,10 @@ class _StreamingLoadCell:
             if start:
                 self.start()
         except BaseException:
+            # the reader must be gone before the caller retries on the same port,
+            # or two threads would split the replies between them
             self._stop.set()
+            self._thread.join(timeout=1.0)
             raise
 
 

@@ -194,13 +194,17 @@ def base_parameters_of(regressor_batch: Callable, layout, q_min, q_max, dq_max, 
                        n_samples: int | None = None, seed: int = 0, tol: float = 1e-9) -> BaseParameters:
     """Base parameters of a model from its ``regressor_batch(Q, DQ, DDQ) -> (N*nj, P)``.
 
+    ``layout`` is a :class:`ParamLayout` or the model itself (its names are then used).
+
     Samples are random within the limits; ``n_samples`` defaults to enough rows to be
     over-determined several times (max(200, 2 P / nj)).
     """
+    # A model that names its own parameters (``param_names()``) keeps its names.
+    names = list(layout.param_names()) if hasattr(layout, "param_names") else None
     layout = ParamLayout.of(layout)
     nj = layout.n_joints
     if n_samples is None:
         n_samples = max(200, int(np.ceil(2 * layout.n_params / nj)))
     Q, DQ, DDQ = random_samples(n_samples, q_min, q_max, dq_max, ddq_max, seed)
     W = regressor_batch(Q, DQ, DDQ)
-    return compute_base_parameters(W, layout=layout, tol=tol)
+    return compute_base_parameters(W, names=names, layout=layout, tol=tol)

@@ -204,8 +204,9 @@ class Identification:
         W = model.regressor_batch(data.q, data.dq, data.ddq)
         rng = np.random.default_rng(seed)
         idx = rng.choice(data.n_samples, size=min(n_check, data.n_samples), replace=False)
-        nominal = model.nominal_params() if nominal is None and hasattr(model, "nominal_params") else nominal
-        return cls(base.regressor(W), data.tau, base, model.param_layout, nominal=nominal,
+        if nominal is None:
+            nominal = model_nominal(model)
+        return cls(base.regressor(W), data.tau, base, ParamLayout.of(model), nominal=nominal,
                    regressor=model.regressor, q_check=data.q[np.sort(idx)], **kw)
 
     # -- excitation ---------------------------------------------------------------------------
@@ -416,6 +417,14 @@ class Identification:
             prob.solve(solver=cp.CLARABEL, tol_gap_abs=1e-10, tol_gap_rel=1e-10, tol_feas=1e-10)
         gap = float(prob.value) if prob.value is not None else float("inf")
         return {"pass": bool(gap <= rel_tol), "relative_gap": gap, "status": prob.status}
+
+
+def model_nominal(model) -> np.ndarray | None:
+    """The model's nominal standard parameters (``nominal_params()``, or ``standard_params()``)."""
+    for name in ("nominal_params", "standard_params"):
+        if hasattr(model, name):
+            return np.asarray(getattr(model, name)(), dtype=float)
+    return None
 
 
 def _pseudo_inertia_map() -> np.ndarray:

@@ -58,11 +58,15 @@ class ParamLayout:
 
     @classmethod
     def of(cls, layout) -> "ParamLayout":
-        """Accept any object with the four attributes (e.g. the model's own layout)."""
+        """Accept a layout-like object (``n_bodies``, ``n_joints``, ``body_names``,
+        ``joint_names``), or a model carrying one as ``param_layout`` or just the names."""
         if isinstance(layout, cls):
             return layout
-        return cls(int(layout.n_bodies), int(layout.n_joints),
-                   tuple(layout.body_names), tuple(layout.joint_names))
+        if hasattr(layout, "param_layout"):
+            return cls.of(layout.param_layout)
+        bodies, joints = tuple(layout.body_names), tuple(layout.joint_names)
+        return cls(int(getattr(layout, "n_bodies", len(bodies))), int(getattr(layout, "n_joints", len(joints))),
+                   bodies, joints)
 
     @property
     def n_params(self) -> int:

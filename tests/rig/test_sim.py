@@ -170,3 +170,62 @@ def test_measurement_noise_and_quantisation():
 def test_object_needs_known_arms():
     with pytest.raises(ValueError, match="PSM9"):
         SimWorld([ArmSpec("PSM1"), ArmSpec("PSM2")], ObjectSpec(arms=("PSM1", "PSM9")))
+
+
+def test_pacing_to_the_wall_clock():
+    import time
+
+    w = SimWorld([ArmSpec("A")], pace=True)
+    t0 = time.perf_counter()
+    w.advance(0.2)
+    assert time.perf_counter() - t0 >= 0.19
+
+
+def test_spring_and_offset_loads_show_in_the_holding_effort():
+    base = SimWorld([ArmSpec("A", noise=SensorNoise.off())])
+    sprung = SimWorld([ArmSpec("A", noise=SensorNoise.off(),
+                               effects=HiddenEffects(spring=np.array([0.0, 0.0, 50.0]),
+                                                     torque_offset=np.array([0.3, 0.0, 0.0])))])
+    for w in (base, sprung):
+        w.advance(2.0)
+    diff = sprung.setpoint_js("A")[2] - base.setpoint_js("A")[2]
+    # spring: k (q3 - 0) = 50 N/m * 0.12 m = 6 N; offset: 0.3 N m on joint 1. A joint at
+    # rest may hold anywhere within its Coulomb band, so each figure is known to +/- 2 Fc.
+    fc = PSMDynamics().Fc
+    assert diff[2] == pytest.approx(6.0, abs=2 * fc[2])
+    assert diff[0] == pytest.approx(0.3, abs=2 * fc[0])
+
+
+def test_direction_dependent_and_position_dependent_coulomb():
+    # Drive joint 3 at constant speed both ways with the PID; the effort difference between
+    # the directions is 2 Fc (+ asymmetry); with position friction it varies along the stroke.
+    def sweep(effects):
+        w = SimWorld([ArmSpec("A", noise=SensorNoise.off(), effects=effects, q0=np.array([0, 0, 0.05]))])
+        w.advance(0.3)
+        out = {}
+        for sign, (a, b) in ((+1, (0.05, 0.20)), (-1, (0.20, 0.05))):
+            efforts, qs = [], []
+            for k in range(3000):
+                q3 = a + (b - a) * k / 2999
+                w.servo_jp("A", np.array([0, 0, q3]), np.array([0, 0, (b - a) / 3.0]))
+                w.step()
+                if 500 < k < 2500:
+                    efforts.append(w.setpoint_js("A")[2][2])
+                    qs.append(w.true_state("A")[0][2])
+            out[sign] = (np.array(qs), np.array(efforts))
+        return out
+
+    plain = sweep(HiddenEffects())
+    asym = sweep(HiddenEffects(coulomb_asymmetry=np.array([0, 0, 0.4])))
+    gap_plain = plain[1][1].mean() - plain[-1][1].mean()
+    gap_asym = asym[1][1].mean() - asym[-1][1].mean()
+    # the asymmetric joint's up-stroke needs +0.2 N more and its down-stroke 0.2 N less... in
+    # sum the level difference shows as a shift of the mean of the two strokes
+    shift = (asym[1][1].mean() + asym[-1][1].mean()) - (plain[1][1].mean() + plain[-1][1].mean())
+    assert shift == pytest.approx(0.4, abs=0.08)
+    assert gap_asym == pytest.approx(gap_plain, abs=0.08)
+    posf = sweep(HiddenEffects(position_friction=np.array([0, 0, 0.5])))
+    q, e = posf[1]
+    resid = e - np.polyval(np.polyfit(q, e, 1), q)
+    corr = np.corrcoef(resid, np.sin(2 * np.pi * q / 0.08))[0, 1]
+    assert corr > 0.8

@@ -247,3 +247,23 @@ def test_hx711_build_refuses_500_hz(rig):
     time.sleep(0.3)
     assert 20 <= len(lc.samples()) <= 28
     lc.close()
+
+
+def test_calibrate_command_on_the_simulated_cell_is_found_by_later_runs(tmp_path, monkeypatch):
+    import json
+
+    from click.testing import CliRunner
+
+    from drivers.loadcell import load_latest_calibration
+    from procedures.loadcell_calibrate import command
+
+    monkeypatch.setenv("RIG_LOGS", str(tmp_path))
+    res = CliRunner().invoke(command, ["--mass2", "0.5", "--seconds", "0.3", "--json"])
+    assert res.exit_code == 0, res.output
+    result = json.loads(res.stdout)
+    assert result["status"] == "completed"
+    assert abs(result["truth"]["gain_error_rel"]) < 2e-3
+    assert abs(result["check"]["error_n"]) < 0.01  # N, with 5 mN rms noise
+    cal = load_latest_calibration()
+    assert cal.newtons_per_count == result["calibration"]["newtons_per_count"]
+    assert (tmp_path / next(tmp_path.iterdir()).name / "result.json").exists()

@@ -1,0 +1,196 @@
+"""`rig loadcell-calibrate`: two-point load-cell calibration with known masses.
+
+Hang mass 1 (usually nothing), average the counts; hang mass 2, average again; the line
+through the two points (force = m g, g = 9.80665 m/s^2) is the calibration. It is saved as
+`result.json` of a run folder, where `drivers.loadcell.load_latest_calibration()` finds it.
+On the simulated rig the firmware fake is loaded with the masses by the procedure itself,
+and the result also reports the fake's true gain so the fit can be judged.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import statistics
+import sys
+import time
+from datetime import datetime, timezone
+
+import click
+
+from drivers.loadcell import (
+    CALIBRATION_PROCEDURE,
+    STANDARD_GRAVITY,
+    FakeLoadCellFirmware,
+    LoadCell,
+    LoadCellCalibration,
+    LoadCellError,
+)
+from rig.paths import run_dir_name, runs_root
+
+STEPS = (
+    "connect to the load cell",
+    "tare with mass 1 hanging",
+    "average counts with mass 1",
+    "average counts with mass 2",
+    "fit the two-point calibration",
+    "check the force with mass 2",
+    "save result.json",
+)
+
+
+class HangingMass:
+    """Tension source for the simulated cell: the weight of whatever hangs from it (N)."""
+
+    def __init__(self) -> None:
+        self.kg = 0.0
+
+    def __call__(self) -> float:
+        return self.kg * STANDARD_GRAVITY
+
+
+def _point(mass_kg: float, counts: list[int]) -> dict:
+    if len(counts) < 2:
+        raise LoadCellError(f"only {len(counts)} samples with {mass_kg} kg; is the cell streaming?")
+    std = statistics.stdev(counts)
+    return {"mass_kg": mass_kg, "force_n": mass_kg * STANDARD_GRAVITY, "mean_counts": statistics.fmean(counts),
+            "std_counts": std, "sem_counts": std / math.sqrt(len(counts)), "n": len(counts)}
+
+
+@click.command(name="loadcell-calibrate")
+@click.option("--mass1", type=float, default=0.0, show_default=True,
+              help="First known mass hanging from the cell (kg); 0 = nothing attached.")
+@click.option("--mass2", type=float, default=0.5, show_default=True,
+              help="Second known mass (kg); pick one near the working tension (0.5 kg = 4.9 N).")
+@click.option("--port", type=click.Path(dir_okay=False), default=None,
+              help="Serial port of the load-cell Arduino, e.g. /dev/ttyACM0. Default: the simulated cell.")
+@click.option("--sim", is_flag=True, help="Use the simulated load cell (the default when no --port is given).")
+@click.option("--baud", type=int, default=250000, show_default=True, help="Serial speed (baud).")
+@click.option("--seconds", type=click.FloatRange(0.1, 60), default=2.0, show_default=True,
+              help="Averaging time at each mass (s).")
+@click.option("--rate", "rate_hz", type=click.IntRange(1, 1000), default=500, show_default=True,
+              help="Sample rate (Hz).")
+@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without running.")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print the result (result.json) on stdout and the report on stderr.")
+def command(mass1: float, mass2: float, port: str | None, sim: bool, baud: int, seconds: float,
+            rate_hz: int, list_steps: bool, as_json: bool) -> None:
+    """Two-point load-cell calibration with known masses (kg), stored for later runs.
+
+    Forces are m g with g = 9.80665 m/s^2, in N. The calibration maps ADC counts to
+    tension in N and is saved to logs/<UTC time>-loadcell-calibrate/result.json.
+    """
+    if list_steps:
+        for i, s in enumerate(STEPS, 1):
+            click.echo(f"{i}. {s}")
+        return
+    if port and sim:
+        raise click.UsageError("give either --port or --sim, not both")
+    if mass1 < 0 or mass2 < 0 or mass1 == mass2:
+        raise click.UsageError("--mass1 and --mass2 must be non-negative and different (kg)")
+    report = (lambda m: click.echo(m, err=True)) if as_json else click.echo
+    simulated = port is None
+    params = {"mass1_kg": mass1, "mass2_kg": mass2, "port": port, "sim": simulated, "baud": baud,
+              "seconds": seconds, "rate_hz": rate_hz}
+    run = runs_root() / run_dir_name(CALIBRATION_PROCEDURE)
+    result: dict = {"procedure": CALIBRATION_PROCEDURE, "status": "failed", "parameters": params,
+                    "started": datetime.now(timezone.utc).isoformat()}
+    step_no = iter(range(1, len(STEPS) + 1))
+
+    def step(name: str) -> None:
+        report(f"[{next(step_no)}/{len(STEPS)}] {name}")
+
+    weights = HangingMass()
+    fake = ser = lc = None
+
+    def hang(kg: float) -> None:
+        if simulated:
+            weights.kg = kg
+            time.sleep(0.02)  # let the new load reach the samples
+        else:
+            click.prompt(f"Hang {kg:.3f} kg from the load cell, let it settle, then press Enter",
+                         default="", show_default=False, err=True)
+
+    try:
+        import serial
+
+        step(STEPS[0])
+        if simulated:
+            fake = FakeLoadCellFirmware(weights, noise=0.005).start()  # 5 mN rms, like a good bridge
+            ser = serial.Serial(fake.port_path, baudrate=baud)
+        else:
+            ser = serial.Serial(port, baudrate=baud)
+        lc = LoadCell(ser, None, rate_hz=rate_hz)
+        ident = lc.identity
+        result["device"] = {"port": port or fake.port_path, "protocol": ident.protocol,
+                            "firmware": ".".join(map(str, ident.firmware)), "adc": ident.adc,
+                            "max_rate_hz": ident.max_rate_hz, "simulated": simulated}
+
+        step(STEPS[1])
+        hang(mass1)
+        tare = lc.tare_counts(min(255, max(1, int(rate_hz * min(seconds, 0.5)))))
+        step(STEPS[2])
+        p1 = _point(mass1, lc.collect_counts(seconds))
+        step(STEPS[3])
+        hang(mass2)
+        p2 = _point(mass2, lc.collect_counts(seconds))
+
+        step(STEPS[4])
+        cal = LoadCellCalibration.from_two_points(
+            mass1, p1["mean_counts"], mass2, p2["mean_counts"], p1["sem_counts"], p2["sem_counts"],
+            device=result["device"]["port"])
+        lc.calibration = cal
+
+        step(STEPS[5])
+        # through the new calibration from the raw counts: samples queued before it was
+        # set carry no force
+        lc.raw_samples()
+        forces: list[float] = []
+        end = time.monotonic() + min(seconds, 0.5)
+        while time.monotonic() < end:
+            time.sleep(0.01)
+            forces.extend(cal.newtons(s.raw) for s in lc.raw_samples())
+        measured = statistics.fmean(forces)
+        result.update(
+            status="completed", calibration=cal.to_dict(), points=[p1, p2],
+            tare_counts_mass1=tare, tare_minus_mean_counts=tare - p1["mean_counts"],
+            check={"expected_n": p2["force_n"], "measured_n": measured, "error_n": measured - p2["force_n"],
+                   "std_n": statistics.stdev(forces), "n": len(forces)},
+            stats=vars(lc.stats()))
+        if simulated:
+            true_k = 1.0 / fake.model.gain
+            result["truth"] = {"newtons_per_count": true_k, "zero_counts": fake.model.offset,
+                               "gain_error_rel": cal.newtons_per_count / true_k - 1.0,
+                               "zero_error_counts": cal.zero_counts - fake.model.offset}
+    except (LoadCellError, ValueError, OSError) as exc:
+        result["error"] = str(exc)
+    except Exception as exc:  # noqa: BLE001 - serial.SerialException and the like: record, then fail
+        result["error"] = f"{type(exc).__name__}: {exc}"
+    finally:
+        if lc is not None:
+            lc.close()
+        if ser is not None:
+            ser.close()
+        if fake is not None:
+            fake.unplug()
+
+    report(f"[{len(STEPS)}/{len(STEPS)}] {STEPS[-1]}")
+    result["finished"] = datetime.now(timezone.utc).isoformat()
+    run.mkdir(parents=True, exist_ok=True)
+    (run / "result.json").write_text(json.dumps(result, indent=2) + "\n")
+    if as_json:
+        json.dump(result, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    if result["status"] != "completed":
+        raise click.ClickException(f"load-cell calibration failed: {result['error']} (recorded in {run})")
+    cal = result["calibration"]
+    report(f"calibration: {cal['newtons_per_count'] * 1e3:.5f} mN/count "
+           f"(+- {cal['newtons_per_count_std'] * 1e3:.5f}), zero at {cal['zero_counts']:.1f} counts")
+    chk = result["check"]
+    report(f"check with {mass2} kg: {chk['measured_n']:.4f} N measured, {chk['expected_n']:.4f} N expected "
+           f"(error {chk['error_n'] * 1e3:+.2f} mN, noise {chk['std_n'] * 1e3:.1f} mN rms)")
+    if "truth" in result:
+        report(f"simulated cell: gain error {result['truth']['gain_error_rel'] * 100:+.3f} % against the fake's truth")
+    st = result["stats"]
+    report(f"link: {st['samples']} samples, {st['lost']} lost, {st['crc_errors']} CRC errors, {st['resyncs']} resyncs")
+    report(f"saved {run / 'result.json'}")

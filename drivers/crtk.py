@@ -1,0 +1,59 @@
+"""CRTK names and small types shared by the dVRK arm driver and its fakes.
+
+The dVRK 2.3 PSM names its joints as below (the first three are the rig's joints 1-3);
+a `Wrench` is what `body/measured_cf` carries. `StaleStream` is the error every arm
+driver raises when its measured_js stream stopped (DESIGN.md, "Safety").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rig import psm_kinematics as K
+
+# dVRK PSM joint names (sensor_msgs/JointState.name), joints 1-6; the jaw is separate.
+PSM_JOINT_NAMES = ("outer_yaw", "outer_pitch", "outer_insertion",
+                   "outer_roll", "outer_wrist_pitch", "outer_wrist_yaw")
+
+
+class StaleStream(RuntimeError):
+    """An arm's measured_js stopped arriving for longer than the watchdog interval.
+
+    `topic` names the stream and `age` is seconds since its last message (inf if none).
+    """
+
+    def __init__(self, topic: str, age: float, watchdog: float):
+        self.topic = topic
+        self.age = age
+        self.watchdog = watchdog
+        since = "never received" if not np.isfinite(age) else f"no message for {age * 1e3:.0f} ms"
+        super().__init__(f"{topic}: stale stream, {since} (watchdog {watchdog * 1e3:.0f} ms); "
+                         "the arm was commanded to hold. Check that the dVRK console (or `rig sim`) "
+                         "is running and ROS_DOMAIN_ID matches")
+
+
+@dataclass(frozen=True)
+class Wrench:
+    """A wrench: force (N) and torque (N m), expressed in `frame`, at time t (s)."""
+
+    t: float
+    force: np.ndarray
+    torque: np.ndarray
+    frame: str = ""
+
+
+def body_wrench_from_effort(q: np.ndarray, effort: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Tip force (N) in the tool-tip (body) frame that the joint efforts of joints 1-3 balance.
+
+    Like the dVRK's body/measured_cf: f = J^-T tau with the positional Jacobian of the tip,
+    rotated into the tip frame. No gravity or friction model is removed, so at rest it
+    reports the weight the joints carry. The torque is zero: three joints cannot resolve it.
+    Least squares keeps it finite near the RCM, where the Jacobian is singular.
+    """
+    q = np.asarray(q, float)[:3]
+    J = K.tip_jacobian_rcm(q)
+    f_rcm = np.linalg.lstsq(J.T, np.asarray(effort, float)[:3], rcond=1e-6)[0]
+    R = K.tip_pose_rcm(q)[:3, :3]
+    return R.T @ f_rcm, np.zeros(3)

@@ -706,8 +706,8 @@ class _StreamingLoadCell:
         with self._lock:
             out = list(self._buffer)
             self._buffer.clear()
-        if not out:
-            self._raise_if_unusable()
+        if not out and (self._streaming or self._error is not None):
+            self._raise_if_unusable()  # after stop(), nothing new is simply nothing
         return out
 
     def stats(self) -> LoadCellStats:

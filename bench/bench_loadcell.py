@@ -1,0 +1,96 @@
+"""Load-cell path benchmark: firmware fake on a pty -> pyserial -> LoadCell at 500 Hz.
+
+    .venv/bin/python bench/bench_loadcell.py [--seconds 60] [--rate 500]
+
+Prints a table of figures against their targets (issue 3: zero frames lost; latency from
+the fake's write to the driver's sample, median < 2 ms) and exits non-zero if any fails.
+Latency uses a side channel: the fake records time.monotonic() right after each frame's
+write to the pty (by sequence number), the driver's `on_sample` hook records
+time.monotonic() when the reader thread has decoded it. The fake also records each
+sample's true conversion time, which checks the driver's device-to-host time mapping.
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import click
+import serial
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from drivers.loadcell import FakeLoadCellFirmware, LoadCell, LoadCellCalibration  # noqa: E402
+
+
+def pct(values: list[float], q: float) -> float:
+    s = sorted(values)
+    return s[min(len(s) - 1, int(q * len(s)))]
+
+
+@click.command()
+@click.option("--seconds", type=float, default=60.0, show_default=True, help="Streaming time (s).")
+@click.option("--rate", "rate_hz", type=int, default=500, show_default=True, help="Sample rate (Hz).")
+def main(seconds: float, rate_hz: int) -> None:
+    fake = FakeLoadCellFirmware(lambda: 2.0, record_write_times=True, noise=0.005).start()
+    port = serial.Serial(fake.port_path, baudrate=250000)
+    rx: dict[int, float] = {}
+    mapped: dict[int, float] = {}
+
+    def on_sample(sample, rx_time):
+        rx[sample.seq] = time.monotonic()
+        mapped[sample.seq] = sample.t
+
+    cal = LoadCellCalibration(newtons_per_count=1 / fake.model.gain, zero_counts=fake.model.offset)
+    lc = LoadCell(port, cal, rate_hz=rate_hz, on_sample=on_sample)
+    t0 = time.monotonic()
+    n_read = 0
+    while time.monotonic() - t0 < seconds:  # a consumer, like a procedure's loop
+        time.sleep(0.01)
+        n_read += len(lc.samples())
+        lc.read()
+    elapsed = time.monotonic() - t0
+    lc.stop()
+    time.sleep(0.05)
+    n_read += len(lc.samples())
+    st = lc.stats()
+    lc.close()
+    port.close()
+    fake.unplug()
+
+    sent = fake.write_times
+    lost = len(set(sent) - set(rx)) + fake.model.tx_dropped
+    lat = [(rx[s] - sent[s]) * 1e3 for s in sent if s in rx]
+    map_err = [abs(mapped[s] - fake.sample_times[s]) * 1e3 for s in mapped if s in fake.sample_times][rate_hz:]
+    achieved = len(rx) / elapsed
+    rows = [
+        # (figure, value, unit, target, pass)
+        ("duration", f"{elapsed:.1f}", "s", f"{seconds:g}", True),
+        ("frames written by the fake", f"{len(sent)}", "", "", True),
+        ("samples received by the driver", f"{len(rx)}", "", "", True),
+        ("samples handed to the consumer", f"{n_read}", "", f"= {len(rx)}", n_read == len(rx)),
+        ("frames lost", f"{lost}", "", "0", lost == 0),
+        ("CRC errors + truncated + resyncs", f"{st.crc_errors + st.truncated + st.resyncs}", "", "0",
+         st.crc_errors + st.truncated + st.resyncs == 0),
+        ("sequence gaps / out of order", f"{st.gaps} / {st.out_of_order}", "", "0 / 0",
+         st.gaps == 0 and st.out_of_order == 0),
+        ("achieved rate", f"{achieved:.1f}", "Hz", f"{rate_hz} +- 1 %", abs(achieved / rate_hz - 1) < 0.01),
+        ("latency write -> sample, median", f"{statistics.median(lat):.3f}", "ms", "< 2", statistics.median(lat) < 2),
+        ("latency write -> sample, p99", f"{pct(lat, 0.99):.3f}", "ms", "(report)", True),
+        ("latency write -> sample, max", f"{max(lat):.3f}", "ms", "< 50 (stale timeout)", max(lat) < 50),
+        ("sample time error (mapped - true), median", f"{statistics.median(map_err):.3f}", "ms", "< 1",
+         statistics.median(map_err) < 1),
+        ("sample time error, p99", f"{pct(map_err, 0.99):.3f}", "ms", "(report)", True),
+    ]
+    w = max(len(r[0]) for r in rows)
+    print(f"load-cell path: pty fake -> pyserial -> LoadCell, {rate_hz} Hz, {seconds:g} s")
+    print(f"{'figure':<{w}}  {'value':>14}  {'unit':<4}  {'target':<22}  result")
+    for name, value, unit, target, ok in rows:
+        print(f"{name:<{w}}  {value:>14}  {unit:<4}  {target:<22}  {'pass' if ok else 'FAIL'}")
+    sys.exit(0 if all(r[4] for r in rows) else 1)
+
+
+if __name__ == "__main__":
+    main()

@@ -400,3 +400,141 @@ def test_latest_calibration_is_found_from_the_runs(tmp_path, monkeypatch):
         (run / "result.json").write_text(json.dumps(
             {"status": status, "calibration": LoadCellCalibration(k, 5.0).to_dict()}))
     assert load_latest_calibration().newtons_per_count == 0.02
+
+
+# ----------------------------------------------------------------- the sketch itself
+
+SKETCH = Path(__file__).resolve().parents[2] / "drivers" / "firmware" / "loadcell" / "loadcell.ino"
+
+ARDUINO_STUB = r"""
+// host stand-in for the Arduino core: just enough to run the sketch's logic
+#pragma once
+#include <stdint.h>
+#include <string.h>
+#include <deque>
+#include <vector>
+#define HIGH 1
+#define LOW 0
+#define INPUT 0
+#define OUTPUT 1
+#define DEFAULT 1
+#define A0 14
+extern uint32_t fake_us;
+extern int fake_analog;
+extern uint8_t ADCSRA;
+inline uint32_t micros() { return fake_us; }
+inline void delay(unsigned long) {}
+inline void delayMicroseconds(unsigned int) {}
+inline int analogRead(uint8_t) { return fake_analog; }
+inline void analogReference(uint8_t) {}
+inline void pinMode(uint8_t, uint8_t) {}
+inline void digitalWrite(uint8_t, uint8_t) {}
+inline int digitalRead(uint8_t) { return HIGH; }
+inline void noInterrupts() {}
+inline void interrupts() {}
+struct FakeSerial {
+  std::deque<uint8_t> in;
+  std::vector<uint8_t> out;
+  void begin(unsigned long) {}
+  int available() { return (int)in.size(); }
+  int read() { int b = in.front(); in.pop_front(); return b; }
+  int availableForWrite() { return 64; }
+  size_t write(const uint8_t *b, size_t n) { out.insert(out.end(), b, b + n); return n; }
+};
+extern FakeSerial Serial;
+"""
+
+HARNESS = r"""
+#include "Arduino.h"
+uint32_t fake_us = 0; int fake_analog = 512; uint8_t ADCSRA = 0x87; FakeSerial Serial;
+#include "loadcell.ino"
+#include <cstdio>
+#include <iostream>
+#include <string>
+// stdin lines: "w <hex>" bytes to the sketch; "t <us>" run loop() every 10 us for that long;
+// "a <0..1023>" the analog reading. After each line, the sketch's output in hex.
+int main() {
+  setup();
+  std::string op;
+  while (std::cin >> op) {
+    if (op == "w") {
+      std::string hx; std::getline(std::cin, hx);
+      for (size_t i = 0; i + 1 < hx.size();) {
+        if (hx[i] == ' ') { i++; continue; }
+        Serial.in.push_back((uint8_t)std::stoi(hx.substr(i, 2), nullptr, 16)); i += 2;
+      }
+      loop();
+    } else if (op == "t") {
+      long us; std::cin >> us;
+      for (long k = 0; k < us; k += 10) { fake_us += 10; loop(); }
+    } else if (op == "a") {
+      std::cin >> fake_analog;
+    }
+    for (uint8_t b : Serial.out) std::printf("%02X", b);
+    std::printf("\n");
+    Serial.out.clear();
+  }
+}
+"""
+
+
+@pytest.fixture(scope="module")
+def sketch_binary(tmp_path_factory):
+    import shutil
+    import subprocess
+
+    cxx = shutil.which("g++") or shutil.which("clang++")
+    if cxx is None:
+        pytest.skip("no host C++ compiler to build the sketch with")
+    d = tmp_path_factory.mktemp("sketch")
+    (d / "Arduino.h").write_text(ARDUINO_STUB)
+    (d / "harness.cpp").write_text(HARNESS)
+    (d / "loadcell.ino").write_text(SKETCH.read_text())
+    exe = d / "harness"
+    res = subprocess.run([cxx, "-std=c++17", "-Wall", "-Wextra", "-Werror", "-I", str(d), "-x", "c++",
+                          str(d / "harness.cpp"), "-o", str(exe)], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    return exe
+
+
+def run_sketch(exe, script: list[str]) -> list[bytes]:
+    import subprocess
+
+    out = subprocess.run([str(exe)], input="\n".join(script) + "\n", capture_output=True, text=True,
+                         timeout=10, check=True).stdout
+    return [bytes.fromhex(line) for line in out.splitlines()]
+
+
+def test_sketch_speaks_the_documented_protocol(sketch_binary):
+    """The .ino compiled for the host against a stub core: the same bytes as the document."""
+    pairs = [
+        (IDENTIFY, IDENTITY_INA),
+        (SET_RATE_500, RATE_500),
+        (SET_RATE_0, ERR_BAD_ARG_RATE),
+        (hx("A5 5A 00 42 89 75"), hx("A5 5A 02 FF 42 01 44 DD")),  # unknown command
+        (hx("A5 5A 00 15 9B A0"), hx("A5 5A 02 FF 15 02 0F 7A")),  # bad CRC
+        (hx("A5 5A 01 12 05 18 CE"), hx("A5 5A 02 FF 12 04 5E 83")),  # bad length
+    ]
+    script = [f"w {s.hex()}" for s, _ in pairs]
+    script += ["w A55A0212F4", "t 60000"]  # a command cut short: incomplete after 50 ms
+    script += ["w " + START.hex(), "a 700", "t 10000"]  # stream 10 ms at analog 700
+    script += ["w " + (TARE_64.hex() * 2), "t 200000", "w " + STOP.hex(), "w A55A00159B5F"]
+    out = run_sketch(sketch_binary, script)
+    for (sent, reply), got in zip(pairs, out):
+        assert got == reply, sent.hex(" ")
+    assert out[6] == b"" and out[7] == hx("A5 5A 02 FF 12 06 1C A3")
+    assert out[8] == STARTED
+    p = FrameParser()
+    samples = [decode_sample(f.payload) for f in p.feed(out[10])]
+    assert p.crc_errors == p.truncated == p.resyncs == 0 and p.pending == 0
+    assert len(samples) == 5  # 10 ms at 500 Hz
+    assert [s.seq for s in samples] == [0, 1, 2, 3, 4]
+    assert {s.counts for s in samples} == {16 * (700 - 512)}
+    assert [b.t_us - a.t_us for a, b in zip(samples, samples[1:])] == [2000] * 4
+    assert out[11] == hx("A5 5A 02 FF 11 05 2C C6")  # the second TARE: busy
+    frames_after = p.feed(out[12])
+    tare = [f for f in frames_after if f.type == 0x91]
+    assert tare and struct.unpack("<iB", tare[0].payload) == (16 * 188, 64)
+    assert out[13] == STOPPED
+    status = p.feed(out[14])[0]
+    assert struct.unpack("<HBHH", status.payload) == (500, 0, 4, 0)  # 4 rx errors, none dropped

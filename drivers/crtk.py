@@ -17,6 +17,12 @@ from rig import psm_kinematics as K
 PSM_JOINT_NAMES = ("outer_yaw", "outer_pitch", "outer_insertion",
                    "outer_roll", "outer_wrist_pitch", "outer_wrist_yaw")
 
+# A move_jp has arrived when the measured joints are this close to the goal (rad, rad, m;
+# joint 3 sticks up to ~1 mm short under the PID until the integral breaks it free)...
+ARRIVAL_TOLERANCE = np.array([2e-3, 2e-3, 1e-3])
+# ... and slower than this (rad/s, rad/s, m/s); above the simulated velocity noise.
+REST_VELOCITY = np.array([0.02, 0.02, 0.004])
+
 
 class StaleStream(RuntimeError):
     """An arm's measured_js stopped arriving for longer than the watchdog interval.
@@ -30,7 +36,7 @@ class StaleStream(RuntimeError):
         self.watchdog = watchdog
         since = "never received" if not np.isfinite(age) else f"no message for {age * 1e3:.0f} ms"
         super().__init__(f"{topic}: stale stream, {since} (watchdog {watchdog * 1e3:.0f} ms); "
-                         "the arm was commanded to hold. Check that the dVRK console (or `rig sim`) "
+                         "the driver commands the arm to hold. Check that the dVRK console (or `rig sim`) "
                          "is running and ROS_DOMAIN_ID matches")
 
 

@@ -47,21 +47,27 @@ def matrix_from_quaternion(q: np.ndarray, order: str) -> np.ndarray:
     return quat_xyzw_to_matrix(reorder_quaternion(q, order, XYZW))
 
 
-def kabsch(reference: np.ndarray, measured: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Rigid fit measured ~ R @ reference + p (both (n, 3), n >= 3, m).
+def kabsch(reference: np.ndarray, measured: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rigid fit measured ~ R @ reference + p, for one body or a stack of bodies.
 
-    Returns (R, p, rms residual in m). The determinant correction keeps R a rotation
-    (never a reflection) however noisy the markers are.
+    reference, measured: (..., n, 3) marker positions (m), n >= 3 non-collinear.
+    Returns (R (..., 3, 3), p (..., 3), rms residual (...,) in m). The determinant
+    correction keeps R a rotation (never a reflection) however noisy the markers are.
+    The stacked form is one batched SVD, so a whole frame of bodies costs about one fit.
     """
     ref = np.asarray(reference, float)
     mea = np.asarray(measured, float)
-    cr, cm = ref.mean(axis=0), mea.mean(axis=0)
-    H = (ref - cr).T @ (mea - cm)
+    cr, cm = ref.mean(axis=-2, keepdims=True), mea.mean(axis=-2, keepdims=True)
+    H = np.swapaxes(ref - cr, -1, -2) @ (mea - cm)
     U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-    p = cm - R @ cr
-    rms = float(np.sqrt(np.mean(np.sum((ref @ R.T + p - mea) ** 2, axis=1))))
+    V, Ut = np.swapaxes(Vt, -1, -2), np.swapaxes(U, -1, -2)
+    d = np.where(np.linalg.det(V @ Ut) < 0, -1.0, 1.0)
+    D = np.broadcast_to(np.eye(3), H.shape).copy()
+    D[..., 2, 2] = d
+    R = V @ D @ Ut
+    p = cm[..., 0, :] - (R @ cr[..., 0, :, None])[..., 0]
+    fitted = ref @ np.swapaxes(R, -1, -2) + p[..., None, :]
+    rms = np.sqrt(np.mean(np.sum((fitted - mea) ** 2, axis=-1), axis=-1))
     return R, p, rms
 
 
@@ -125,6 +131,7 @@ class SimTracker:
         self.quaternion_order = quaternion_order
         self.bodies = tuple(names)
         self.layouts = {b: layouts[b] for b in self.bodies}
+        self._layout_stack = np.stack([self.layouts[b] for b in self.bodies])
         self.rng = np.random.default_rng(seed)
         self.stats = SimTrackerStats(occluded={b: 0 for b in self.bodies})
         self._next_capture = clock.now()
@@ -149,29 +156,32 @@ class SimTracker:
     def capture(self, t: float) -> SimFrame:
         """One frame of the present world state stamped `t` (s); not queued for delivery."""
         truth = self.world.marker_positions()
+        measured = np.stack([truth[b] for b in self.bodies])
+        measured = measured + self.rng.normal(0.0, self.noise, measured.shape)
+        hidden = np.zeros(measured.shape[:2], bool)
+        if self.occlusion > 0:
+            for i in np.flatnonzero(self.rng.random(len(self.bodies)) < self.occlusion):
+                k = int(self.rng.integers(1, measured.shape[1] + 1))
+                hidden[i, self.rng.choice(measured.shape[1], size=k, replace=False)] = True
+        R, p, rms = kabsch(self._layout_stack, measured)
+        q = quaternion_from_matrix(R, self.quaternion_order)
+        # The consumer's side: decode the source quaternions in their declared order.
+        R_decoded = matrix_from_quaternion(q, self.quaternion_order)
         bodies: dict[str, Pose | None] = {}
         markers: dict[str, np.ndarray | None] = {}
         quats: dict[str, np.ndarray | None] = {}
         errors: dict[str, float | None] = {}
-        for b in self.bodies:
-            measured = truth[b] + self.rng.normal(0.0, self.noise, truth[b].shape)
-            hidden = np.zeros(len(measured), bool)
-            if self.occlusion > 0 and self.rng.random() < self.occlusion:
-                k = int(self.rng.integers(1, len(measured) + 1))
-                hidden[self.rng.choice(len(measured), size=k, replace=False)] = True
-            for k, m in enumerate(measured):
-                markers[marker_name(b, k)] = None if hidden[k] else m
-            if hidden.any():
+        for i, b in enumerate(self.bodies):
+            for k in range(measured.shape[1]):
+                markers[marker_name(b, k)] = None if hidden[i, k] else measured[i, k]
+            if hidden[i].any():
                 self.stats.occluded[b] += 1
-                self.stats.hidden_markers += int(hidden.sum())
+                self.stats.hidden_markers += int(hidden[i].sum())
                 bodies[b] = quats[b] = errors[b] = None
                 continue
-            R, p, rms = kabsch(self.layouts[b], measured)
-            q = quaternion_from_matrix(R, self.quaternion_order)
-            quats[b] = q
-            errors[b] = rms
-            # The consumer's side: decode the source quaternion in its declared order.
-            bodies[b] = Pose(t, p, matrix_from_quaternion(q, self.quaternion_order), "world")
+            quats[b] = q[i]
+            errors[b] = float(rms[i])
+            bodies[b] = Pose(t, p[i], R_decoded[i], "world")
         self.stats.captured += 1
         return SimFrame(t=t, bodies=bodies, markers=markers, quaternions=quats,
                         quaternion_order=self.quaternion_order, marker_error=errors)

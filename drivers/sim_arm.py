@@ -23,19 +23,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.crtk import PSM_JOINT_NAMES, Wrench, body_wrench_from_effort
+from drivers.crtk import ARRIVAL_TOLERANCE, PSM_JOINT_NAMES, REST_VELOCITY, Wrench, body_wrench_from_effort
 from drivers.interfaces import JointState, Pose
 from rig import psm_kinematics as K
 
 # The rig's own choice (Table 4.2 gives no accelerations): about what the dVRK's default
 # move_jp reaches on a PSM, rad/s^2, rad/s^2, m/s^2.
 DDQ_MAX = np.array([6.0, 6.0, 1.2])
-# A move_jp has arrived when the measured joints are this close to the goal (rad, rad, m;
-# joint 3 sticks up to ~1 mm short under the PID until the integral breaks it free)...
-ARRIVAL_TOLERANCE = np.array([2e-3, 2e-3, 1e-3])
-# ... and slower than this (rad/s, rad/s, m/s); above the simulated velocity noise.
-REST_VELOCITY = np.array([0.02, 0.02, 0.004])
-
 # Minimum-jerk profile s(u) = 10u^3 - 15u^4 + 6u^5 on u in [0, 1]: its peak speed is 15/8
 # and its peak acceleration 10/sqrt(3) times the average (per unit time, per unit distance).
 _PEAK_SPEED = 15.0 / 8.0

@@ -1,0 +1,338 @@
+"""A dVRK arm over ROS 2 (rclpy) on the dVRK 2.3 CRTK topics: `RosArm`.
+
+Topics under the arm's namespace (e.g. /PSM1), as the dVRK 2.3 ROS 2 bridge names them:
+
+  subscribed   measured_js, setpoint_js          sensor_msgs/JointState
+               measured_cp, local/measured_cp    geometry_msgs/PoseStamped
+               body/measured_cf                  geometry_msgs/WrenchStamped
+  published    servo_jp, servo_jf, move_jp       sensor_msgs/JointState (servo_jf: effort)
+  console      /console/power_on, /console/home  std_msgs/Empty
+
+`crtk_msgs` is not on PyPI, so operating states are not read; move_jp(wait=True) waits on
+the measured joints instead (goal within `ARRIVAL_TOLERANCE` and at rest).
+
+Threading model. The driver is given a node (STYLE item 1) and never creates one. Its
+subscription callbacks only copy the newest message under a lock; they run on whatever
+executor spins the node: with `spin=True` (the default) the driver starts its own
+single-threaded executor on a daemon thread for this node; with `spin=False` the caller
+spins it (one executor per node, e.g. `rig.devices` spins one node shared by every
+driver). Reads (`measured_js()` ...) and commands (`servo_jp()` ...) are called from the
+procedure's thread: reads return the newest sample, commands publish at once (rclpy
+publishers are thread-safe). A third thread, the watchdog, wakes every `watchdog / 5` s:
+when measured_js has not arrived for longer than `watchdog` it publishes servo_jp at the
+last measured position (the arm holds, if the controller still listens) and calls the
+`on_stale` callbacks once per outage, so a run can abort even while the procedure is
+blocked elsewhere. `measured_js()` itself raises `StaleStream` (topic and age) whenever
+the stream is stale, so a procedure cannot act on old data.
+
+Units: rad, m (joint 3), N m, N, s. Sample times are the header stamps (s since the epoch,
+the publisher's ROS clock); the staleness age uses this host's monotonic clock.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Callable
+
+import numpy as np
+
+from drivers.crtk import ARRIVAL_TOLERANCE, REST_VELOCITY, StaleStream, Wrench
+from drivers.interfaces import JointState, Pose
+from drivers.quaternion import quat_xyzw_to_matrix
+
+StaleCallback = Callable[[StaleStream], None]
+
+
+def _stamp_seconds(header) -> float:
+    return header.stamp.sec + header.stamp.nanosec * 1e-9
+
+
+def _vector(values, what: str) -> list[float]:
+    v = np.asarray(values, dtype=float).ravel()
+    if v.size == 0:
+        raise ValueError(f"{what}: empty command")
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"{what} contains a non-finite value: {v.tolist()}")
+    return v.tolist()
+
+
+class RosArm:
+    """Arm protocol over the dVRK CRTK ROS 2 topics (see the module docstring).
+
+    node: an rclpy Node; namespace: the arm's topic namespace ("/PSM1"); watchdog: s of
+    measured_js silence before the stream is stale; spin: run an executor thread for the
+    node here; on_stale: callback(StaleStream) fired from the watchdog thread once per
+    outage (more with `add_stale_callback`); console: the console's namespace.
+    """
+
+    def __init__(self, node, namespace: str, watchdog: float = 0.05, *, spin: bool = True,
+                 on_stale: StaleCallback | None = None, console: str = "/console", qos_depth: int = 10):
+        from geometry_msgs.msg import PoseStamped, WrenchStamped
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import JointState as JointStateMsg
+        from std_msgs.msg import Empty
+
+        if watchdog <= 0:
+            raise ValueError(f"watchdog must be > 0 s, got {watchdog}")
+        self.node = node
+        self.namespace = "/" + namespace.strip("/")
+        self.name = self.namespace.strip("/").split("/")[-1]
+        self.watchdog = float(watchdog)
+        self._JointState = JointStateMsg
+        self._Empty = Empty
+        self._lock = threading.Lock()
+        self._cond = threading.Condition(self._lock)
+        self._js: JointState | None = None
+        self._js_rx: float | None = None  # time.monotonic() of the last measured_js
+        self._latest: dict[str, object] = {}
+        self._stale_callbacks: list[StaleCallback] = [on_stale] if on_stale else []
+        self._stale_fired = False
+        self.stale_events = 0
+        self.received = 0
+        self.topic = {k: f"{self.namespace}/{k}" for k in
+                      ("measured_js", "setpoint_js", "measured_cp", "local/measured_cp",
+                       "body/measured_cf", "servo_jp", "servo_jf", "move_jp")}
+        console = "/" + console.strip("/")
+        self.topic["power_on"] = f"{console}/power_on"
+        self.topic["home"] = f"{console}/home"
+
+        # Best effort matches both reliable (the dVRK's default) and best-effort publishers,
+        # and never lets a slow reader hold up a 1 kHz stream with retransmissions.
+        sensor_qos = QoSProfile(depth=qos_depth, history=HistoryPolicy.KEEP_LAST,
+                                reliability=ReliabilityPolicy.BEST_EFFORT)
+        command_qos = QoSProfile(depth=qos_depth, history=HistoryPolicy.KEEP_LAST,
+                                 reliability=ReliabilityPolicy.RELIABLE)
+        t = self.topic
+        self._subs = [
+            node.create_subscription(JointStateMsg, t["measured_js"], self._on_measured_js, sensor_qos),
+            node.create_subscription(JointStateMsg, t["setpoint_js"],
+                                     lambda m: self._store("setpoint_js", self._joint_state(m)), sensor_qos),
+            node.create_subscription(PoseStamped, t["measured_cp"],
+                                     lambda m: self._store("measured_cp", self._pose(m)), sensor_qos),
+            node.create_subscription(PoseStamped, t["local/measured_cp"],
+                                     lambda m: self._store("local/measured_cp", self._pose(m)), sensor_qos),
+            node.create_subscription(WrenchStamped, t["body/measured_cf"],
+                                     lambda m: self._store("body/measured_cf", self._wrench(m)), sensor_qos),
+        ]
+        self._pubs = {k: node.create_publisher(JointStateMsg, t[k], command_qos)
+                      for k in ("servo_jp", "servo_jf", "move_jp")}
+        self._pubs["power_on"] = node.create_publisher(Empty, t["power_on"], command_qos)
+        self._pubs["home"] = node.create_publisher(Empty, t["home"], command_qos)
+
+        self._closing = threading.Event()
+        self._executor = None
+        self._spin_thread = None
+        if spin:
+            from rclpy.executors import SingleThreadedExecutor
+
+            self._executor = SingleThreadedExecutor(context=node.context)
+            self._executor.add_node(node)
+            self._spin_thread = threading.Thread(target=self._spin, name=f"ros-{self.name}", daemon=True)
+            self._spin_thread.start()
+        self._watchdog_thread = threading.Thread(target=self._watch, name=f"watchdog-{self.name}", daemon=True)
+        self._watchdog_thread.start()
+
+    # -- executor thread ----------------------------------------------------------------
+    def _spin(self) -> None:
+        try:
+            self._executor.spin()
+        except Exception:  # noqa: BLE001 - context shut down under us while closing
+            if not self._closing.is_set():
+                raise
+
+    @staticmethod
+    def _joint_state(m) -> JointState:
+        return JointState(_stamp_seconds(m.header), np.array(m.position, float), np.array(m.velocity, float),
+                          np.array(m.effort, float), tuple(m.name))
+
+    @staticmethod
+    def _pose(m) -> Pose:
+        p, o = m.pose.position, m.pose.orientation
+        # geometry_msgs/Quaternion is (x, y, z, w), scalar last.
+        R = quat_xyzw_to_matrix(np.array([o.x, o.y, o.z, o.w], float))
+        return Pose(_stamp_seconds(m.header), np.array([p.x, p.y, p.z]), R, m.header.frame_id)
+
+    @staticmethod
+    def _wrench(m) -> Wrench:
+        f, tq = m.wrench.force, m.wrench.torque
+        return Wrench(_stamp_seconds(m.header), np.array([f.x, f.y, f.z]), np.array([tq.x, tq.y, tq.z]),
+                      m.header.frame_id)
+
+    def _on_measured_js(self, m) -> None:
+        js = self._joint_state(m)
+        with self._cond:
+            self._js = js
+            self._js_rx = time.monotonic()
+            self._stale_fired = False
+            self.received += 1
+            self._cond.notify_all()
+
+    def _store(self, key: str, value) -> None:
+        with self._lock:
+            self._latest[key] = value
+
+    # -- watchdog thread ----------------------------------------------------------------
+    def _watch(self) -> None:
+        while not self._closing.wait(self.watchdog / 5.0):
+            with self._lock:
+                rx, fired, js = self._js_rx, self._stale_fired, self._js
+            if rx is None or fired:
+                continue  # not armed before the first sample; once per outage
+            age = time.monotonic() - rx
+            if age <= self.watchdog:
+                continue
+            with self._lock:
+                self._stale_fired = True
+            self.stale_events += 1
+            err = StaleStream(self.topic["measured_js"], age, self.watchdog)
+            try:
+                self._publish("servo_jp", position=js.position)
+            except Exception:  # noqa: BLE001 - a dead context must not stop the callbacks
+                pass
+            for cb in list(self._stale_callbacks):
+                try:
+                    cb(err)
+                except Exception as exc:  # noqa: BLE001 - report, and still call the others
+                    self.node.get_logger().error(f"{self.name}: stale callback failed: {exc}")
+
+    def add_stale_callback(self, fn: StaleCallback) -> None:
+        """Call `fn(StaleStream)` from the watchdog thread when measured_js goes stale."""
+        self._stale_callbacks.append(fn)
+
+    # -- reading ------------------------------------------------------------------------
+    def stream_age(self) -> float:
+        """Seconds since the last measured_js (inf before the first)."""
+        with self._lock:
+            rx = self._js_rx
+        return float("inf") if rx is None else time.monotonic() - rx
+
+    def wait_for_data(self, timeout: float = 5.0) -> bool:
+        """Block until a measured_js arrived (True) or `timeout` s passed (False)."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while self._js is None:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(left)
+        return True
+
+    def measured_js(self) -> JointState:
+        """The newest measured joint state, every joint the message carries.
+
+        Raises StaleStream if none arrived within the watchdog interval.
+        """
+        with self._lock:
+            js, rx = self._js, self._js_rx
+        age = float("inf") if rx is None else time.monotonic() - rx
+        if js is None or age > self.watchdog:
+            raise StaleStream(self.topic["measured_js"], age, self.watchdog)
+        return js
+
+    def _get(self, key: str):
+        with self._lock:
+            value = self._latest.get(key)
+        if value is None:
+            raise RuntimeError(f"{self.topic[key]}: no message received yet")
+        return value
+
+    def setpoint_js(self) -> JointState:
+        return self._get("setpoint_js")
+
+    def measured_cp(self) -> Pose:
+        """Newest tool-tip pose (dVRK measured_cp: RCM frame unless a base frame is set)."""
+        return self._get("measured_cp")
+
+    def local_measured_cp(self) -> Pose:
+        return self._get("local/measured_cp")
+
+    def body_measured_cf(self) -> Wrench:
+        return self._get("body/measured_cf")
+
+    # -- commanding ---------------------------------------------------------------------
+    def _publish(self, key: str, position=None, velocity=None, effort=None) -> None:
+        m = self._JointState()
+        m.header.stamp = self.node.get_clock().now().to_msg()
+        if position is not None:
+            m.position = _vector(position, key)
+        if velocity is not None:
+            m.velocity = _vector(velocity, key)
+        if effort is not None:
+            m.effort = _vector(effort, key)
+        self._pubs[key].publish(m)
+
+    def servo_jp(self, position, velocity=None) -> None:
+        """Joint position set-point (rad, m), with an optional velocity feed-forward."""
+        self._publish("servo_jp", position=position, velocity=velocity)
+
+    def servo_jf(self, effort) -> None:
+        """Joint efforts (N m, N) in the JointState effort field."""
+        self._publish("servo_jf", effort=effort)
+
+    def move_jp(self, position, wait: bool = True, timeout: float = 10.0) -> bool:
+        """Start the dVRK's trajectory to `position`; with wait, block until arrived.
+
+        Arrived: the joints given are within ARRIVAL_TOLERANCE (first three; 2e-3 beyond)
+        of the goal and slower than REST_VELOCITY. Returns False after `timeout` s.
+        Raises StaleStream if measured_js stops while waiting.
+        """
+        goal = np.asarray(_vector(position, "move_jp"))
+        self._publish("move_jp", position=goal)
+        if not wait:
+            return True
+        n = goal.size
+        tol = np.concatenate([ARRIVAL_TOLERANCE, np.full(max(0, n - 3), 2e-3)])[:n]
+        rest = np.concatenate([REST_VELOCITY, np.full(max(0, n - 3), 0.05)])[:n]
+        deadline = time.monotonic() + timeout
+        while True:
+            js = self.measured_js()
+            q, dq = js.position[:n], js.velocity[:n]
+            if (len(q) == n and np.all(np.abs(q - goal) <= tol)
+                    and (len(dq) < n or np.all(np.abs(dq) <= rest))):
+                return True
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            with self._cond:
+                self._cond.wait(min(left, self.watchdog))
+
+    def hold(self) -> None:
+        """Hold the last measured position (servo_jp there). Works while merely stale."""
+        with self._lock:
+            js = self._js
+        if js is None:
+            raise StaleStream(self.topic["measured_js"], float("inf"), self.watchdog)
+        self._publish("servo_jp", position=js.position)
+
+    # -- console ------------------------------------------------------------------------
+    def power_on(self) -> None:
+        self._pubs["power_on"].publish(self._Empty())
+
+    def home(self) -> None:
+        """Ask the console to home the arms (asynchronous, as on the dVRK)."""
+        self._pubs["home"].publish(self._Empty())
+
+    def wait_for_subscribers(self, timeout: float = 5.0) -> bool:
+        """Block until every command topic has a subscriber (the controller is there)."""
+        deadline = time.monotonic() + timeout
+        while any(p.get_subscription_count() == 0 for p in self._pubs.values()):
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.01)
+        return True
+
+    def close(self) -> None:
+        """Stop the watchdog and executor threads and destroy this driver's endpoints."""
+        if self._closing.is_set():
+            return
+        self._closing.set()
+        self._watchdog_thread.join(timeout=1.0)
+        if self._executor is not None:
+            self._executor.shutdown(timeout_sec=1.0)
+            self._spin_thread.join(timeout=1.0)
+        for s in self._subs:
+            self.node.destroy_subscription(s)
+        for p in self._pubs.values():
+            self.node.destroy_publisher(p)
+        self._subs, self._pubs = [], {}

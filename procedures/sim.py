@@ -31,6 +31,7 @@ Prints `ready` when serving, and the achieved measured_js rate at exit (SIGINT/S
 from __future__ import annotations
 
 import dataclasses
+from array import array
 import os
 import signal
 import sys
@@ -175,7 +176,8 @@ class SimServer:
         q, dq, effort = self.world.measured_js(name)
         m = self._msgs[name]
         self._stamp(m, t)
-        m.position, m.velocity, m.effort = q.tolist(), dq.tolist(), effort.tolist()
+        # array('d') skips the generated setters' per-element checks (a third of the cost).
+        m.position, m.velocity, m.effort = array("d", q), array("d", dq), array("d", effort)
         self._pub[name]["measured_js"].publish(m)
         self.published[name] += 1
 

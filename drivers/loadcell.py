@@ -32,7 +32,7 @@ import threading
 import time
 import tty
 from collections import deque
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -620,6 +620,7 @@ class _StreamingLoadCell:
         self._clockmap = ClockMapper()
         self.rate_hz = 0
         self.identity: Identity | None = None
+        self._tare_pending = False
 
     _seq_bits = 32
     connect_timeout = 2.5  # s, covers the Arduino bootloader after a DTR reset
@@ -662,6 +663,13 @@ class _StreamingLoadCell:
         return True
 
     def _on_reply(self, ftype: int, payload: bytes) -> None:
+        if ftype == CMD_TARE | REPLY and self._tare_pending and len(payload) == TARE_REPLY_FMT.size:
+            # re-zero here, in the reader thread, so every sample decoded after the reply
+            # (the firmware sends it before the next sample) reads against the new zero
+            with self._lock:
+                self._tare_pending = False
+                if self.calibration is not None:
+                    self.calibration = self.calibration.with_tare(TARE_REPLY_FMT.unpack(payload)[0])
         self._stats.replies += 1
         if ftype == T_ERROR:
             self._stats.device_errors += 1
@@ -716,15 +724,20 @@ class _StreamingLoadCell:
             return replace(self._stats)
 
     def collect_counts(self, seconds: float) -> list[int]:
-        """Raw counts of every sample over the next `seconds` (s) of streaming."""
-        self.raw_samples()  # discard what was queued before
+        """Raw counts of the samples converted during the next `seconds` (s).
+
+        Selected by their (mapped) conversion time, so a sample taken before the call but
+        delivered late is not mixed in.
+        """
+        start = self.clock()
+        end = start + seconds
         out: list[int] = []
-        end = self.clock() + seconds
-        while self.clock() < end:
+        while True:
+            done = self.clock() >= end + 0.02  # a little longer for the last ones in flight
+            out.extend(s.raw for s in self.raw_samples() if start <= s.t < end)
+            if done:
+                return out
             time.sleep(0.005)
-            out.extend(s.raw for s in self.raw_samples())
-        out.extend(s.raw for s in self.raw_samples())
-        return out
 
     def _send(self, ctype: int, payload: bytes) -> None:
         raise NotImplementedError
@@ -796,12 +809,19 @@ class _StreamingLoadCell:
         return mean
 
     def tare(self, conversions: int = 64) -> None:
-        """Zero the force at the present load (device-averaged over `conversions` samples)."""
+        """Zero the force at the present load (device-averaged over `conversions` samples).
+
+        Samples converted after the device's tare reply read against the new zero; those
+        already received keep the force they had.
+        """
         if self.calibration is None:
             raise LoadCellNotCalibrated(
                 f"load cell on {self.name}: tare needs a calibration; run `rig loadcell-calibrate`")
-        mean = self.tare_counts(conversions)
-        self.calibration = self.calibration.with_tare(mean)
+        self._tare_pending = True
+        try:
+            self.tare_counts(conversions)  # the reader thread applies the reply
+        finally:
+            self._tare_pending = False
 
     def _setup(self, rate_hz: int, start: bool) -> None:
         try:
@@ -1157,7 +1177,11 @@ class FakeLoadCellFirmware:
         return b""
 
     def _send_sample(self, s: RawSample) -> None:
-        frame = self._fault(sample_frame(s))
+        frame = sample_frame(s)
+        if len(self._tx) + len(frame) > self.TX_BACKLOG:
+            self.model.tx_dropped += 1  # dropped before any fault is spent on it
+            return
+        frame = self._fault(frame)
         n = 1
         if frame and self._swap_held is not None:
             frame, self._swap_held, n = frame + self._swap_held, None, 2

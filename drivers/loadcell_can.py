@@ -9,7 +9,6 @@ python-can virtual bus channel, with the same physics as the serial fake
 
 from __future__ import annotations
 
-import random
 import struct
 import threading
 import time
@@ -22,7 +21,6 @@ from drivers.interfaces import ForceSample
 from drivers.loadcell import (
     ERR_BAD_LENGTH,
     ERROR_FMT,
-    REPLY,
     SAMPLE_SATURATED,
     T_ERROR,
     LoadCellCalibration,
@@ -164,7 +162,6 @@ class FakeCanLoadCellFirmware:
         self.channel = channel
         self.base_id = base_id
         self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-        self.rng = random.Random(seed + 1)
         self._inject: deque[str] = deque()
         self._held: can.Message | None = None
         self.injected: dict[str, int] = {}
@@ -256,4 +253,4 @@ class FakeCanLoadCellFirmware:
 
 
 __all__ = ["CanLoadCell", "FakeCanLoadCellFirmware", "encode_can_sample", "decode_can_sample",
-           "DEFAULT_BASE_ID", "REPLY"]
+           "DEFAULT_BASE_ID"]

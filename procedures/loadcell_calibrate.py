@@ -105,8 +105,7 @@ def command(mass1: float, mass2: float, port: str | None, sim: bool, baud: int, 
 
     def hang(kg: float) -> None:
         if simulated:
-            weights.kg = kg
-            time.sleep(0.02)  # let the new load reach the samples
+            weights.kg = kg  # collect_counts() only takes samples converted from now on
         else:
             click.prompt(f"Hang {kg:.3f} kg from the load cell, let it settle, then press Enter",
                          default="", show_default=False, err=True)
@@ -120,7 +119,8 @@ def command(mass1: float, mass2: float, port: str | None, sim: bool, baud: int, 
             ser = serial.Serial(fake.port_path, baudrate=baud)
         else:
             ser = serial.Serial(port, baudrate=baud)
-        lc = LoadCell(ser, None, rate_hz=rate_hz)
+        # static loads: a 200 ms scheduling hiccup is harmless here, a dead cable still stops us
+        lc = LoadCell(ser, None, rate_hz=rate_hz, stale_timeout=0.2)
         ident = lc.identity
         result["device"] = {"port": port or fake.port_path, "protocol": ident.protocol,
                             "firmware": ".".join(map(str, ident.firmware)), "adc": ident.adc,

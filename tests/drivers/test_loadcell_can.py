@@ -89,8 +89,10 @@ def test_stream_tare_and_rate(cell):
     assert all(b.t >= a.t for a, b in zip(got, got[1:]))
     lc.tare(conversions=16)
     tension.value = 2.0
+    t0 = time.monotonic()
     time.sleep(0.02)
-    assert lc.read().force == pytest.approx(1.0, abs=3e-3)
+    s = lc.read()
+    assert s.t > t0 and s.force == pytest.approx(1.0, abs=3e-3)
     with pytest.raises(LoadCellCommandError, match="bad argument"):
         lc.set_rate(5000)
     st = lc.stats()

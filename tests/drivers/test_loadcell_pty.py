@@ -50,6 +50,17 @@ def rig():
         port.close()
 
 
+def fresh(lc: LoadCell, timeout: float = 1.0):
+    """The first sample converted after this call (s.t is the conversion time)."""
+    t0 = time.monotonic()
+    while time.monotonic() < t0 + timeout:
+        s = lc.read()
+        if s.t > t0:
+            return s
+        time.sleep(0.001)
+    raise AssertionError("no fresh sample")
+
+
 def exchange(port: serial.Serial, sent: bytes, n_reply: int) -> bytes:
     port.reset_input_buffer()
     port.write(sent)
@@ -88,16 +99,18 @@ def test_fake_answers_commands_and_errors_byte_for_byte(rig):
 
 def test_samples_arrive_at_500_hz_with_mapped_times(rig):
     fake, port = rig(Tension(2.0), record_write_times=True)
-    lc = LoadCell(port, truth_calibration(fake))
+    lc = LoadCell(port, truth_calibration(fake), stale_timeout=0.5)
     time.sleep(1.0)
+    lc.stop()  # everything sent before the STOP reply has been received
     got = lc.samples()
     assert 480 <= len(got) <= 520
     assert [s.seq for s in got] == list(range(got[0].seq, got[0].seq + len(got)))
-    dt = [b.t - a.t for a, b in zip(got, got[1:])]
-    assert statistics.median(dt) == pytest.approx(0.002, abs=1e-4)
+    # (the fake's thread may bunch a few conversions on a loaded machine; the span may not drift)
+    assert got[-1].t - got[0].t == pytest.approx((len(got) - 1) * 0.002, rel=0.02)
+    assert all(b.t >= a.t for a, b in zip(got, got[1:]))
     # the mapped time is the fake's conversion time (host clock), to within a millisecond
     err = [abs(s.t - fake.sample_times[s.seq]) for s in got[100:]]
-    assert statistics.median(err) < 0.5e-3 and max(err) < 2e-3
+    assert statistics.median(err) < 0.5e-3 and max(err) < 5e-3
     assert all(s.force == pytest.approx(2.0, abs=2e-3) for s in got)  # quantisation 3 mN
     st = lc.stats()
     assert st.problems() == 0 and st.samples == len(got)
@@ -107,11 +120,10 @@ def test_samples_arrive_at_500_hz_with_mapped_times(rig):
 def test_two_point_calibration_recovers_the_true_gain(rig):
     tension = Tension(0.0)
     fake, port = rig(tension, noise=0.02, seed=4)
-    lc = LoadCell(port, None)
+    lc = LoadCell(port, None, stale_timeout=0.5)
     m1, m2 = 0.0, 0.5
     c1 = lc.collect_counts(0.4)
     tension.value = m2 * STANDARD_GRAVITY
-    time.sleep(0.01)
     c2 = lc.collect_counts(0.4)
     sem = lambda c: statistics.stdev(c) / len(c) ** 0.5  # noqa: E731
     cal = LoadCellCalibration.from_two_points(m1, statistics.fmean(c1), m2, statistics.fmean(c2), sem(c1), sem(c2))
@@ -119,10 +131,7 @@ def test_two_point_calibration_recovers_the_true_gain(rig):
     assert abs(cal.newtons_per_count - 1 / fake.model.gain) < 4 * cal.newtons_per_count_std + 1e-6
     lc.calibration = cal
     tension.value = 3.0
-    time.sleep(0.05)
-    lc.samples()
-    time.sleep(0.3)
-    forces = [s.force for s in lc.samples()]
+    forces = [cal.newtons(c) for c in lc.collect_counts(0.3)]
     assert statistics.fmean(forces) == pytest.approx(3.0, abs=0.01)
     assert statistics.stdev(forces) == pytest.approx(0.02, rel=0.25)  # the fake's noise, N rms
     lc.close()
@@ -131,15 +140,13 @@ def test_two_point_calibration_recovers_the_true_gain(rig):
 def test_tare_zeroes_the_present_load(rig):
     tension = Tension(1.0)
     fake, port = rig(tension)
-    lc = LoadCell(port, truth_calibration(fake))
+    lc = LoadCell(port, truth_calibration(fake), stale_timeout=0.5)
     time.sleep(0.05)
     assert lc.read().force == pytest.approx(1.0, abs=3e-3)
     lc.tare(conversions=32)
-    time.sleep(0.02)
-    assert lc.read().force == pytest.approx(0.0, abs=3e-3)
+    assert fresh(lc).force == pytest.approx(0.0, abs=3e-3)
     tension.value = 2.5
-    time.sleep(0.02)
-    assert lc.read().force == pytest.approx(1.5, abs=3e-3)
+    assert fresh(lc).force == pytest.approx(1.5, abs=3e-3)
     lc.close()
 
 
@@ -179,7 +186,7 @@ def test_silent_device_is_stale_within_the_timeout(rig):
 
 def test_injected_faults_are_each_counted(rig):
     fake, port = rig(Tension(1.0), seed=2)
-    lc = LoadCell(port, truth_calibration(fake))
+    lc = LoadCell(port, truth_calibration(fake), stale_timeout=0.5)
     time.sleep(0.05)
     for kind, n in [("crc", 5), ("truncate", 3), ("garbage", 4), ("skip", 6), ("swap", 2)]:
         fake.inject(kind, n)
@@ -187,7 +194,7 @@ def test_injected_faults_are_each_counted(rig):
     fake.corrupt_probability = 0.05
     time.sleep(0.4)
     fake.corrupt_probability = 0.0
-    time.sleep(0.05)
+    time.sleep(0.02)  # a good frame after the last fault, so every gap is closed
     st = lc.stats()
     random_crc = fake.injected["crc"] - 5
     assert random_crc > 3
@@ -204,11 +211,11 @@ def test_injected_faults_are_each_counted(rig):
 def test_saturation_is_flagged_and_clipped(rig):
     tension = Tension(1.0)
     fake, port = rig(tension, adc_limits=(-1000, 1000))
-    lc = LoadCell(port, truth_calibration(fake))
+    lc = LoadCell(port, truth_calibration(fake), stale_timeout=0.5)
     time.sleep(0.05)
     tension.value = 10.0  # 137 + 3277 counts, past the 1000-count limit
     time.sleep(0.05)
-    s = lc.read()
+    s = fresh(lc)
     assert s.raw == 1000
     assert lc.stats().saturated > 10
     lc.close()
@@ -216,23 +223,29 @@ def test_saturation_is_flagged_and_clipped(rig):
 
 def test_drift_and_noise_are_settable(rig):
     fake, port = rig(Tension(0.0), seed=5)
-    lc = LoadCell(port, truth_calibration(fake))
+    lc = LoadCell(port, truth_calibration(fake), stale_timeout=0.5)
     fake.drift = 10.0  # N/s, since the fake started
-    time.sleep(0.2)
-    f1 = lc.read().force
-    time.sleep(0.2)
-    f2 = lc.read().force
-    assert f2 - f1 == pytest.approx(2.0, abs=0.2)
+    time.sleep(0.3)
+    got = lc.samples()[10:]
+    slope = (got[-1].force - got[0].force) / (got[-1].t - got[0].t)
+    assert slope == pytest.approx(10.0, rel=0.05)
+    fake.noise = 0.05
+    fake.drift = 0.0
+    time.sleep(0.01)
+    lc.samples()
+    time.sleep(0.3)
+    assert statistics.stdev(s.force for s in lc.samples()) == pytest.approx(0.05, rel=0.25)
     lc.close()
 
 
 def test_micros_wraparound_keeps_sample_times_continuous(rig):
     fake, port = rig(Tension(0.5), micros_start=2**32 - 200_000)  # wraps 0.2 s in
-    lc = LoadCell(port, truth_calibration(fake))
+    lc = LoadCell(port, truth_calibration(fake), stale_timeout=0.5)
     time.sleep(0.5)
     got = lc.samples()
     dt = [b.t - a.t for a, b in zip(got, got[1:])]
-    assert len(got) > 200 and max(dt) < 0.01 and min(dt) >= 0
+    # a wrong unwrap would jump by 71.6 minutes or run backwards
+    assert len(got) > 200 and max(dt) < 0.05 and min(dt) >= 0
     assert got[-1].t - got[0].t == pytest.approx((len(got) - 1) * 0.002, abs=0.01)
     lc.close()
 

@@ -4,7 +4,7 @@
 
 Prints a table of figures against their targets (issue 3: zero frames lost; latency from
 the fake's write to the driver's sample, median < 2 ms) and exits non-zero if any fails.
-Latency uses a side channel: the fake records time.monotonic() right after each frame's
+The fake runs in a child process. Latency uses a side channel: the fake records time.monotonic() right after each frame's
 write to the pty (by sequence number), the driver's `on_sample` hook records
 time.monotonic() when the reader thread has decoded it. The fake also records each
 sample's true conversion time, which checks the driver's device-to-host time mapping.
@@ -12,6 +12,7 @@ sample's true conversion time, which checks the driver's device-to-host time map
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import sys
 import time
@@ -32,21 +33,35 @@ def pct(values: list[float], q: float) -> float:
     return s[min(len(s) - 1, int(q * len(s)))]
 
 
+def run_fake(conn, rate_hz: int) -> None:
+    """The device side, in its own process as the Arduino is its own machine (and so the
+    fake's thread and the driver's reader do not share one interpreter lock)."""
+    fake = FakeLoadCellFirmware(lambda: 2.0, record_write_times=True, noise=0.005, rate_hz=rate_hz).start()
+    conn.send((fake.port_path, fake.model.gain, fake.model.offset))
+    conn.recv()  # the host is done
+    fake.unplug()
+    conn.send((fake.write_times, fake.sample_times, fake.model.tx_dropped))
+
+
 @click.command()
 @click.option("--seconds", type=float, default=60.0, show_default=True, help="Streaming time (s).")
 @click.option("--rate", "rate_hz", type=int, default=500, show_default=True, help="Sample rate (Hz).")
 def main(seconds: float, rate_hz: int) -> None:
     load0 = os.getloadavg()[0]
-    fake = FakeLoadCellFirmware(lambda: 2.0, record_write_times=True, noise=0.005).start()
-    port = serial.Serial(fake.port_path, baudrate=250000)
+    ctx = multiprocessing.get_context("fork")
+    conn, child_conn = ctx.Pipe()
+    child = ctx.Process(target=run_fake, args=(child_conn, rate_hz), daemon=True)
+    child.start()
+    port_path, gain, offset = conn.recv()
+    port = serial.Serial(port_path, baudrate=250000)
     rx: dict[int, float] = {}
     mapped: dict[int, float] = {}
 
     def on_sample(sample, rx_time):
-        rx[sample.seq] = time.monotonic()
+        rx[sample.seq] = time.monotonic()  # CLOCK_MONOTONIC: the same clock in both processes
         mapped[sample.seq] = sample.t
 
-    cal = LoadCellCalibration(newtons_per_count=1 / fake.model.gain, zero_counts=fake.model.offset)
+    cal = LoadCellCalibration(newtons_per_count=1 / gain, zero_counts=offset)
     lc = LoadCell(port, cal, rate_hz=rate_hz, on_sample=on_sample)
     t0 = time.monotonic()
     n_read = 0
@@ -67,12 +82,14 @@ def main(seconds: float, rate_hz: int) -> None:
     st = lc.stats()
     lc.close()
     port.close()
-    fake.unplug()
+    conn.send("stop")
+    write_times, sample_times, tx_dropped = conn.recv()
+    child.join(timeout=5)
 
-    sent = fake.write_times
-    lost = len(set(sent) - set(rx)) + fake.model.tx_dropped
+    sent = write_times
+    lost = len(set(sent) - set(rx)) + tx_dropped
     lat = [(rx[s] - sent[s]) * 1e3 for s in sent if s in rx]
-    map_err = [abs(mapped[s] - fake.sample_times[s]) * 1e3 for s in mapped if s in fake.sample_times][rate_hz:]
+    map_err = [abs(mapped[s] - sample_times[s]) * 1e3 for s in mapped if s in sample_times][rate_hz:]
     achieved = len(rx) / elapsed
     rows = [
         # (figure, value, unit, target, pass)

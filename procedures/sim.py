@@ -327,8 +327,6 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, list_step
     def on_signal(signum, _frame):
         stop.set()
 
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
 
     firmware = None
     if loadcell and cfg.object["arms"] and world.object is not None:
@@ -354,6 +352,9 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, list_step
     mocap_cfg = dict(cfg.mocap) if mocap and cfg.mocap["driver"] != "none" else None
     server = SimServer(world, node, list(world.names), cp_rate=cp_rate, mocap=mocap_cfg, seed=world.seed)
     server.stop = stop
+    # Installed after rclpy is up: its initialisation replaces SIGINT/SIGTERM handlers.
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
     print(f"rig sim: serving {', '.join(world.names)} at {rate:g} Hz on ROS_DOMAIN_ID="
           f"{os.environ.get('ROS_DOMAIN_ID', '0')}", file=sys.stderr, flush=True)
     try:

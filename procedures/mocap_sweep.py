@@ -1,0 +1,353 @@
+"""Moving arms while the mocap system watches: what the kinematic calibration procedures share.
+
+`rig link-lengths`, `rig calibrate-rcm` and `rig register` all move one joint (or two)
+through a range while an optical tracker records marker bodies on the links. This module
+holds that part, written against the device interfaces only (drivers/interfaces.py: Arm,
+Tracker, and a Clock), so the same code drives the real rig and the simulated one:
+
+* `Capture`: the mocap frames (body poses, labelled markers) and arm joint states of one
+  phase of a procedure, as arrays, with the joint positions interpolated to frame times;
+* `move_capture` / `servo_capture`: move an arm (move_jp, or a streamed servo_jp
+  trajectory) while ticking the clock, recording every joint state and mocap frame to the
+  run's MCAP and into a Capture;
+* `body_points`: a body's markers (N, P, 3), or, when the tracker gives poses only (ROS
+  bridges publish PoseStamped per body), three virtual points rigidly attached to the
+  pose, so the thesis's three-marker fits run on either;
+* `Person`: the steps a person does on the real rig (mount bodies, touch a point),
+  prompted on the console there and done by the simulation on the simulated rig;
+* `open_devices`: the clock, arms, tracker and person of a configuration.
+
+Units: m, rad (joint 3 in m), s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Protocol
+
+import click
+import numpy as np
+
+from drivers.interfaces import TrackerFrame
+from drivers.quaternion import matrix_to_quat_xyzw
+from rig.run import AbortRun
+
+# A move has arrived when the measured joints are this close to the goal and at rest. Looser
+# than the dVRK's own move_jp tolerance: under gravity the pitch joint settles a few mrad
+# short until the integral term catches up, which does not matter to a calibration sweep
+# (the measured joints are recorded, not the commanded ones).
+ARRIVED = np.array([6e-3, 6e-3, 3e-3])     # rad, rad, m
+AT_REST = np.array([0.03, 0.03, 0.005])     # rad/s, rad/s, m/s
+# Virtual points of a pose-only body: a 60 mm right triangle in the body frame (m).
+VIRTUAL_POINTS = np.array([[0.06, 0.0, 0.0], [0.0, 0.06, 0.0], [0.0, 0.0, 0.06]])
+
+
+# ------------------------------------------------------------------------------ capture
+
+@dataclass
+class Capture:
+    """One phase of a procedure: mocap frames and joint states, as arrays.
+
+    t: (N,) s, frame times; poses: body -> (R (N, 3, 3), p (N, 3)) in the mocap frame, NaN
+    where the body was not solved; markers: body -> (N, P, 3) m, NaN where occluded (only
+    for bodies whose labelled markers the tracker delivers); joints: arm -> (N, 3) measured
+    joints interpolated at the frame times; js: arm -> (t (M,), q (M, 3)) the raw samples.
+    """
+
+    name: str
+    t: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    poses: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    markers: dict[str, np.ndarray] = field(default_factory=dict)
+    joints: dict[str, np.ndarray] = field(default_factory=dict)
+    js: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return len(self.t)
+
+    def valid(self, body: str) -> np.ndarray:
+        """(N,) frames in which `body` was solved."""
+        if body not in self.poses:
+            return np.zeros(self.n, bool)
+        return np.all(np.isfinite(self.poses[body][1]), axis=1)
+
+    def subset(self, mask: np.ndarray, name: str | None = None) -> "Capture":
+        """The frames where `mask` is True (joint-state samples kept whole)."""
+        return Capture(name or self.name, self.t[mask],
+                       {b: (R[mask], p[mask]) for b, (R, p) in self.poses.items()},
+                       {b: X[mask] for b, X in self.markers.items()},
+                       {a: q[mask] for a, q in self.joints.items()}, dict(self.js))
+
+    def matrices(self, body: str) -> np.ndarray:
+        """(N, 4, 4) poses of `body`, NaN where it was not solved."""
+        R, p = self.poses[body]
+        T = np.tile(np.eye(4), (self.n, 1, 1))
+        T[:, :3, :3], T[:, :3, 3] = R, p
+        return T
+
+
+class _Collector:
+    """Accumulates frames and joint samples of one phase, then makes a Capture."""
+
+    def __init__(self, name: str, bodies: list[str]):
+        self.name = name
+        self.bodies = bodies
+        self.frames: list[TrackerFrame] = []
+        self.js_t: dict[str, list[float]] = {}
+        self.js_q: dict[str, list[np.ndarray]] = {}
+
+    def add_js(self, arm: str, t: float, q: np.ndarray) -> None:
+        self.js_t.setdefault(arm, []).append(float(t))
+        self.js_q.setdefault(arm, []).append(np.asarray(q, float)[:3].copy())
+
+    def capture(self) -> Capture:
+        n = len(self.frames)
+        t = np.array([f.t for f in self.frames], float)
+        poses, markers = {}, {}
+        for b in self.bodies:
+            R = np.full((n, 3, 3), np.nan)
+            p = np.full((n, 3), np.nan)
+            for k, f in enumerate(self.frames):
+                pose = f.bodies.get(b)
+                if pose is not None:
+                    R[k], p[k] = pose.rotation, pose.position
+            poses[b] = (R, p)
+            labels = sorted((m for m in (self.frames[0].markers if n else {}) if m.startswith(b + ":")),
+                            key=_marker_index)
+            if len(labels) >= 3:
+                X = np.full((n, len(labels), 3), np.nan)
+                for k, f in enumerate(self.frames):
+                    for j, m in enumerate(labels):
+                        v = f.markers.get(m)
+                        if v is not None:
+                            X[k, j] = v
+                markers[b] = X
+        joints, js = {}, {}
+        for arm, ts in self.js_t.items():
+            tq = np.array(ts)
+            q = np.array(self.js_q[arm])
+            js[arm] = (tq, q)
+            joints[arm] = np.stack([np.interp(t, tq, q[:, j]) for j in range(3)], axis=1) if n else np.zeros((0, 3))
+        return Capture(self.name, t, poses, markers, joints, js)
+
+
+def _marker_index(label: str) -> int:
+    tail = label.rsplit("Marker", 1)[-1]
+    return int(tail) if tail.isdigit() else 0
+
+
+def concatenate(captures: list[Capture], name: str) -> Capture:
+    """Several phases as one Capture (frames in order)."""
+    caps = [c for c in captures if c.n]
+    if not caps:
+        return Capture(name)
+    bodies = set.intersection(*(set(c.poses) for c in caps))
+    mk = set.intersection(*(set(c.markers) for c in caps))
+    arms = set.intersection(*(set(c.joints) for c in caps))
+    return Capture(name, np.concatenate([c.t for c in caps]),
+                   {b: (np.concatenate([c.poses[b][0] for c in caps]),
+                        np.concatenate([c.poses[b][1] for c in caps])) for b in bodies},
+                   {b: np.concatenate([c.markers[b] for c in caps]) for b in mk},
+                   {a: np.concatenate([c.joints[a] for c in caps]) for a in arms}, {})
+
+
+def body_points(cap: Capture, body: str) -> tuple[np.ndarray, str]:
+    """Points (N, P, 3) m of `body` in the mocap frame and where they come from.
+
+    The labelled markers when the tracker delivers them ("markers"), otherwise three
+    virtual points rigidly attached to the solved pose ("pose"): they move exactly as
+    markers on the body would, so the axis fits of appendix A.1 apply to either.
+    """
+    if body in cap.markers:
+        return cap.markers[body], "markers"
+    R, p = cap.poses[body]
+    return np.einsum("kij,vj->kvi", R, VIRTUAL_POINTS) + p[:, None, :], "pose"
+
+
+# ------------------------------------------------------------------------------ moving
+
+class Rig(Protocol):
+    """What the calibration procedures need of a rig (see `open_devices`)."""
+
+    clock: object
+    arms: dict
+    tracker: object
+    person: "Person"
+
+
+def _record_frames(run, collector: _Collector, frames: list[TrackerFrame]) -> None:
+    rec = run.recorder
+    for f in frames:
+        collector.frames.append(f)
+        for b, pose in f.bodies.items():
+            if pose is not None:
+                rec.pose(f"/mocap/{b}/pose", f.t, pose.position, matrix_to_quat_xyzw(pose.rotation), "mocap")
+        for m, v in f.markers.items():
+            if v is not None:
+                # one PoseStamped per labelled marker (identity orientation): ROS 2 has no
+                # stamped point in the message set the recorder writes
+                rec.pose(f"/mocap/markers/{m.replace(':', '/')}", f.t, v, (0.0, 0.0, 0.0, 1.0), "mocap")
+
+
+def _tick(rig, run, collector: _Collector, arms: list) -> dict[str, np.ndarray]:
+    """One clock period: tick, record each arm's joint state and new mocap frames."""
+    rig.clock.tick()
+    q = {}
+    for arm in arms:
+        js = arm.measured_js()
+        run.recorder.joint_state_sample(f"/{arm.name}/measured_js", js)
+        collector.add_js(arm.name, js.t, js.position)
+        q[arm.name] = (np.asarray(js.position, float)[:3], np.asarray(js.velocity, float)[:3])
+    _record_frames(run, collector, rig.tracker.frames())
+    return q
+
+
+def move_capture(rig, run, arm, goals: list[np.ndarray], collector: _Collector,
+                 step=None, timeout: float = 30.0, others: list | None = None) -> None:
+    """move_jp `arm` through `goals` in turn, recording everything until each arrives.
+
+    Arrival: measured joints within ARRIVED of the goal and slower than AT_REST; a goal
+    not reached within `timeout` s of clock time aborts the run (the arm is then held).
+    `others`: further arms whose joint states are recorded too.
+    """
+    arms = [arm] + list(others or [])
+    for i, goal in enumerate(goals):
+        goal = np.asarray(goal, float)
+        arm.move_jp(goal, wait=False)
+        t_end = rig.clock.now() + timeout
+        while True:
+            q, dq = _tick(rig, run, collector, arms)[arm.name]
+            if np.all(np.abs(q - goal) <= ARRIVED) and np.all(np.abs(dq) <= AT_REST):
+                break
+            if rig.clock.now() > t_end:
+                err = q - goal
+                raise AbortRun(f"{arm.name} did not reach {np.round(goal, 4).tolist()} within "
+                               f"{timeout:.0f} s (error {np.round(err, 4).tolist()} rad, rad, m)")
+        if step is not None:
+            step.advance()
+
+
+def servo_capture(rig, run, arm, trajectory: Callable[[float], np.ndarray], duration: float,
+                  collector: _Collector, step=None) -> None:
+    """Stream servo_jp(trajectory(s)) for s in [0, duration] s of clock time, recording.
+
+    trajectory: s -> (3,) joints; it must start where the arm is and respect the limits.
+    """
+    t0 = rig.clock.now()
+    n = int(round(duration * rig.clock.rate))
+    shown = 0
+    for k in range(n):
+        s = rig.clock.now() - t0
+        arm.servo_jp(trajectory(s))
+        _tick(rig, run, collector, [arm])
+        if step is not None and step.total:
+            done = int(step.total * (k + 1) / n)
+            if done > shown:
+                step.advance(done - shown)
+                shown = done
+
+
+def settle(rig, run, collector: _Collector, arms: list, duration: float) -> None:
+    """Tick for `duration` s recording (arms holding where they are)."""
+    for _ in range(int(round(duration * rig.clock.rate))):
+        _tick(rig, run, collector, arms)
+
+
+# ------------------------------------------------------------------------------ people
+
+class Person(Protocol):
+    """The steps of a procedure that need a person on the real rig."""
+
+    def confirm(self, message: str) -> None:
+        """Do what `message` asks (mount bodies, clear the workspace) before continuing."""
+        ...
+
+    def detach_object(self) -> None:
+        """Take the object (spring, suture) off the tool tips: calibration moves arms alone."""
+        ...
+
+    def touch(self, arms: dict, point_index: int, goal_world: np.ndarray) -> None:
+        """Bring every arm's tool tip to one common physical point (the index-th)."""
+        ...
+
+
+class ConsolePerson:
+    """The real rig: print the request and wait for Enter (stderr, so --json stays clean)."""
+
+    def confirm(self, message: str) -> None:
+        click.prompt(f"{message}; press Enter when done", default="", show_default=False, err=True)
+
+    def detach_object(self) -> None:
+        self.confirm("Take the object (spring or suture) and the load cell off the tool tips")
+
+    def touch(self, arms: dict, point_index: int, goal_world: np.ndarray) -> None:
+        names = " and ".join(arms)
+        click.prompt(f"Touch point {point_index + 1}: bring the tool tips of {names} together on one "
+                     "point of the fixture (hand-guide or jog them), hold still, press Enter",
+                     default="", show_default=False, err=True)
+
+
+class SimPerson:
+    """The simulated rig does the person's steps itself.
+
+    Markers are mounted by construction; the object is detached from the world; a touch
+    moves every arm's tip to the same world point with inverse kinematics on the *true*
+    arm placement (what a person guiding the tips together achieves physically, whatever
+    the calibration believes) and waits until the tips are there and at rest.
+    """
+
+    def __init__(self, world, clock):
+        self.world = world
+        self.clock = clock
+
+    def confirm(self, message: str) -> None:
+        return None
+
+    def detach_object(self) -> None:
+        self.world.detach_object()
+
+    def touch(self, arms: dict, point_index: int, goal_world: np.ndarray) -> None:
+        from rig import psm_kinematics as K
+        goals = {}
+        for name, arm in arms.items():
+            T = np.linalg.inv(self.world.arms[name].rcm_world)
+            goals[name] = K.ik_rcm((T @ np.append(goal_world, 1.0))[:3])
+            arm.move_jp(goals[name], wait=False)
+        t_end = self.clock.now() + 20.0
+        while self.clock.now() < t_end:
+            self.clock.tick()
+            if all(np.all(np.abs(self.world.true_state(n)[0] - goals[n]) < np.array([1e-4, 1e-4, 5e-5]))
+                   and np.all(np.abs(self.world.true_state(n)[1]) < 1e-3) for n in arms):
+                return
+
+
+@dataclass
+class Devices:
+    """The devices a calibration procedure uses: clock, arms by name, tracker, person;
+    `world` is the simulated world when the rig is simulated (for truth only), else None."""
+
+    clock: object
+    arms: dict
+    tracker: object
+    person: Person
+    world: object = None
+    rig: object = None
+
+    def close(self) -> None:
+        if self.rig is not None:
+            self.rig.close()
+
+
+def open_devices(cfg, seed: int | None = None, arms: list[str] | None = None) -> Devices:
+    """The configuration's clock, arms and tracker (`rig.devices.open_rig`) and the person
+    for the manual steps: the simulation itself on the simulated rig, the console on the
+    real one."""
+    from rig.devices import open_rig
+
+    rig = open_rig(cfg, arms, seed=seed)
+    if rig.tracker is None:
+        rig.close()
+        raise click.ClickException(f"{cfg.source}: no motion-capture system ([mocap] driver = 'none'); "
+                                   "this procedure tracks marker bodies")
+    person = SimPerson(rig.world, rig.clock) if rig.world is not None else ConsolePerson()
+    return Devices(rig.clock, dict(rig.arms), rig.tracker, person, rig.world, rig)

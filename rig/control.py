@@ -1,0 +1,240 @@
+"""Controllers of thesis chapter 7: feedforward linearisation, computed torque, impedance,
+robust stick-slip friction compensation, and the filters they read through.
+
+All controllers work in joint space for joints 1-3 and in the arm's RCM frame for
+Cartesian quantities (m, N); the cooperative layer converts world-frame targets.
+
+* `KalmanDifferentiator`: position (or force) -> filtered value and rate. A constant-
+  acceleration Kalman filter designed with filterpy; because the model and noise are
+  constant the gain converges, and the loop runs the converged (steady-state) gain, which
+  is what keeps a controller step inside the 1 ms budget. `delay()` reports its lag.
+* `StickSlipCompensation`: eq. 4.16 friction with velocity deadbands and, on joint 3, the
+  robust stick-slip term with a position deadband (thesis 7.5.1).
+* `FeedforwardModel`: M^(q) y + N^(q, dq) + tau_f^ (eq. 7.1-7.2) from a PSMDynamics.
+* `ComputedTorque` (7.2) and `Impedance` (7.3, eq. 7.6-7.9).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from filterpy.common import Q_discrete_white_noise
+from filterpy.kalman import KalmanFilter
+
+from rig import psm_kinematics as K
+from rig.psm_dynamics import PSMDynamics
+
+
+class KalmanDifferentiator:
+    """Steady-state constant-acceleration Kalman filter for n independent channels.
+
+    Each channel's state is (value, rate, rate of rate). It measures the value and, when
+    `rate_noise` is given, the rate too (the dVRK reports both a quantised position and a
+    noisy velocity). `process_noise` is the std of the white jerk; it sets the trade-off
+    between lag and noise. The gain is designed with filterpy and iterated to convergence.
+    """
+
+    def __init__(self, n: int, dt: float, value_noise, process_noise, rate_noise=None):
+        self.n = n
+        self.dt = dt
+        self.F = np.array([[1.0, dt, 0.5 * dt * dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
+        r = np.broadcast_to(np.asarray(value_noise, float), (n,))
+        qn = np.broadcast_to(np.asarray(process_noise, float), (n,))
+        rv = None if rate_noise is None else np.broadcast_to(np.asarray(rate_noise, float), (n,))
+        self.m = 1 if rv is None else 2
+        self.H = np.eye(3)[: self.m]
+        self.gains = np.empty((n, 3, self.m))
+        for i in range(n):
+            self.gains[i] = self._converged_gain(r[i], qn[i], None if rv is None else rv[i])
+        self.x = np.zeros((n, 3))
+        self.initialised = False
+
+    def _converged_gain(self, r: float, q: float, rv: float | None) -> np.ndarray:
+        kf = KalmanFilter(dim_x=3, dim_z=self.m)
+        kf.F = self.F.copy()
+        kf.H = self.H.copy()
+        kf.R = np.diag([max(r, 1e-12) ** 2] + ([] if rv is None else [max(rv, 1e-12) ** 2]))
+        kf.Q = Q_discrete_white_noise(dim=3, dt=self.dt, var=max(q, 1e-12) ** 2)
+        previous = None
+        for _ in range(200000):
+            kf.predict()
+            kf.update(np.zeros(self.m))
+            gain = kf.K.copy()
+            if previous is not None and np.max(np.abs(gain - previous)) <= 1e-12 * np.max(np.abs(gain)):
+                break
+            previous = gain
+        return gain
+
+    def reset(self, value: np.ndarray, rate: np.ndarray | None = None) -> None:
+        self.x[:] = 0.0
+        self.x[:, 0] = value
+        if rate is not None:
+            self.x[:, 1] = rate
+        self.initialised = True
+
+    def update(self, value: np.ndarray, rate: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Feed one sample per channel; returns (filtered value, rate)."""
+        if not self.initialised:
+            self.reset(value, rate)
+        x = self.x
+        dt = self.dt
+        x[:, 0] += dt * x[:, 1] + 0.5 * dt * dt * x[:, 2]
+        x[:, 1] += dt * x[:, 2]
+        if self.m == 1:
+            x += self.gains[:, :, 0] * (value - x[:, 0])[:, None]
+        else:
+            innovation = np.stack([value - x[:, 0], rate - x[:, 1]], axis=1)
+            x += np.einsum("nij,nj->ni", self.gains, innovation)
+        return x[:, 0].copy(), x[:, 1].copy()
+
+    def frequency_response(self, frequency: float, channel: int = 0) -> np.ndarray:
+        """Complex gains from the true signal to the estimated (value, rate) at `frequency` Hz,
+        the rate normalised by j w so that 1 means no error."""
+        w = 2 * np.pi * frequency
+        z = np.exp(1j * w * self.dt)
+        Kg = self.gains[channel]
+        A = self.F - Kg @ self.H @ self.F
+        # a true sine s(t) gives measurements (s, j w s) in the value and rate channels
+        meas = np.array([1.0, 1j * w])[: self.m]
+        X = np.linalg.solve(np.eye(3) - A / z, Kg @ meas)
+        return np.array([X[0], X[1] / (1j * w)])
+
+    def delay(self, frequency: float = 2.0, channel: int = 0) -> tuple[float, float]:
+        """Lag (s) of the filtered value and of the rate estimate for a sine of `frequency` Hz."""
+        w = 2 * np.pi * frequency
+        value, rate = self.frequency_response(frequency, channel)
+        return float(-np.angle(value) / w), float(-np.angle(rate) / w)
+
+    def noise_gain(self, channel: int = 0, samples: int = 20000, seed: int = 0,
+                   value_noise: float = 1.0, rate_noise: float = 0.0) -> tuple[float, float]:
+        """Std of the (value, rate) estimates when the input is pure noise of the given stds."""
+        rng = np.random.default_rng(seed)
+        x = np.zeros(3)
+        Kg = self.gains[channel]
+        out = np.empty((samples, 2))
+        for k in range(samples):
+            x = self.F @ x
+            z = np.array([rng.normal(0, value_noise), rng.normal(0, rate_noise)])[: self.m]
+            x = x + Kg @ (z - self.H @ x)
+            out[k] = x[:2]
+        return tuple(out[samples // 10:].std(axis=0))
+
+
+@dataclass
+class StickSlipCompensation:
+    """Friction compensation of thesis 7.5.1.
+
+    Joints 1-2 (and joint 3 when moving): Fc tanh(a x / 2) + Fv x + Fo with x = 0 inside the
+    velocity deadband. Joint 3 at rest: +Fs_pos or Fs_neg when the position error leaves
+    the position deadband (the joint is about to be pushed out of stiction), else 0.
+    """
+
+    Fc: np.ndarray
+    Fv: np.ndarray
+    Fo: np.ndarray
+    slope: float = 400.0
+    Fs_pos: float = 1.0
+    Fs_neg: float = -1.0
+    velocity_deadband: np.ndarray = field(default_factory=lambda: np.array([0.01, 0.01, 0.005]))
+    position_deadband: float = 0.0003
+    scale: float = 1.0   # fraction of the model friction to compensate (robustness margin)
+
+    def __call__(self, dq: np.ndarray, position_error3: float) -> np.ndarray:
+        x = np.where(np.abs(dq) < self.velocity_deadband, 0.0, dq)
+        f = self.scale * (self.Fc * np.tanh(0.5 * self.slope * x) + self.Fv * x) + self.Fo
+        if abs(dq[2]) < self.velocity_deadband[2]:
+            if position_error3 > self.position_deadband:
+                f[2] = self.Fo[2] + self.Fs_pos
+            elif position_error3 < -self.position_deadband:
+                f[2] = self.Fo[2] + self.Fs_neg
+            else:
+                f[2] = self.Fo[2]
+        return f
+
+
+class FeedforwardModel:
+    """u = M^(q) y + N^(q, dq) (eq. 7.1-7.2), from an identified or nominal PSMDynamics."""
+
+    def __init__(self, dynamics: PSMDynamics):
+        self.dyn = dynamics
+
+    def __call__(self, q: np.ndarray, dq: np.ndarray, y: np.ndarray) -> np.ndarray:
+        # One RNEA pass gives M y + C dq + g (friction added separately).
+        return self.dyn.inverse_dynamics(q, dq, y, friction=False)
+
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        return self.dyn.mass_matrix(q)
+
+
+@dataclass
+class ComputedTorque:
+    """Thesis 7.2: y = Kp (q_d - q) + Kd (dq_d - dq) (+ ddq_d), u = M^ y + N^ + tau_f^."""
+
+    model: FeedforwardModel
+    friction: StickSlipCompensation
+    kp: np.ndarray = field(default_factory=lambda: np.array([25.0, 20.0, 75.0]))
+    kd: np.ndarray = field(default_factory=lambda: np.array([10.0, 11.0, 15.0]))
+
+    def __call__(self, q, dq, q_d, dq_d, ddq_d=np.zeros(3)) -> np.ndarray:
+        y = ddq_d + self.kp * (q_d - q) + self.kd * (dq_d - dq)
+        return self.model(q, dq, y) + self.friction(dq, q_d[2] - q[2])
+
+
+@dataclass
+class Impedance:
+    """Cartesian impedance of the tool tip (thesis 7.3, eq. 7.6-7.9), position only.
+
+    Closed loop: Md (xdd_d - xdd) + Kd (xd_d - xd) + Kp (x_d - x) = h_e, with h_e the
+    force the tip exerts on the environment (N, RCM frame). Kp, Kd are diagonal (N/m,
+    N s/m). For position the analytic and geometric Jacobians coincide (T_A = I).
+
+    `Md` is the desired inertia (kg, diagonal). With `Md=None` the desired inertia is the
+    arm's own Cartesian inertia Lambda^(q) = J^-T M^ J^-1: then the measured-force terms of
+    eq. 7.6 and 7.7 cancel exactly and the loop needs no force measurement, which keeps it
+    stable against stiff objects (a string at 20 kN/m), where feeding back a filtered,
+    sampled force with a desired inertia other than the arm's own limit-cycles. The
+    thesis' choice (Md = M^ at home) aims at the same cancellation.
+    """
+
+    model: FeedforwardModel
+    friction: StickSlipCompensation
+    Md: np.ndarray | None = None
+    Kp: np.ndarray = field(default_factory=lambda: np.array([15.0, 15.0, 15.0]))
+    Kd: np.ndarray = field(default_factory=lambda: np.array([3.0, 3.0, 3.0]))
+    # With the arm's own inertia, damping can instead be set as a ratio against a design
+    # stiffness (N/m; the impedance plus the object's): D = 2 zeta Lambda^1/2 sqrt(K). The
+    # Cartesian inertia of a PSM is strongly anisotropic (rotor inertia seen through a
+    # ~0.1 m lever is tens of kg across the tool, under 1 kg along it), so one diagonal Kd
+    # cannot damp every direction well.
+    damping_ratio: float | None = None
+    design_stiffness: float = 0.0
+
+    def __call__(self, q: np.ndarray, dq: np.ndarray, x_d: np.ndarray, xd_d: np.ndarray,
+                 xdd_d: np.ndarray, h_e: np.ndarray) -> np.ndarray:
+        J = K.tip_jacobian_rcm(q)
+        x = K.tip_in_rcm(q)
+        xd = J @ dq
+        # J-dot q-dot by a directional difference of the closed-form Jacobian (exact to O(eps^2)).
+        eps = 1e-6
+        Jdot_dq = (K.tip_jacobian_rcm(q + eps * dq) - K.tip_jacobian_rcm(q - eps * dq)) @ dq / (2 * eps)
+        if self.Md is not None and self.damping_ratio is not None:
+            D = np.diag(2.0 * self.damping_ratio * np.sqrt(self.Md * self.design_stiffness))
+            spring = self.Kp * (x_d - x) + D @ (xd_d - xd)
+        elif self.Md is None and self.damping_ratio is not None:
+            Minv = np.linalg.inv(self.model.mass_matrix(q))
+            Lam = np.linalg.inv(J @ Minv @ J.T)
+            w, V = np.linalg.eigh(Lam)
+            Lam_half = (V * np.sqrt(np.maximum(w, 0.0))) @ V.T
+            D = 2.0 * self.damping_ratio * np.sqrt(self.design_stiffness) * Lam_half
+            spring = self.Kp * (x_d - x) + D @ (xd_d - xd)
+        else:
+            spring = self.Kp * (x_d - x) + self.Kd * (xd_d - xd)
+        q_target3 = float(K.ik_rcm(x_d, check_limits=False)[2]) if np.linalg.norm(x_d) > 1e-6 else q[2]
+        fric = self.friction(dq, q_target3 - q[2])
+        if self.Md is None:
+            y = np.linalg.solve(J, xdd_d - Jdot_dq)
+            return self.model(q, dq, y) + fric + J.T @ spring
+        a = xdd_d + (spring - h_e) / self.Md
+        y = np.linalg.solve(J, a - Jdot_dq)
+        return self.model(q, dq, y) + fric + J.T @ h_e

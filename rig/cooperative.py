@@ -1,0 +1,270 @@
+"""Cooperative object manipulation with force tracking (thesis 6.3, 7.7).
+
+One master PSM follows a Cartesian trajectory under position control (servo_jp through
+the inverse kinematics); every slave runs the impedance controller of 7.3 and follows
+the master's increments (eq. 6.2, in the world frame) while its target is pushed along
+the object vector to track the tension (eq. 7.10-7.12):
+
+    x_t = x_d + u x_f,     u = (x_slave - x_master) / |x_slave - x_master|
+    x_f <- x_f + dt (k_i (h_d - h_e) - k_damp dh_e/dt)     outside a deadband
+
+The thesis' x_f update is a pure integrator (K_f = k_i dt); its 1-2 N start-up transient
+came from the missing damping, which here is the rate term k_damp dh_e/dt on the filtered
+tension, and the tension set-point is ramped up with a minimum-jerk profile.
+With three arms the object is a triangle; each slave tracks the mean tension of the
+elements it holds and pushes away from the object's centroid (eq. 6.4's c_i).
+
+The controller sees only measurements (joint states, tension samples); it never reads
+the simulated world. It returns, per arm, a position command or an effort command.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rig import psm_kinematics as K
+from rig.control import FeedforwardModel, Impedance, KalmanDifferentiator, StickSlipCompensation
+
+
+def min_jerk(s: float) -> tuple[float, float, float]:
+    """Minimum-jerk profile on [0, 1]: (position, d/ds, d2/ds2)."""
+    s = min(max(s, 0.0), 1.0)
+    p = 10 * s**3 - 15 * s**4 + 6 * s**5
+    v = 30 * s**2 - 60 * s**3 + 30 * s**4
+    a = 60 * s - 180 * s**2 + 120 * s**3
+    return p, v, a
+
+
+def euler_xyz(angles: np.ndarray) -> np.ndarray:
+    """Rotation for x, y, z Euler angle increments (rad): R = Rz Ry Rx."""
+    a, b, c = angles
+    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    Rx = np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]])
+    Ry = np.array([[cb, 0, sb], [0, 1, 0], [-sb, 0, cb]])
+    Rz = np.array([[cc, -sc, 0], [sc, cc, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+@dataclass
+class ForceLoop:
+    """Gains of the tension loop (eq. 7.12 plus damping); SI units."""
+
+    k_i: float = 0.08          # m/(N s): x_f rate per newton of tension error
+    k_damp: float = 0.0015     # m/N: x_f rate per N/s of tension rate (the damping term)
+    deadband: float = 0.02     # N: no integration inside it
+    ramp_time: float = 1.0     # s: minimum-jerk ramp of the set-point from the initial tension
+    x_f_limit: float = 0.03    # m: |x_f| ceiling (the object cannot need more)
+    bandwidth_ratio: float = 3.0  # the loop stays this factor below the arm-object mode
+
+
+@dataclass
+class ImpedanceGains:
+    Md: np.ndarray | None = None   # kg; None: the arm's own Cartesian inertia (see Impedance)
+    Kp: np.ndarray = field(default_factory=lambda: np.array([400.0, 400.0, 400.0]))  # N/m
+    Kd: np.ndarray = field(default_factory=lambda: np.array([20.0, 20.0, 20.0]))  # N s/m (with Md)
+    damping_ratio: float | None = 0.7   # with Md None: ratio against Kp + the object's stiffness
+
+
+@dataclass
+class Motion:
+    """Master motion in the world frame: translation (m) and object rotation (rad) over
+    `duration` s, starting `start` s after the controller starts."""
+
+    translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    rotation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    duration: float = 5.0
+    start: float = 2.0
+
+
+@dataclass
+class ArmCommand:
+    kind: str                       # "position" or "effort"
+    q: np.ndarray | None = None     # servo_jp position (rad, rad, m)
+    dq: np.ndarray | None = None    # servo_jp velocity
+    effort: np.ndarray | None = None  # servo_jf effort (N m, N m, N)
+
+
+class CooperativeController:
+    """Master in position control, slaves in impedance control with tension tracking.
+
+    `rcm_frames`: each arm's RCM frame in the world (4x4, from the registration).
+    `models`: a FeedforwardModel per slave (identified model, or nominal).
+    `friction`: a StickSlipCompensation per slave.
+    `elements`: the object's elements as pairs of arm names (the load cells' order).
+    """
+
+    def __init__(self, arms: list[str], master: str, rcm_frames: dict[str, np.ndarray],
+                 models: dict[str, FeedforwardModel], friction: dict[str, StickSlipCompensation],
+                 elements: list[tuple[str, str]], force: float, dt: float = 1e-3,
+                 motion: Motion | None = None, loop: ForceLoop | None = None,
+                 gains: ImpedanceGains | None = None, force_noise: float = 0.02,
+                 object_stiffness: float = 2450.0, follow_measured_master: bool = True):
+        if master not in arms:
+            raise ValueError(f"master {master!r} is not among the arms {arms}")
+        self.arms = list(arms)
+        self.master = master
+        self.slaves = [a for a in arms if a != master]
+        self.dt = dt
+        self.R = {a: rcm_frames[a][:3, :3].copy() for a in arms}
+        self.p = {a: rcm_frames[a][:3, 3].copy() for a in arms}
+        self.elements = list(elements)
+        self.force = float(force)
+        self.motion = motion or Motion()
+        self.loop = loop or ForceLoop()
+        g = gains or ImpedanceGains()
+        self.impedance = {s: Impedance(models[s], friction[s], None if g.Md is None else g.Md.copy(),
+                                       g.Kp.copy(), g.Kd.copy(), g.damping_ratio,
+                                       float(np.max(g.Kp)) + object_stiffness)
+                          for s in self.slaves}
+        # Joint-state filter: quantised position plus the noisy velocity the dVRK reports.
+        self.joint_filter = {a: KalmanDifferentiator(3, dt, [6e-6, 6e-6, 1e-6], [20.0, 20.0, 5.0],
+                                                     rate_noise=[2e-3, 2e-3, 3e-4]) for a in arms}
+        self.force_filter = KalmanDifferentiator(len(self.elements), dt, force_noise, 200.0)
+        self.t0: float | None = None
+        self.x_f = {s: 0.0 for s in self.slaves}
+        self.tension = np.zeros(len(self.elements))
+        self.tension_rate = np.zeros(len(self.elements))
+        self.force_setpoint = 0.0
+        self.force_offset = 0.0   # user increments (/psm/cmd_force, keyboard)
+        self.offset_translation = np.zeros(3)  # user Cartesian increments (/psm/cmd_vel)
+        self.offset_rotation = np.zeros(3)
+        # Slaves follow the master's measured motion (its PID lags its command; following
+        # the command would stretch the object by that lag) rather than its set-point.
+        self.follow_measured_master = follow_measured_master
+        self.object_stiffness = float(object_stiffness)
+
+    # -- frames -------------------------------------------------------------------------
+    def tip_world(self, arm: str, q: np.ndarray) -> np.ndarray:
+        return self.p[arm] + self.R[arm] @ K.tip_in_rcm(q)
+
+    def to_rcm(self, arm: str, x_world: np.ndarray) -> np.ndarray:
+        return self.R[arm].T @ (x_world - self.p[arm])
+
+    # -- life cycle ---------------------------------------------------------------------
+    def start(self, t: float, q: dict[str, np.ndarray], dq: dict[str, np.ndarray], tension: np.ndarray) -> None:
+        self.t0 = t
+        for a in self.arms:
+            self.joint_filter[a].reset(q[a], dq[a])
+        self.force_filter.reset(np.asarray(tension, float))
+        self.x0 = {a: self.tip_world(a, q[a]) for a in self.arms}
+        self.centroid0 = np.mean([self.x0[a] for a in self.arms], axis=0)
+        self.initial_tension = float(np.mean(tension)) if len(tension) else 0.0
+        self.k_i = {s: self._force_gain(s, q[s]) for s in self.slaves}
+        # Pre-load each slave's impedance with the tension already on the object, so that
+        # switching the slave to effort control does not let the object pull it in.
+        for s in self.slaves:
+            u = self._outward(s, self.x0)
+            kp = float(u @ (self.impedance[s].Kp * (self.R[s].T @ u)) if False else np.mean(self.impedance[s].Kp))
+            self.x_f[s] = self.initial_tension / kp
+
+    def _outward(self, slave: str, tips: dict[str, np.ndarray]) -> np.ndarray:
+        """Unit vector (world) along which the slave's target moves to raise the tension."""
+        if len(self.arms) == 2:
+            v = tips[slave] - tips[self.master]
+        else:
+            v = tips[slave] - np.mean([tips[a] for a in self.arms], axis=0)
+        return v / max(np.linalg.norm(v), 1e-9)
+
+    def _force_gain(self, slave: str, q: np.ndarray) -> float:
+        """Integral gain of the tension loop, kept a factor `bandwidth_ratio` below the slave's
+        mechanical mode against the object (sqrt((Kp + K_obj) / Lambda_u)): faster than that
+        and the loop drives the arm-object oscillation."""
+        imp = self.impedance[slave]
+        other = self.master if len(self.arms) == 2 else None
+        x_s = self.tip_world(slave, q)
+        ref = self.x0[other] if other else self.centroid0
+        u_world = (x_s - ref) / max(np.linalg.norm(x_s - ref), 1e-9)
+        u = self.R[slave].T @ u_world
+        if imp.Md is None:
+            J = K.tip_jacobian_rcm(q)
+            Lam = np.linalg.inv(J @ np.linalg.inv(imp.model.mass_matrix(q)) @ J.T)
+        else:
+            Lam = np.diag(imp.Md)
+        kp = float(u @ (imp.Kp * u))
+        stiffness = kp + self.object_stiffness
+        omega = np.sqrt(stiffness / float(u @ Lam @ u))
+        series = kp * self.object_stiffness / stiffness
+        return float(min(self.loop.k_i, omega / (self.loop.bandwidth_ratio * series)))
+
+    def desired(self, t: float) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """World-frame desired tip positions, velocities and accelerations (eq. 6.2-6.3)."""
+        m = self.motion
+        s = (t - self.t0 - m.start) / m.duration if m.duration > 0 else 1.0
+        p, v, a = min_jerk(s)
+        inside = 0.0 <= s <= 1.0
+        v, a = (v / m.duration, a / m.duration**2) if inside else (0.0, 0.0)
+        shift = p * m.translation + self.offset_translation
+        angles = p * m.rotation + self.offset_rotation
+        R = euler_xyz(angles)
+        # angular velocity of the object for the (small) rotation rate: finite difference
+        eps = 1e-4
+        R_next = euler_xyz(angles + eps * m.rotation) if np.any(m.rotation) else R
+        dR = (R_next - R) / eps * v
+        xd, vd, ad = {}, {}, {}
+        for arm in self.arms:
+            r0 = self.x0[arm] - self.centroid0
+            xd[arm] = self.centroid0 + shift + R @ r0
+            vd[arm] = v * m.translation + dR @ r0
+            ad[arm] = a * m.translation
+        return xd, vd, ad
+
+    def force_target(self, t: float) -> float:
+        s = (t - self.t0) / self.loop.ramp_time if self.loop.ramp_time > 0 else 1.0
+        p, _, _ = min_jerk(s)
+        return self.initial_tension + p * (self.force - self.initial_tension) + self.force_offset
+
+    def step(self, t: float, q: dict[str, np.ndarray], dq: dict[str, np.ndarray],
+             tension: np.ndarray | None) -> dict[str, ArmCommand]:
+        """One control cycle. `tension`: newest sample per object element, or None if no new one."""
+        if self.t0 is None:
+            raise RuntimeError("start() the controller first")
+        qf, dqf = {}, {}
+        for a in self.arms:
+            qf[a], dqf[a] = self.joint_filter[a].update(q[a], dq[a])
+        if tension is not None:
+            self.tension, self.tension_rate = self.force_filter.update(np.asarray(tension, float))
+        else:
+            self.tension, self.tension_rate = self.force_filter.update(self.force_filter.x[:, 0])
+        xd, vd, ad = self.desired(t)
+        self.force_setpoint = self.force_target(t)
+        tips = {a: self.tip_world(a, qf[a]) for a in self.arms}
+        commands: dict[str, ArmCommand] = {}
+
+        # Master: Cartesian position control through the inverse kinematics.
+        m = self.master
+        x_rcm = self.to_rcm(m, xd[m])
+        q_m = K.ik_rcm(x_rcm)
+        J = K.tip_jacobian_rcm(q_m)
+        dq_m = np.linalg.solve(J, self.R[m].T @ vd[m])
+        commands[m] = ArmCommand("position", q=q_m, dq=dq_m)
+
+        centroid = np.mean([tips[a] for a in self.arms], axis=0)
+        if self.follow_measured_master:
+            shift = tips[m] - xd[m]
+        for s in self.slaves:
+            if self.follow_measured_master:
+                xd[s] = xd[s] + shift
+            # Which elements this slave holds, and its outward direction.
+            mine = [k for k, e in enumerate(self.elements) if s in e]
+            h_e = float(np.mean(self.tension[mine])) if mine else 0.0
+            h_rate = float(np.mean(self.tension_rate[mine])) if mine else 0.0
+            if len(self.arms) == 2:
+                u = tips[s] - tips[m]
+            else:
+                u = tips[s] - centroid
+            u = u / max(np.linalg.norm(u), 1e-9)
+            error = self.force_setpoint - h_e
+            if abs(error) > self.loop.deadband:
+                rate = self.k_i[s] * (error - np.sign(error) * self.loop.deadband) - self.loop.k_damp * h_rate
+            else:
+                rate = -self.loop.k_damp * h_rate
+            self.x_f[s] = float(np.clip(self.x_f[s] + self.dt * rate, -self.loop.x_f_limit, self.loop.x_f_limit))
+            x_t = xd[s] + u * self.x_f[s]
+            # The force the tip exerts on the object points away from it (outward).
+            h_world = h_e * u
+            R = self.R[s]
+            tau = self.impedance[s](qf[s], dqf[s], R.T @ (x_t - self.p[s]), R.T @ vd[s], R.T @ ad[s], R.T @ h_world)
+            commands[s] = ArmCommand("effort", effort=tau)
+        return commands

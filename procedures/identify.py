@@ -1,0 +1,714 @@
+"""`rig identify`: excitation, recording and dynamic identification of PSM joints 1-3 (thesis 5.1-5.5).
+
+Live (on the rig or its simulation):
+
+1. design the excitation: a 5-harmonic Fourier trajectory (eq. 5.28, 0.13 Hz, 30 s) that
+   minimises the condition number of the base regressor within Table 4.2's limits; a
+   design is cached by its settings, so a second run reuses it instead of spending a minute;
+2. move to its start (move_jp), stream it with servo_jp at the rig rate, recording q, dq,
+   tau of measured_js to the run's MCAP;
+3. the same with a validation trajectory (another frequency and seed, not optimised);
+4. process (block mean to the identification rate, zero-phase Butterworth, differentiation,
+   trimming), base parameters, OLS, WLS, SDP (physically consistent, checked);
+5. the validation table (per joint relative error and RMS, OLS/WLS/SDP side by side),
+   plots in the style of Figures 5.2/5.3, Table 5.1's figures, and the model file.
+
+Offline: ``rig identify --csv FILE [--rate 200] [--joints 3] [--validate-csv FILE2]`` on
+data in the WPI format (shared/data/wpi-psm); validation on FILE2, else on a held-out
+contiguous last block of FILE.
+
+Gravity. On the simulated rig and a configured real rig the gravity vector in frame 0 is
+the world gravity rotated into the arm's base (``--gravity config``). For recorded data the
+arm's tilt on its set-up joints is unknown: ``--gravity auto`` (the default with --csv)
+estimates the direction (calibration.model_selection: least-squares scan of the sphere,
+then the sign from the physically consistent SDP fit) and stores it in the model file.
+
+Friction slope. ``--friction-slope auto`` (default) chooses the slope a of the smooth
+Coulomb sign tanh(a dq / 2) on a grid by the training fit; a number fixes it (400 s/rad
+is the thesis' controller value).
+
+Units: SI (rad, m, rad/s, m/s, N m, N, s, Hz).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import sys
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import click
+import numpy as np
+
+from rig.params import Parameter, with_parameters
+from rig.run import AbortRun, Run, emit_result, exit_on_abort, json_option
+
+PROCEDURE = "identify"
+
+STEPS_LIVE = ("design the excitation trajectory", "move to the start", "run the excitation trajectory",
+              "run the validation trajectory", "process the recordings", "fit OLS, WLS and SDP",
+              "validate, plot and save the model")
+STEPS_CSV = ("load the CSV data", "process the recordings", "fit OLS, WLS and SDP",
+             "validate, plot and save the model")
+
+#: The published figure of the WPI package (7-DOF model, SDP, unseen test trajectory).
+PUBLISHED_7DOF = (0.093, 0.178, 0.191)
+
+PARAMETERS = [
+    Parameter("arm", "PSM1", "", "Arm to identify (live)", type=str),
+    Parameter("csv", "", "", "Identify offline from this WPI-format CSV (q1..qn, dq1..dqn, tau1..taun) instead "
+              "of moving the arm", type=str),
+    Parameter("validate_csv", "", "", "Offline: validate on this second CSV (default: a held-out block of --csv)",
+              type=str),
+    Parameter("rate", 200.0, "Hz", "Offline: sampling rate of the CSV rows", minimum=1.0, maximum=20000.0),
+    Parameter("joints", 3, "", "Offline: joints used from the CSV (the model has joints 1-3)", minimum=3,
+              maximum=3, type=int),
+    Parameter("heldout", 0.25, "", "Offline without --validate-csv: fraction of FILE held out at its end",
+              minimum=0.05, maximum=0.5),
+    Parameter("gravity", "", "m/s^2", "Gravity in frame 0: 'auto' (estimate the direction), 'config' (world "
+              "gravity rotated into the arm base) or 'gx,gy,gz'; default auto with --csv, config live", type=str),
+    Parameter("friction_slope", "auto", "s/rad", "Slope a of the Coulomb sigmoid tanh(a dq/2): 'auto' (chosen by "
+              "the training fit) or a number", type=str),
+    Parameter("frequency", 0.13, "Hz", "Fundamental frequency of the excitation (eq. 5.28)", minimum=0.02,
+              maximum=1.0),
+    Parameter("harmonics", 5, "", "Harmonics of the excitation", minimum=2, maximum=10, type=int),
+    Parameter("duration", 30.0, "s", "Duration of the excitation and of the validation trajectory", minimum=4.0,
+              maximum=300.0),
+    Parameter("validation_frequency", 0.16, "Hz", "Fundamental frequency of the validation trajectory",
+              minimum=0.02, maximum=1.0),
+    Parameter("fill", 0.7, "", "Validation trajectory: fraction of the position and velocity limits used",
+              minimum=0.1, maximum=0.95),
+    Parameter("starts", 4, "", "Seeded starts of the excitation optimisation", minimum=1, maximum=20, type=int),
+    Parameter("iterations", 60, "", "SLSQP iterations per start of the excitation optimisation", minimum=1,
+              maximum=500, type=int),
+    Parameter("design_seed", 0, "", "Seed of the excitation optimisation (and of the validation trajectory)",
+              type=int),
+    Parameter("sample_rate", 200.0, "Hz", "Identification rate: recordings are block-averaged to it",
+              minimum=20.0, maximum=2000.0),
+    Parameter("cutoff", 3.5, "Hz", "Butterworth cut-off of the zero-phase filter", minimum=0.2, maximum=50.0),
+    Parameter("filter_order", 8, "", "Butterworth order", minimum=1, maximum=12, type=int),
+    Parameter("seed", -1, "", "Seed of the simulated rig (-1: the configuration's)", type=int),
+    Parameter("plots", True, "", "Write the Figure 5.2/5.3-style PNGs", type=bool),
+]
+
+
+# ----------------------------------------------------------------------------- model helpers
+def make_model(gravity, slope: float):
+    """PSMDynamics with the nominal parameters, this gravity (frame 0, m/s^2) and slope (s/rad)."""
+    from rig.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
+
+    return PSMDynamics(PSMParameters(drive=DriveParameters(slope=float(slope))), gravity=np.asarray(gravity, float))
+
+
+def config_gravity(cfg, arm: str) -> np.ndarray:
+    """World gravity of the configuration in the arm's frame 0 (m/s^2)."""
+    R = cfg.base_matrix(arm)[:3, :3]
+    return R.T @ np.asarray(cfg.rig["gravity"], float)
+
+
+def parse_gravity(text: str) -> str | np.ndarray:
+    """'auto', 'config' or three numbers 'gx,gy,gz' (m/s^2)."""
+    t = text.strip().lower()
+    if t in ("auto", "config"):
+        return t
+    try:
+        g = np.array([float(x) for x in t.replace(" ", "").split(",")])
+    except ValueError:
+        g = np.zeros(0)
+    if g.shape != (3,) or not np.all(np.isfinite(g)) or np.linalg.norm(g) == 0:
+        raise click.BadParameter(f"{text!r}: use 'auto', 'config' or three numbers 'gx,gy,gz' in m/s^2",
+                                 param_hint="--gravity")
+    return g
+
+
+def parse_slope(text: str) -> str | float:
+    t = text.strip().lower()
+    if t == "auto":
+        return t
+    try:
+        a = float(t)
+    except ValueError:
+        a = float("nan")
+    if not (math.isfinite(a) and a > 0):
+        raise click.BadParameter(f"{text!r}: use 'auto' or a slope > 0 s/rad", param_hint="--friction-slope")
+    return a
+
+
+# ----------------------------------------------------------------------------- the fit
+@dataclass
+class FitOutcome:
+    """Everything the fit produced (also used by the bench)."""
+
+    model: object
+    base: object
+    ident: object
+    fits: dict
+    gravity: np.ndarray
+    gravity_source: str
+    slope: float
+    selection: dict = field(default_factory=dict)
+    seconds: dict = field(default_factory=dict)
+
+
+def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None, progress=None) -> FitOutcome:
+    """Base parameters, OLS, WLS and SDP on processed ``train`` data (JointData with ddq).
+
+    ``gravity_mode``: 'auto', or a gravity vector (m/s^2, frame 0); ``configured_gravity``
+    is the reference direction for the reported tilt. ``slope_mode``: 'auto' or a slope.
+    With 'auto' gravity the two hemispheres' best directions are both fitted by the SDP and
+    the better physically consistent fit decides the sign.
+    """
+    from calibration.base_params import base_parameters_of
+    from calibration.estimators import Identification
+    from calibration.model_selection import DEFAULT_SLOPES, STANDARD_GRAVITY, GravitySlopeSearch
+    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+
+    say = progress or (lambda s: None)
+    t0 = time.perf_counter()
+    ref = np.array([0.0, 0.0, -1.0]) if configured_gravity is None else np.asarray(configured_gravity, float)
+    selection: dict = {}
+    slopes = DEFAULT_SLOPES if slope_mode == "auto" else (float(slope_mode),)
+    need_search = isinstance(gravity_mode, str) or slope_mode == "auto"
+    candidates = []
+    if need_search:
+        search = GravitySlopeSearch(make_model, train.q, train.dq, train.ddq, train.tau, n_inertial=70)
+        if isinstance(gravity_mode, str):
+            res = search.search(slopes, magnitude=float(np.linalg.norm(ref)) if configured_gravity is not None
+                                else STANDARD_GRAVITY, nominal_direction=ref)
+            candidates = [res.gravity(k) for k in range(len(res.candidates))]
+            selection["gravity_candidates"] = [c.to_dict() for c in res.candidates]
+            selection["gravity_reference"] = {"vector": ref.tolist(), **res.nominal.to_dict()}
+        else:
+            res = search.search(slopes, fixed_gravity=gravity_mode)
+            candidates = [np.asarray(gravity_mode, float)]
+        slope = res.slope
+        selection["slope_scores"] = {f"{k:g}": v for k, v in res.slope_scores.items()}
+        selection["search_seconds"] = res.seconds
+        say(f"friction slope {slope:g} s/rad (scores {', '.join(f'{k:g}: {v:.4g}' for k, v in res.slope_scores.items())})")
+    else:
+        slope = float(slope_mode)
+        candidates = [np.asarray(gravity_mode, float)]
+    t1 = time.perf_counter()
+    best = None
+    for k, g in enumerate(candidates):
+        model = make_model(g, slope)
+        base = base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
+        ident = Identification.from_model(model, train, base)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # "inaccurate" is in the fit's info and checks
+            sdp = ident.sdp()
+        score = float(np.sum(sdp.relative_error ** 2))
+        if len(candidates) > 1:
+            selection["gravity_candidates"][k]["sdp_training_relative_error"] = sdp.relative_error.tolist()
+            selection["gravity_candidates"][k]["sdp_score"] = score
+            say(f"gravity candidate {k + 1}: {np.round(g, 3).tolist()} m/s^2, SDP training relative error "
+                f"{np.round(sdp.relative_error, 4).tolist()}")
+        if best is None or score < best[0]:
+            best = (score, g, model, base, ident, sdp)
+    _, g, model, base, ident, sdp = best
+    fits = {"ols": ident.ols(), "wls": ident.wls(), "sdp": sdp}
+    fits["wls_tau_max"] = ident.wls("tau_max")
+    t2 = time.perf_counter()
+    source = "estimated" if isinstance(gravity_mode, str) else "given"
+    if isinstance(gravity_mode, str):
+        tilt = float(np.degrees(np.arccos(np.clip(g @ ref / (np.linalg.norm(g) * np.linalg.norm(ref)), -1, 1))))
+        selection["gravity_tilt_deg"] = tilt
+    return FitOutcome(model, base, ident, fits, np.asarray(g, float), source, float(slope), selection,
+                      {"selection": t1 - t0, "fit": t2 - t1})
+
+
+def predict(outcome: FitOutcome, data, method: str) -> np.ndarray:
+    W = outcome.model.regressor_batch(data.q, data.dq, data.ddq)
+    return outcome.fits[method].predict(outcome.base.regressor(W), 3)
+
+
+def validation_table(outcome: FitOutcome, data) -> dict:
+    """{method: {"relative_error": [3], "rms": [3]}} on processed ``data``."""
+    from calibration.estimators import validation_errors
+
+    out = {}
+    W = outcome.base.regressor(outcome.model.regressor_batch(data.q, data.dq, data.ddq))
+    for m in ("ols", "wls", "sdp"):
+        e = validation_errors(data.tau, outcome.fits[m].predict(W, 3))
+        out[m] = {"relative_error": e["relative_error"].tolist(), "rms": e["rms"].tolist()}
+    return out
+
+
+def table_5_1(outcome: FitOutcome, excitation: dict | None) -> dict:
+    f = outcome.fits
+    return {"optimisation_condition": None if excitation is None else excitation.get("condition_objective"),
+            "optimisation_condition_full": None if excitation is None else excitation.get("condition_full"),
+            "ls_condition": f["ols"].condition, "wls_condition": f["wls"].condition,
+            "wls_condition_tau_max": f["wls_tau_max"].condition,
+            "ls_residual": f["ols"].residual_norm, "wls_residual": f["wls"].residual_norm,
+            "sdp_residual": f["sdp"].residual_norm,
+            "note": "residuals are ||tau - W_b beta|| over all samples and joints (mixed N m and N), as Table 5.1"}
+
+
+# ----------------------------------------------------------------------------- plots
+def plot_torques(t, tau, preds: dict, path: Path, title: str) -> None:
+    """Figure 5.2/5.3 style: (a) measured vs predicted torque per joint, (b) absolute errors."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 2, figsize=(12, 8), sharex=True)
+    units = ("N m", "N m", "N")
+    styles = {"ols": ("tab:orange", "--"), "wls": ("tab:green", ":"), "sdp": ("tab:red", "-")}
+    for j in range(3):
+        ax, ae = axes[j, 0], axes[j, 1]
+        ax.plot(t, tau[:, j], color="k", lw=1.2, label="measured")
+        for m, p in preds.items():
+            c, ls = styles[m]
+            ax.plot(t, p[:, j], color=c, ls=ls, lw=1.0, label=m.upper())
+            ae.plot(t, np.abs(tau[:, j] - p[:, j]), color=c, ls=ls, lw=0.8, label=m.upper())
+        ax.set_ylabel(f"joint {j + 1} [{units[j]}]")
+        ae.set_ylabel(f"|error| [{units[j]}]")
+    axes[0, 0].legend(loc="upper right", fontsize=8)
+    axes[0, 1].legend(loc="upper right", fontsize=8)
+    axes[0, 0].set_title("(a) measured vs predicted")
+    axes[0, 1].set_title("(b) absolute error")
+    for ax in axes[2]:
+        ax.set_xlabel("time [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_trajectory(t, q, dq, path: Path, title: str) -> None:
+    """Figure 5.1 style: position and velocity of the three joints."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    for j, lab in enumerate(("q1 [rad]", "q2 [rad]", "q3 [m]")):
+        axes[0].plot(t, q[:, j], label=lab)
+        axes[1].plot(t, dq[:, j], label="d" + lab.replace("]", "/s]"))
+    axes[0].legend(fontsize=8)
+    axes[1].legend(fontsize=8)
+    axes[1].set_xlabel("time [s]")
+    axes[0].set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------------- excitation
+def cache_dir() -> Path:
+    """Where designed trajectories are kept: $RIG_CACHE, else <logs>/.cache (not a run folder)."""
+    import os
+
+    from rig.paths import runs_root
+
+    env = os.environ.get("RIG_CACHE")
+    return Path(env) if env else runs_root() / ".cache"
+
+
+def design_excitation(parameters: dict, gravity: np.ndarray, progress=None) -> dict:
+    """The optimised excitation for these settings, from the cache when designed before.
+
+    Returns {"trajectory": FourierTrajectory, "cached": bool, "key": str, "figures": {...}}.
+    """
+    from calibration.base_params import base_parameters_of
+    from calibration.excitation import ExcitationDesigner, FourierTrajectory
+    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+
+    settings = {"frequency_hz": parameters["frequency"], "harmonics": parameters["harmonics"],
+                "duration": parameters["duration"], "design_rate": 200.0, "starts": parameters["starts"],
+                "iterations": parameters["iterations"], "seed": parameters["design_seed"],
+                "q_min": Q_MIN.tolist(), "q_max": Q_MAX.tolist(), "dq_max": DQ_MAX.tolist(),
+                "gravity": np.round(np.asarray(gravity, float), 9).tolist(), "model": "PSMDynamics nominal, slope 400"}
+    key = hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
+    path = cache_dir() / f"excitation-{key}.json"
+    if path.exists():
+        try:
+            doc = json.loads(path.read_text())
+            if doc.get("settings") == settings:
+                return {"trajectory": FourierTrajectory.from_dict(doc["trajectory"]), "cached": True, "key": key,
+                        "path": str(path), "figures": doc["figures"]}
+        except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError):
+            pass  # a damaged cache entry is designed again and overwritten
+    model = make_model(gravity, 400.0)
+    base = base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
+    designer = ExcitationDesigner(model.regressor_batch, base.independent, Q_MIN, Q_MAX, DQ_MAX,
+                                  frequency_hz=parameters["frequency"], harmonics=parameters["harmonics"],
+                                  duration=parameters["duration"], rate=200.0)
+    res = designer.optimise(n_starts=parameters["starts"], seed=parameters["design_seed"],
+                            maxiter=parameters["iterations"], time_budget=110.0, progress=progress)
+    figures = {"condition_objective": res.condition_objective, "condition_full": res.condition_full,
+               "limit_use": res.limit_use, "scale_applied": res.scale_applied, "starts": res.starts,
+               "design_seconds": res.seconds}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps({"settings": settings, "trajectory": res.trajectory.to_dict(), "figures": figures}))
+    tmp.replace(path)
+    return {"trajectory": res.trajectory, "cached": False, "key": key, "path": str(path), "figures": figures}
+
+
+def validation_trajectory(frequency_hz: float, duration: float, harmonics: int, seed: int, fill: float):
+    """A random rest-to-rest Fourier trajectory (not optimised) using ``fill`` of the limits.
+
+    Different frequency and random coefficients from the excitation, so validating on it
+    tests the model on motion it was not fitted to (thesis Figure 5.3).
+    """
+    from calibration.excitation import FourierTrajectory, rest_basis
+    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+
+    rng = np.random.default_rng(10_000 + seed)
+    Z = rest_basis(frequency_hz, duration, harmonics)
+    c = rng.normal(size=(3, Z.shape[1])) @ Z.T
+    raw = FourierTrajectory(frequency_hz, c[:, :harmonics], c[:, harmonics:], np.zeros(3), duration)
+    q, dq, _ = raw.sample(raw.times(200.0))
+    half, mid = 0.5 * (Q_MAX - Q_MIN), 0.5 * (Q_MAX + Q_MIN)
+    dev = np.abs(q - q.mean(axis=0)).max(axis=0)
+    s = np.minimum(fill * half / dev, fill * DQ_MAX / np.abs(dq).max(axis=0))
+    return FourierTrajectory(frequency_hz, raw.a * s[:, None], raw.b * s[:, None], mid - s * q.mean(axis=0), duration)
+
+
+def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits) -> dict:
+    """servo_jp the trajectory at the clock rate, recording measured_js; returns arrays.
+
+    Aborts the run (the engine holds the arm) if a measured joint leaves its limits by more
+    than a small margin or moves faster than its velocity limit.
+    """
+    rate = clock.rate
+    n = int(round(traj.duration * rate)) + 1
+    q_cmd = traj.sample(np.arange(n) / rate)[0]
+    T, Q, DQ, TAU = np.empty(n), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    rec = run.recorder
+    margin = np.array([0.05, 0.05, 0.01])  # rad, rad, m beyond Table 4.2 before aborting
+    every = max(1, n // 100)
+    for k in range(n):
+        arm.servo_jp(q_cmd[k])
+        rec.joint_state(f"/{arm.name}/servo_jp", clock.now(), q_cmd[k])
+        clock.tick()
+        js = arm.measured_js()
+        T[k], Q[k], DQ[k], TAU[k] = js.t, js.position[:3], js.velocity[:3], js.effort[:3]
+        rec.joint_state(f"/{arm.name}/measured_js", js.t, js.position, js.velocity, js.effort)
+        if np.any(Q[k] < limits.q_min - margin) or np.any(Q[k] > limits.q_max + margin) \
+                or np.any(np.abs(DQ[k]) > limits.dq_max):
+            problem = limits.violation(Q[k], DQ[k], margin=0.0) or "limit"
+            raise AbortRun(f"{arm.name} during the {topic_prefix} trajectory at t = {k / rate:.2f} s: {problem}")
+        if k % every == 0:
+            step.update(k + 1)
+    step.update(n)
+    return {"t": T, "q": Q, "dq": DQ, "tau": TAU, "rate": rate}
+
+
+def block_mean(rec: dict, target_rate: float, source: str):
+    """JointData at ~``target_rate`` Hz by averaging blocks of samples (an anti-alias filter
+    for the decimation that keeps the thesis' 200 Hz identification rate)."""
+    from calibration.datasets import JointData
+
+    factor = max(1, int(round(rec["rate"] / target_rate)))
+    n = (len(rec["t"]) // factor) * factor
+
+    def avg(x):
+        return x[:n].reshape(-1, factor, *x.shape[1:]).mean(axis=1)
+
+    return JointData.from_arrays(avg(rec["q"]), avg(rec["dq"]), avg(rec["tau"]), rate=rec["rate"] / factor,
+                                 t=avg(rec["t"]), source=source)
+
+
+# ----------------------------------------------------------------------------- procedure
+def _sayer(progress: bool):
+    """A progress-detail printer (stderr, indented under the step lines)."""
+    return (lambda text: click.echo(f"    {text}", err=True)) if progress else (lambda text: None)
+
+
+def _fmt3(v, digits=4) -> str:
+    return " / ".join(f"{x:.{digits}f}" for x in v)
+
+
+def report_text(result: dict) -> str:
+    lines = [f"identify: {result.get('status', '')}"]
+    v = result.get("validation", {})
+    rms = result.get("validation_rms", {})
+    if v:
+        lines.append(f"validation on {result.get('validation_source', '?')}")
+        lines.append("  method  rel. error j1 / j2 / j3        RMS j1 [N m] / j2 [N m] / j3 [N]")
+        for m in ("ols", "wls", "sdp"):
+            lines.append(f"  {m.upper():6s}  {_fmt3(v[m]):28s}  {_fmt3(rms.get(m, [np.nan] * 3))}")
+        if result.get("source") == "csv":
+            lines.append(f"  published 7-DOF (SDP, unseen trajectory): {_fmt3(PUBLISHED_7DOF, 3)} "
+                         "(not like for like: other trajectory, other model)")
+    g = result.get("gravity")
+    if g:
+        lines.append(f"gravity in frame 0: {np.round(g['vector'], 3).tolist()} m/s^2 ({g['source']}"
+                     + (f", {g['tilt_deg']:.1f} deg from {np.round(g['reference'], 3).tolist()}" if 'tilt_deg' in g else "")
+                     + ")")
+    if "friction_slope" in result:
+        lines.append(f"Coulomb sigmoid slope: {result['friction_slope']:g} s/rad")
+    t = result.get("table_5_1")
+    if t:
+        oc = t.get("optimisation_condition")
+        lines.append("Table 5.1: " + (f"optimisation cond {oc:.1f}, " if oc else "")
+                     + f"LS cond {t['ls_condition']:.1f}, WLS cond {t['wls_condition']:.1f} "
+                     f"(1/tau_max: {t['wls_condition_tau_max']:.1f}), residuals LS {t['ls_residual']:.2f} / "
+                     f"WLS {t['wls_residual']:.2f} / SDP {t['sdp_residual']:.2f}")
+    c = result.get("checks", {}).get("sdp")
+    if c is not None:
+        lines.append(f"SDP physical checks: {'all pass' if c else 'FAILED'}")
+    if result.get("truth"):
+        tr = result["truth"]
+        lines.append(f"simulated rig truth: SDP model vs true-parameter torques on the validation data, "
+                     f"rel. error {_fmt3(tr['sdp_vs_true_relative_error'])}")
+    if result.get("model"):
+        lines.append(f"model file: {result['model']}")
+    if result.get("run_dir"):
+        lines.append(f"run folder: {result['run_dir']}")
+    return "\n".join(lines)
+
+
+def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: str, data_source: str,
+                parameters: dict, excitation: dict | None, reference_gravity, extra: dict | None = None) -> dict:
+    """Validation, plots, model file and the result document (common to both paths)."""
+    from rig import model_file
+
+    table = validation_table(outcome, val)
+    train_table = validation_table(outcome, train)
+    sdp = outcome.fits["sdp"]
+    plots = {}
+    if parameters["plots"]:
+        for name, data, title in (("figure_5_2_training.png", train, "Training trajectory (Figure 5.2 style)"),
+                                  ("figure_5_3_validation.png", val, f"Validation: {val_source} (Figure 5.3 style)")):
+            preds = {m: predict(outcome, data, m) for m in ("ols", "wls", "sdp")}
+            plot_torques(data.t - data.t[0], data.tau, preds, run.dir / name, title)
+            plots[name] = str(run.dir / name)
+    gravity = {"vector": outcome.gravity.tolist(), "source": outcome.gravity_source}
+    if "gravity_tilt_deg" in outcome.selection:
+        gravity.update(tilt_deg=outcome.selection["gravity_tilt_deg"],
+                       reference=np.asarray(reference_gravity, float).tolist())
+    validation_doc = {"source": val_source, "relative_error": {m: table[m]["relative_error"] for m in table},
+                      "rms": {m: table[m]["rms"] for m in table},
+                      "training_relative_error": {m: train_table[m]["relative_error"] for m in train_table}}
+    checks = {m: f.checks for m, f in outcome.fits.items() if m in ("ols", "wls", "sdp")}
+    path = model_file.save_model(
+        run.dir / model_file.MODEL_FILENAME, standard=sdp.pi, names=list(outcome.model.param_names()),
+        slope=outcome.slope, gravity=outcome.gravity, base_values=sdp.beta,
+        base_expressions=outcome.base.expressions(), base_independent=outcome.base.independent,
+        gravity_source=outcome.gravity_source, validation=validation_doc, checks=checks["sdp"],
+        provenance_info=model_file.provenance(data_source, run.dir, {"procedure": PROCEDURE,
+                                                                      "training_samples": int(train.n_samples),
+                                                                      "validation_samples": int(val.n_samples)}))
+    result = {
+        "source": source,
+        "model": str(path),
+        "validation": {m: table[m]["relative_error"] for m in table},
+        "validation_rms": {m: table[m]["rms"] for m in table},
+        "validation_source": val_source,
+        "training": {m: train_table[m]["relative_error"] for m in train_table},
+        "gravity": gravity,
+        "friction_slope": outcome.slope,
+        "selection": outcome.selection,
+        "table_5_1": table_5_1(outcome, excitation),
+        "checks": {"sdp": bool(sdp.checks.get("all_pass")), "ols_realizable": bool(outcome.fits["ols"].checks["all_pass"]),
+                   "wls_realizable": bool(outcome.fits["wls"].checks["all_pass"]), "sdp_detail": sdp.checks},
+        "sdp_solver": {k: v for k, v in sdp.info.items() if isinstance(v, (int, float, str))},
+        "base_parameters": {"count": outcome.base.n_base, "expressions": outcome.base.expressions(digits=4),
+                            "values": sdp.beta.tolist()},
+        "plots": plots,
+        "fit_seconds": outcome.seconds,
+        "samples": {"training": int(train.n_samples), "validation": int(val.n_samples)},
+        "summary": {"validation_sdp": table["sdp"]["relative_error"], "validation_ols": table["ols"]["relative_error"],
+                    "model": str(path)},
+    }
+    if source == "csv":
+        result["published_7dof"] = {"sdp": list(PUBLISHED_7DOF),
+                                    "note": "WPI package, 7-DOF model, a different unseen test trajectory of the "
+                                            "same robot: not like for like with a held-out block of one file"}
+    if extra:
+        result.update(extra)
+    return result
+
+
+def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
+    """`rig identify --csv`: identification of recorded data. Returns the result."""
+    from calibration.datasets import load_csv, processed, split_blocks
+    from calibration.signals import settling_samples
+
+    gmode = parse_gravity(parameters["gravity"] or "auto")
+    if isinstance(gmode, str) and gmode == "config":
+        # Recorded data belong to no configured arm: 'config' means the model's own frame-0
+        # gravity (z0 up), as for an untilted PSM.
+        gmode = np.array([0.0, 0.0, -9.81])
+    smode = parse_slope(parameters["friction_slope"])
+    with Run(PROCEDURE, parameters=parameters, config=None, steps=list(STEPS_CSV), root=run_root,
+             progress=progress) as run:
+        say = _sayer(progress)
+        with run.step(STEPS_CSV[0]):
+            raw = load_csv(parameters["csv"], rate=parameters["rate"], joints=parameters["joints"])
+            raw_val = (load_csv(parameters["validate_csv"], rate=parameters["rate"], joints=parameters["joints"])
+                       if parameters["validate_csv"] else None)
+        with run.step(STEPS_CSV[1]):
+            proc = processed(raw, parameters["cutoff"], parameters["filter_order"])
+            if raw_val is not None:
+                train = proc
+                val = processed(raw_val, parameters["cutoff"], parameters["filter_order"])
+                val_source = f"{parameters['validate_csv']} (second file)"
+            else:
+                # The filter is run over the whole file, then a guard of one filter settling
+                # length is dropped between the blocks, so no filtered training sample is
+                # built from held-out measurements or the reverse (beyond the filter's tail).
+                train_all, val = split_blocks(proc, parameters["heldout"])
+                guard = min(settling_samples(parameters["rate"], parameters["cutoff"], parameters["filter_order"]),
+                            train_all.n_samples // 4)
+                train = train_all.rows(slice(0, train_all.n_samples - guard), f"minus a {guard}-sample guard")
+                val_source = (f"held-out last {parameters['heldout'] * 100:.0f} % of {parameters['csv']} "
+                              f"({val.n_samples} samples, guard {guard})")
+        with run.step(STEPS_CSV[2]):
+            outcome = fit_identification(train, gmode, smode, progress=say)
+        with run.step(STEPS_CSV[3]):
+            result = _finish_fit(run, outcome, train, val, val_source, "csv", str(parameters["csv"]), parameters,
+                                 None, np.array([0.0, 0.0, -9.81]))
+            run.finish(result)
+    return run.result
+
+
+def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dict:
+    """`rig identify` on the rig (or the simulated rig). Returns the result."""
+    from calibration.datasets import processed
+    from rig.devices import open_rig
+    from rig.psm_kinematics import JointLimits
+
+    arm_name = parameters["arm"]
+    if arm_name not in cfg.arms:
+        raise click.ClickException(f"no arm {arm_name!r} in {cfg.source}; arms: {', '.join(cfg.arms)}")
+    g_config = config_gravity(cfg, arm_name)
+    gmode = parse_gravity(parameters["gravity"] or "config")
+    if isinstance(gmode, str) and gmode == "config":
+        gmode = g_config
+    smode = parse_slope(parameters["friction_slope"])
+    seed = None if parameters["seed"] < 0 else parameters["seed"]
+    limits = JointLimits()
+    dev = open_rig(cfg, [arm_name], seed=seed)
+    try:
+        with Run(PROCEDURE, parameters=parameters, config=cfg.snapshot(), seed=seed, steps=list(STEPS_LIVE),
+                 root=run_root, progress=progress) as run:
+            say = _sayer(progress)
+            clock = dev.clock
+            with run.step(STEPS_LIVE[0], total=parameters["starts"]) as st:
+                exc = design_excitation(parameters, g_config,
+                                        progress=lambda k, n, c: (st.update(k), say(f"start {k}/{n}: cond {c:.1f}")))
+                say(("reused the cached design " if exc["cached"] else "designed and cached ") + exc["path"])
+                st.update(parameters["starts"])
+            traj = exc["trajectory"]
+            vtraj = validation_trajectory(parameters["validation_frequency"], parameters["duration"],
+                                          parameters["harmonics"], parameters["design_seed"], parameters["fill"])
+            arm = run.claim(dev.arms[arm_name])
+            with run.step(STEPS_LIVE[1]):
+                power = getattr(arm, "power_on", None)
+                if power is not None:
+                    power()
+                if not arm.move_jp(traj.sample([0.0])[0][0], wait=True, timeout=20.0):
+                    raise AbortRun(f"{arm_name} did not reach the start of the excitation within 20 s")
+            n = int(round(parameters["duration"] * clock.rate)) + 1
+            with run.step(STEPS_LIVE[2], total=n) as st:
+                rec_x = stream_trajectory(run, arm, clock, traj, "excitation", st, limits)
+            with run.step(STEPS_LIVE[3], total=n) as st:
+                if not arm.move_jp(vtraj.sample([0.0])[0][0], wait=True, timeout=20.0):
+                    raise AbortRun(f"{arm_name} did not reach the start of the validation trajectory within 20 s")
+                rec_v = stream_trajectory(run, arm, clock, vtraj, "validation", st, limits)
+            arm.hold()
+            with run.step(STEPS_LIVE[4]):
+                train = processed(block_mean(rec_x, parameters["sample_rate"], f"{run.dir / 'run.mcap'} excitation"),
+                                  parameters["cutoff"], parameters["filter_order"])
+                val = processed(block_mean(rec_v, parameters["sample_rate"], f"{run.dir / 'run.mcap'} validation"),
+                                parameters["cutoff"], parameters["filter_order"])
+            with run.step(STEPS_LIVE[5]):
+                outcome = fit_identification(train, gmode, smode, configured_gravity=g_config, progress=say)
+            with run.step(STEPS_LIVE[6]):
+                extra = {"arm": arm_name, "excitation": {"cached": exc["cached"], "cache_file": exc["path"],
+                                                         "trajectory": traj.to_dict(), **{k: v for k, v in exc["figures"].items() if k != "starts"}},
+                         "validation_trajectory": vtraj.to_dict(), "rig_rate": clock.rate}
+                if parameters["plots"]:
+                    plot_trajectory(rec_x["t"] - rec_x["t"][0], rec_x["q"], rec_x["dq"], run.dir / "figure_5_1_excitation.png",
+                                    f"Excitation trajectory as measured ({parameters['frequency']} Hz, "
+                                    f"{parameters['harmonics']} harmonics)")
+                result = _finish_fit(run, outcome, train, val, "validation trajectory "
+                                     f"({parameters['validation_frequency']} Hz, not optimised)", "live",
+                                     f"{run.dir / 'run.mcap'} ({arm_name})", parameters, exc["figures"], g_config, extra)
+                if parameters["plots"]:
+                    result["plots"]["figure_5_1_excitation.png"] = str(run.dir / "figure_5_1_excitation.png")
+                world = getattr(dev, "world", None)
+                if world is not None:
+                    result["truth"] = simulated_truth(world, arm_name, outcome, val)
+                run.finish(result)
+    finally:
+        dev.close()
+    return run.result
+
+
+def simulated_truth(world, arm_name: str, outcome: FitOutcome, val) -> dict:
+    """On the simulated rig: the SDP model's torques against the true parameters' (rigid body
+    + the nominal friction law, without the hidden effects) on the validation data."""
+    from calibration.estimators import validation_errors
+    from rig.psm_dynamics import PSMDynamics
+
+    a = world.arms[arm_name]
+    true = PSMDynamics(a.params, gravity=outcome.gravity)
+    tau_true = np.array([true.inverse_dynamics(q, dq, ddq) for q, dq, ddq in zip(val.q, val.dq, val.ddq)])
+    pred = predict(outcome, val, "sdp")
+    e = validation_errors(tau_true, pred)
+    eff = a.spec.effects
+    return {"sdp_vs_true_relative_error": e["relative_error"].tolist(), "sdp_vs_true_rms": e["rms"].tolist(),
+            "hidden_effects": {"stiction": np.asarray(eff.stiction).tolist()}}
+
+
+def load_config(ctx):
+    from rig import config
+
+    try:
+        return config.load((ctx.obj or {}).get("config_path") if ctx.obj else None)
+    except config.ConfigError as exc:
+        raise click.ClickException(str(exc)) from None
+
+
+def _data_errors():
+    from calibration.base_params import RankDeficientError
+    from calibration.datasets import DataError
+    from calibration.signals import SignalError
+
+    return (DataError, SignalError, RankDeficientError)
+
+
+@click.command(name=PROCEDURE)
+@with_parameters(PARAMETERS)
+@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
+@json_option
+@click.pass_context
+@exit_on_abort
+def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
+    """Dynamic identification of PSM joints 1-3 (thesis 5.1-5.5), live or from a CSV.
+
+    Live: designs (or reuses) the optimal excitation, streams it and a validation
+    trajectory with servo_jp, and fits OLS, WLS and a physically consistent SDP.
+    Offline: --csv FILE in the WPI format. Writes model.json (found by later runs),
+    result.json and Figure 5.2/5.3-style PNGs to the run folder. SI units.
+    """
+    offline = bool(parameters["csv"])
+    if list_steps:
+        for i, s in enumerate(STEPS_CSV if offline else STEPS_LIVE, 1):
+            click.echo(f"{i}. {s}")
+        return
+    if parameters["validate_csv"] and not offline:
+        raise click.UsageError("--validate-csv needs --csv")
+    errors = _data_errors()
+    try:
+        if offline:
+            result = run_offline(parameters, progress=True)
+        else:
+            result = run_live(load_config(ctx), parameters)
+    except errors as exc:
+        where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
+        click.echo(f"rig {PROCEDURE}: {exc}{where}", err=True)
+        sys.exit(1)
+    emit_result(result, as_json, report_text(result))

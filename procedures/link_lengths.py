@@ -87,7 +87,8 @@ PARAMETERS = [
     Parameter("q2_range", float(K.Q_MAX[1]), "rad", "Sweep q2 over +/- this (the full range by default)",
               minimum=0.0, maximum=float(K.Q_MAX[1])),
     Parameter("q3", 0.12, "m", "Insertion held during the q1 and q2 sweeps", minimum=0.02, maximum=0.24),
-    Parameter("q3_stroke", 0.06, "m", "Insertion stroke of the q3 phase", minimum=0.0, maximum=0.2),
+    Parameter("q3_stroke", 0.10, "m", "Insertion stroke of the q3 phase (from --q3 outwards)",
+              minimum=0.0, maximum=0.2),
     Parameter("passes", 1, "", "Sweeps back and forth per joint", minimum=1, maximum=10, type=int),
     Parameter("seed", -1, "", "Seed of the simulated rig (-1: the configuration's)", type=int),
 ]
@@ -273,8 +274,8 @@ def fit_link_lengths(q1: Capture, q2: Capture, q3: Capture, arm: str, bodies: di
         "z1_yaw": _axis_dict(z1_in_2, W2),
         "z2_pitch": _axis_dict(z2, W2),
         "zR_rcm_pitch": _axis_dict(zR, W2),
-        "z3": _axis_dict(None, W2, *_passive_at_zero(z3, R3, p3, ok34, q2, arm, "a")),
-        "z4": _axis_dict(None, W2, *_passive_at_zero(z4, R5, p5, ok45, q2, arm, "b")),
+        "z3": _axis_dict(None, W2, *_passive_at_zero(z3, R3, p3, ok34, q2, arm, "a", z2)),
+        "z4": _axis_dict(None, W2, *_passive_at_zero(z4, R5, p5, ok45, q2, arm, "b", zR)),
         "insertion": {"point": (W2[:3, :3] @ rcm_W + W2[:3, 3]).tolist(),
                       "direction": (W2[:3, :3] @ u_W).tolist(), **u_info},
         "rcm": (W2[:3, :3] @ rcm_W + W2[:3, 3]).tolist(),
@@ -313,15 +314,29 @@ def _relative(Wa: np.ndarray, Wb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return T[:3, :3], T[:3, 3]
 
 
-def _passive_at_zero(fit: JointAxisFit, R, p, ok, cap: Capture, arm: str, body: str):
-    """A passive joint's axis in W at the frames nearest q2 = 0 (their mean)."""
-    q = cap.joints[arm][:, 1]
-    idx = np.flatnonzero(ok)
-    near = idx[np.argsort(np.abs(q[idx]))[:max(5, len(idx) // 50)]]
-    pts = np.array([fit.in_frame(R[k], p[k], body)[0] for k in near])
-    dirs = np.array([fit.in_frame(R[k], p[k], body)[1] for k in near])
-    d = dirs.mean(axis=0)
-    return pts.mean(axis=0), d / np.linalg.norm(d), (fit.direction_std, fit.point_std)
+def _pose_at_zero(R: np.ndarray, p: np.ndarray, ok: np.ndarray, axis: AxisFit, q: np.ndarray) -> np.ndarray:
+    """Mean pose (4x4, W) of a link at q2 = 0 from every frame of the sweep.
+
+    The link turns about the fixed axis `axis` by the measured q2, so each frame's pose
+    turned back about that axis by -q2 is a sample of the q2 = 0 pose; their mean has the
+    marker noise of the whole sweep averaged out, not only of the frames near q2 = 0.
+    """
+    n, P = axis.direction, axis.point
+    T = np.full((len(R), 4, 4), np.nan)
+    for k in np.flatnonzero(ok):
+        U = Rotation.from_rotvec(-q[k] * n).as_matrix()
+        T[k] = np.eye(4)
+        T[k, :3, :3] = U @ R[k]
+        T[k, :3, 3] = U @ (p[k] - P) + P
+    M, _, _ = mean_pose(T)
+    return M
+
+
+def _passive_at_zero(fit: JointAxisFit, R, p, ok, cap: Capture, arm: str, body: str, carrier: AxisFit):
+    """A passive joint's axis (point, direction, stds) in W at q2 = 0."""
+    T0 = _pose_at_zero(R, p, ok, carrier, cap.joints[arm][:, 1])
+    P, d = fit.in_frame(T0[:3, :3], T0[:3, 3], body)
+    return P, d, (fit.direction_std, fit.point_std)
 
 
 def insertion_direction(cap: Capture, T_m_W: np.ndarray, tool_body: str, arm: str,
@@ -538,7 +553,8 @@ def run_link_lengths(cfg, parameters: dict, run_root=None, progress: bool = True
                     settle(dev, run, col, [arm], 0.2)
                 phases[joint] = col.capture()
             col = _Collector("q3 stroke", all_bodies)
-            goals = [np.array([0.0, 0.0, q3h + parameters["q3_stroke"]]), np.array([0.0, 0.0, q3h])]
+            # three strokes: the insertion direction's noise falls with the frames on it
+            goals = [np.array([0.0, 0.0, q3h + f * parameters["q3_stroke"]]) for f in (1, 0) * 3]
             with run.step(STEPS[3], total=len(goals)) as st:
                 move_capture(dev, run, arm, goals, col, step=st)
             phases[2] = col.capture()

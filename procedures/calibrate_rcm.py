@@ -1,0 +1,369 @@
+"""`rig calibrate-rcm`: the remote centre of motion by pivot calibration (appendix A.2, Table 6.1).
+
+With the insertion q3 held, the tool pivots about the RCM whatever q1 and q2 do, so a
+marker body on the tool has a constant offset b_tip (body frame) to a constant point
+b_post (mocap frame): b_post = R_k b_tip + p_k (eq. A.9). The arm sweeps q1 with q2 = 0,
+q2 with q1 = 0, then a Lissajous figure of q1 and q2 through the workspace; all tool
+poses go into the algebraic one-step least squares of eq. A.10, and into the two-step and
+sphere-fit variants, each with RANSAC rejection of outlier frames (calibration.pivot).
+Frames in which the measured q3 strayed from its median by more than --q3-tolerance are
+not used (the offset b_tip changes with q3), and are counted.
+
+Outputs per arm, in metres in the mocap frame: the RCM (b_post), the tool offset
+(b_tip), the RMS per axis of the per-frame RCM estimates about the fit (Table 6.1's
+"RMS error"), and the RCM frame: origin at the RCM, y along minus the yaw axis, x along
+minus the pitch axis (the dVRK's measured_cp convention, rig.psm_kinematics.RCM_FRAME),
+from the single-joint sweeps. `rig register` uses these frames. On the simulated rig the
+result also gives the errors against the simulated truth (the residual RMS is not an
+accuracy). Figure 6.2's picture, the per-frame RCM estimates and the fit, is saved as a PNG.
+
+Offline: `--from-csv take.csv --body Tool` reads a Motive export (m or mm, quaternions)
+and runs the same pivot fits on that body's poses.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import click
+import numpy as np
+
+from calibration.axis_fit import axis_angle, fit_axis_bias_compensated
+from calibration.fit_error import FitError
+from calibration.pivot import PivotFit, fit_pivot
+from calibration.pivot_insertion import pivot_with_insertion
+from calibration.registration import pose_error
+from procedures.link_lengths import _joint_sign, load_config
+from procedures.mocap_sweep import Capture, _Collector, body_points, concatenate, move_capture, open_devices, servo_capture
+from rig import psm_kinematics as K
+from rig.params import Parameter, with_parameters
+from rig.run import Run, emit_result, exit_on_abort, json_option
+
+PROCEDURE = "calibrate-rcm"
+STEPS = (
+    "power on and home the arm",
+    "sweep q1 with q2 = 0",
+    "sweep q2 with q1 = 0",
+    "Lissajous of q1 and q2 through the workspace",
+    "pivot calibration",
+    "save the result and Figure 6.2",
+)
+METHODS = ("one_step", "two_step", "sphere")
+
+PARAMETERS = [
+    Parameter("arm", "all", "", "Arm to calibrate, or 'all' for every arm of the rig", type=str),
+    Parameter("q1_range", 1.2, "rad", "q1 amplitude of the sweeps", minimum=0.0, maximum=float(K.Q_MAX[0])),
+    Parameter("q2_range", 0.7, "rad", "q2 amplitude of the sweeps", minimum=0.0, maximum=float(K.Q_MAX[1])),
+    Parameter("q3", 0.12, "m", "Insertion held throughout", minimum=0.02, maximum=0.24),
+    Parameter("duration", 12.0, "s", "Length of the Lissajous figure (0: single-joint sweeps only)",
+              minimum=0.0, maximum=600.0),
+    Parameter("method", "one_step", "", "Pivot method reported as the result (all three are computed)",
+              choices=METHODS, type=str),
+    Parameter("ransac_threshold", 0.003, "m", "RANSAC inlier distance to the pivot point",
+              minimum=1e-4, maximum=0.05),
+    Parameter("q3_tolerance", 0.0005, "m", "Frames whose q3 strays further from its median are left out "
+              "of the eq. A.10 fits (the main fit models the insertion shift)", minimum=1e-5, maximum=0.01),
+    Parameter("seed", -1, "", "Seed of the simulated rig (-1: the configuration's)", type=int),
+]
+
+
+# ----------------------------------------------------------------------------- fitting
+
+def pivot_all(R: np.ndarray, p: np.ndarray, threshold: float, primary: str) -> tuple[PivotFit, dict]:
+    """Every pivot method with RANSAC; returns the primary fit and a summary of each."""
+    fits = {}
+    for m in METHODS:
+        fits[m] = fit_pivot(R, p, method=m, ransac=True, threshold=threshold)
+    table = {m: {"rcm": f.post.tolist(), "tip_offset": f.tip.tolist(), "rms": f.rms,
+                 "rms_xyz": f.rms_xyz.tolist(), "rcm_std": f.post_std.tolist(),
+                 "outliers": f.condition.get("outliers", 0)} for m, f in fits.items()}
+    return fits[primary], {"fits": fits, "table": table}
+
+
+def rcm_frame(rcm: np.ndarray, yaw: np.ndarray, pitch: np.ndarray) -> np.ndarray:
+    """The dVRK RCM frame (4x4, mocap) from the RCM point and the joints' positive axes:
+    y = -yaw axis, x = -pitch axis made perpendicular to y, z = x cross y."""
+    y = -np.asarray(yaw, float) / np.linalg.norm(yaw)
+    x = -np.asarray(pitch, float)
+    x = x - (x @ y) * y
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, y, np.cross(x, y)])
+    T[:3, 3] = rcm
+    return T
+
+
+def joint_axis(cap: Capture, body: str, arm: str, joint: int) -> tuple[np.ndarray, float]:
+    """Positive axis direction (mocap) of joint 1 or 2 from a body turning with it in a
+    single-joint sweep (bias-compensated Gamage-Lasenby on its points), and its 1-sigma (rad)."""
+    X, _ = body_points(cap, body)
+    try:
+        fit = fit_axis_bias_compensated(X)
+    except FitError as exc:
+        raise FitError(f"{arm} joint {joint} axis ({body} in the {cap.name}): {exc}", exc.condition) from None
+    s = _joint_sign(cap.poses[body][0], cap.joints[arm][:, joint - 1], fit.direction)
+    return s * fit.direction, fit.direction_std
+
+
+def calibrate_arm(caps: dict[str, Capture], arm: str, bodies: dict[str, str], parameters: dict) -> tuple[dict, PivotFit]:
+    """Pivot calibration and RCM frame of one arm from its phases ("q1", "q2", "lissajous").
+
+    bodies: "tool" (the pivot), "yaw" and "pitch" (bodies for the axis directions: the yaw
+    link and the pitch end link when they carry bodies, else the tool). The result's RCM is
+    the one-step fit with the insertion term (calibration.pivot_insertion) over every frame;
+    the eq. A.10 family (one-step, two-step, sphere, each with RANSAC) is fitted on the
+    frames whose q3 stayed within --q3-tolerance of its median and reported beside it.
+    """
+    body = bodies["tool"]
+    allc = concatenate([caps[k] for k in ("q1", "q2", "lissajous") if k in caps], "all")
+    q3 = allc.joints[arm][:, 2]
+    R, p = allc.poses[body]
+    fit, v = pivot_with_insertion(R, p, q3, reject=parameters["ransac_threshold"])
+    keep = np.abs(q3 - np.median(q3)) <= parameters["q3_tolerance"]
+    Rk = np.where(keep[:, None, None], R, np.nan)
+    pk = np.where(keep[:, None], p, np.nan)
+    try:
+        a10, all_fits = pivot_all(Rk, pk, parameters["ransac_threshold"], parameters["method"])
+        table = all_fits["table"]
+    except FitError as exc:  # the insertion-compensated fit stands; say why the others could not
+        table = {"refused": str(exc)}
+    yaw, yaw_std = joint_axis(caps["q1"], bodies["yaw"], arm, 1)
+    pitch, pitch_std = joint_axis(caps["q2"], bodies["pitch"], arm, 2)
+    F = rcm_frame(fit.post, yaw, pitch)
+    out = {**fit.summary(), "methods": table, "rcm_frame": F.tolist(),
+           "insertion_shift_per_m": v.tolist(),
+           "yaw_axis": yaw.tolist(), "pitch_axis": pitch.tolist(),
+           "yaw_axis_std_deg": math.degrees(yaw_std), "pitch_axis_std_deg": math.degrees(pitch_std),
+           "yaw_pitch_angle_deg": math.degrees(axis_angle(yaw, pitch)),
+           "frames_q3_held": int(keep.sum()), "q3_spread": float(np.ptp(q3)), "bodies": bodies}
+    return out, fit
+
+
+def truth_errors(world, arm: str, res: dict, fit: PivotFit, q3: float) -> dict:
+    """Errors against the simulated truth (m, deg)."""
+    F_true = world.arms[arm].rcm_world
+    rcm_true = F_true[:3, 3]
+    dt, dr = pose_error(np.array(res["rcm_frame"]), F_true)
+    return {"rcm_true": rcm_true.tolist(), "rcm_error": float(np.linalg.norm(fit.post - rcm_true)),
+            "rcm_error_xyz": (fit.post - rcm_true).tolist(),
+            "rcm_frame_rotation_error_deg": math.degrees(dr),
+            "yaw_axis_error_deg": math.degrees(axis_angle(res["yaw_axis"], -F_true[:3, 1])),
+            "pitch_axis_error_deg": math.degrees(axis_angle(res["pitch_axis"], -F_true[:3, 0])),
+            "methods": {m: float(np.linalg.norm(np.array(v["rcm"]) - rcm_true))
+                        for m, v in res["methods"].items() if isinstance(v, dict)}}
+
+
+def figure_6_2(fits: dict[str, PivotFit], truths: dict[str, np.ndarray | None], path) -> None:
+    """Per-frame RCM estimates R_k b_tip + p_k and the fitted RCM, in mm about the fit."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(fits), 3, figsize=(13, 4.2 * len(fits)), squeeze=False)
+    for row, (arm, fit) in enumerate(fits.items()):
+        P = (fit.points[fit.inliers] - fit.post) * 1e3
+        out = fit.points[~fit.inliers & np.all(np.isfinite(fit.points), axis=1)]
+        O = (out - fit.post) * 1e3
+        for col, (i, j, name) in enumerate(((0, 1, "x-y"), (0, 2, "x-z"), (1, 2, "y-z"))):
+            ax = axes[row, col]
+            ax.plot(P[:, i], P[:, j], ".", ms=2, alpha=0.4, label="RCM estimate per frame")
+            if len(O):
+                ax.plot(O[:, i], O[:, j], "x", ms=3, color="0.5", label="rejected (RANSAC)")
+            ax.plot(0, 0, "r+", ms=16, mew=2, label="fitted RCM")
+            t = truths.get(arm)
+            if t is not None:
+                d = (np.asarray(t) - fit.post) * 1e3
+                ax.plot(d[i], d[j], "kx", ms=10, mew=2, label="true RCM (simulation)")
+            ax.set_xlabel("xyz"[i] + " (mm)")
+            ax.set_ylabel("xyz"[j] + " (mm)")
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.set_title(f"{arm} {name}: RMS {fit.rms_xyz[i] * 1e3:.2f} / {fit.rms_xyz[j] * 1e3:.2f} mm")
+        axes[row, 0].legend(fontsize=7, markerscale=3)
+    fig.suptitle("Remote centre of motion (cf. thesis Figure 6.2)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def table_6_1(arms: dict) -> str:
+    lines = ["Table 6.1 form (mm, mocap frame):",
+             f"  {'RCM':8} {'x':>9} {'y':>9} {'z':>9} | RMS {'x':>6} {'y':>6} {'z':>6}"]
+    for arm, r in arms.items():
+        c, s = np.array(r["rcm"]) * 1e3, np.array(r["rms_xyz"]) * 1e3
+        lines.append(f"  {arm:8} {c[0]:9.2f} {c[1]:9.2f} {c[2]:9.2f} |     {s[0]:6.2f} {s[1]:6.2f} {s[2]:6.2f}")
+        if "truth" in r:
+            t = r["truth"]
+            lines.append(f"    error against the simulated truth: RCM {t['rcm_error'] * 1e3:.3f} mm, "
+                         f"RCM frame {t['rcm_frame_rotation_error_deg']:.4f} deg")
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- measuring
+
+def lissajous(q1a: float, q2a: float, q3: float, duration: float):
+    """q(s) for s in [0, duration] s: a Lissajous figure, q1 two periods and q2 three,
+    under a raised-cosine envelope so it starts and ends at rest at q1 = q2 = 0; and its
+    peak joint speed (rad/s, sampled), to check against Table 4.2 before anything moves."""
+    w = 2 * math.pi / max(duration, 1e-9)
+    ramp = min(2.0, duration / 4)
+
+    def q(s: float) -> np.ndarray:
+        e = 1.0
+        if s < ramp:
+            e = 0.5 - 0.5 * math.cos(math.pi * s / ramp)
+        elif s > duration - ramp:
+            e = 0.5 - 0.5 * math.cos(math.pi * max(duration - s, 0.0) / ramp)
+        return np.array([e * q1a * math.sin(2 * w * s), e * q2a * math.sin(3 * w * s), q3])
+
+    if duration <= 0:
+        return q, 0.0
+    ss = np.linspace(0.0, duration, 2001)
+    Q = np.array([q(x) for x in ss])
+    vmax = float(np.max(np.abs(np.diff(Q[:, :2], axis=0)) / (ss[1] - ss[0])))
+    return q, vmax
+
+
+def arm_bodies(arm: str, tracked) -> dict[str, str]:
+    """The tool body and the bodies giving the yaw and pitch axes (tool if absent)."""
+    tool = f"{arm}_tool"
+    return {"tool": tool, "yaw": f"{arm}_yaw" if f"{arm}_yaw" in tracked else tool,
+            "pitch": f"{arm}_pitch_end" if f"{arm}_pitch_end" in tracked else tool}
+
+
+def measure_arm(dev, run, arm_name: str, parameters: dict, bodies: list[str]) -> dict[str, Capture]:
+    """The three phases of one arm (moves the arm; records into the run)."""
+    arm = run.claim(dev.arms[arm_name])
+    q3 = parameters["q3"]
+    zero = np.array([0.0, 0.0, q3])
+    caps = {}
+    with run.step(f"{STEPS[0]} ({arm_name})"):
+        home = _Collector("home", bodies)
+        move_capture(dev, run, arm, [zero], home)
+    for key, j, label in (("q1", 0, STEPS[1]), ("q2", 1, STEPS[2])):
+        amp = parameters[f"q{j + 1}_range"]
+        goals = []
+        for s in (-1, 1):
+            g = zero.copy()
+            g[j] = s * amp
+            goals.append(g)
+        goals.append(zero)
+        col = _Collector(f"{key} sweep", bodies)
+        with run.step(f"{label} ({arm_name})", total=len(goals)) as st:
+            move_capture(dev, run, arm, goals, col, step=st)
+        caps[key] = col.capture()
+    if parameters["duration"] > 0:
+        traj, _ = lissajous(parameters["q1_range"], parameters["q2_range"], q3, parameters["duration"])
+        col = _Collector("lissajous", bodies)
+        with run.step(f"{STEPS[3]} ({arm_name})", total=20) as st:
+            servo_capture(dev, run, arm, traj, parameters["duration"], col, step=st)
+            move_capture(dev, run, arm, [zero], col)
+        caps["lissajous"] = col.capture()
+    return caps
+
+
+def run_calibrate_rcm(cfg, parameters: dict, run_root=None, progress: bool = True,
+                      procedure: str = PROCEDURE) -> dict:
+    """The live procedure as a function (CLI, bench and `rig register` call it)."""
+    arms = list(cfg.arms) if parameters["arm"] == "all" else [parameters["arm"]]
+    for a in arms:
+        if a not in cfg.arms:
+            raise click.ClickException(f"no arm {a!r} in {cfg.source}; arms: {', '.join(cfg.arms)}")
+    _, vmax = lissajous(parameters["q1_range"], parameters["q2_range"], parameters["q3"], parameters["duration"])
+    if vmax > 0.8 * K.DQ_MAX[0]:
+        raise click.ClickException(f"the Lissajous figure would reach {vmax:.2f} rad/s; lengthen --duration "
+                                   f"or lower the ranges (limit {0.8 * K.DQ_MAX[0]:.1f} rad/s, 80% of Table 4.2)")
+    seed = None if parameters["seed"] < 0 else parameters["seed"]
+    dev = open_devices(cfg, seed=seed, arms=arms)
+    try:
+        with Run(procedure, parameters=parameters, config=cfg.snapshot(), seed=seed, steps=list(STEPS),
+                 root=run_root, progress=progress) as run:
+            dev.person.detach_object()
+            dev.person.confirm("Mount a marker body on each tool and clear the workspace")
+            results, fits, truths = {}, {}, {}
+            for a in arms:
+                bodies = arm_bodies(a, getattr(dev.tracker, "bodies", ()))
+                caps = measure_arm(dev, run, a, parameters, sorted(set(bodies.values())))
+                with run.step(f"{STEPS[4]} ({a})"):
+                    res, fit = calibrate_arm(caps, a, bodies, parameters)
+                if dev.world is not None:
+                    res["truth"] = truth_errors(dev.world, a, res, fit, parameters["q3"])
+                    truths[a] = np.array(res["truth"]["rcm_true"])
+                results[a], fits[a] = res, fit
+            with run.step(STEPS[5]):
+                figure_6_2(fits, truths, run.dir / "rcm.png")
+                first = results[arms[0]]
+                result = {"rcm": first["rcm"], "tip_offset": first["tip_offset"], "rms": first["rms"],
+                          "arm": arms[0], "frame": "mocap", "arms": results,
+                          "plot": str(run.dir / "rcm.png"),
+                          "summary": {f"{a} rcm (m)": r["rcm"] for a, r in results.items()}
+                          | {f"{a} rms (m)": r["rms"] for a, r in results.items()}}
+                run.finish(result)
+    finally:
+        dev.close()
+    return run.result
+
+
+def run_from_csv(path: str, body: str, parameters: dict, run_root=None, progress: bool = True) -> dict:
+    """Pivot calibration of `body` from a Motive CSV export (no arm moves, no RCM frame)."""
+    from drivers.motive_csv import MotiveCsvError, read_motive_csv
+    from drivers.quaternion import matrix_to_quat_xyzw
+
+    try:
+        take = read_motive_csv(path)
+        track = take.body(body)
+    except MotiveCsvError as exc:
+        raise click.ClickException(str(exc)) from None
+    R, p = track.rotation(), track.position
+    params = dict(parameters, from_csv=str(path), body=body)
+    with Run(PROCEDURE, parameters=params, config={"source": str(path)}, steps=list(STEPS[4:]),
+             root=run_root, progress=progress) as run:
+        with run.step(STEPS[4]):
+            for k in np.flatnonzero(track.valid):
+                run.recorder.pose(f"/mocap/{body}/pose", float(track.time[k]), p[k],
+                                  matrix_to_quat_xyzw(R[k]), "mocap")
+            fit, allf = pivot_all(R, p, parameters["ransac_threshold"], parameters["method"])
+        with run.step(STEPS[5]):
+            figure_6_2({body: fit}, {}, run.dir / "rcm.png")
+            res = {**fit.summary(), "methods": allf["table"], "body": body,
+                   "frames_occluded": int((~track.valid).sum()), "length_unit": take.length_unit}
+            result = {"rcm": res["rcm"], "tip_offset": res["tip_offset"], "rms": res["rms"], "frame": "mocap",
+                      "source": str(path), "arms": {body: res}, "plot": str(run.dir / "rcm.png"),
+                      "summary": {"rcm (m)": res["rcm"], "rms (m)": res["rms"]}}
+            run.finish(result)
+    return run.result
+
+
+@click.command(name=PROCEDURE)
+@with_parameters(PARAMETERS)
+@click.option("--from-csv", "from_csv", type=click.Path(dir_okay=False), default=None,
+              help="Calibrate offline from an OptiTrack Motive CSV export (m or mm, quaternions).")
+@click.option("--body", default=None, help="Rigid body of the tool in the --from-csv file.")
+@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
+@json_option
+@click.pass_context
+@exit_on_abort
+def command(ctx, parameters, from_csv, body, list_steps: bool, as_json: bool) -> None:
+    """Remote centre of motion by pivot calibration (appendix A.2, Table 6.1).
+
+    Sweeps q1 and q2 with q3 held and tracks the tool body; fits b_tip and b_post (the RCM)
+    by the one-step least squares of eq. A.10, two-step and sphere fits with RANSAC. Prints
+    the RCM (m, mocap frame), the tool offset (m) and the RMS (m); with --json at least
+    {"rcm": [x, y, z], "tip_offset": [x, y, z], "rms": r}. Saves rcm.png (Figure 6.2).
+    """
+    if list_steps:
+        for i, s in enumerate(STEPS, 1):
+            click.echo(f"{i}. {s}")
+        return
+    if (from_csv is None) != (body is None):
+        raise click.UsageError("--from-csv and --body go together (the file and the tool's rigid body name)")
+    try:
+        if from_csv:
+            result = run_from_csv(from_csv, body, parameters)
+        else:
+            result = run_calibrate_rcm(load_config(ctx), parameters)
+    except FitError as exc:
+        where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
+        click.echo(f"rig {PROCEDURE}: refused: {exc}{where}", err=True)
+        sys.exit(1)
+    emit_result(result, as_json, table_6_1(result["arms"]) + f"\nrun folder: {result['run_dir']}")

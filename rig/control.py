@@ -84,8 +84,8 @@ class KalmanDifferentiator:
         if self.m == 1:
             x += self.gains[:, :, 0] * (value - x[:, 0])[:, None]
         else:
-            innovation = np.stack([value - x[:, 0], rate - x[:, 1]], axis=1)
-            x += np.einsum("nij,nj->ni", self.gains, innovation)
+            x += (self.gains[:, :, 0] * (value - x[:, 0])[:, None]
+                  + self.gains[:, :, 1] * (rate - x[:, 1])[:, None])
         return x[:, 0].copy(), x[:, 1].copy()
 
     def frequency_response(self, frequency: float, channel: int = 0) -> np.ndarray:
@@ -212,12 +212,14 @@ class Impedance:
 
     def __call__(self, q: np.ndarray, dq: np.ndarray, x_d: np.ndarray, xd_d: np.ndarray,
                  xdd_d: np.ndarray, h_e: np.ndarray) -> np.ndarray:
-        J = K.tip_jacobian_rcm(q)
+        # J, and J-dot q-dot by a directional difference of the closed-form Jacobian (exact
+        # to O(eps^2)), in one vectorised evaluation.
+        eps = 1e-6
+        Js = K.tip_jacobian_rcm(np.stack([q, q + eps * dq, q - eps * dq]))
+        J = Js[0]
+        Jdot_dq = (Js[1] - Js[2]) @ dq / (2 * eps)
         x = K.tip_in_rcm(q)
         xd = J @ dq
-        # J-dot q-dot by a directional difference of the closed-form Jacobian (exact to O(eps^2)).
-        eps = 1e-6
-        Jdot_dq = (K.tip_jacobian_rcm(q + eps * dq) - K.tip_jacobian_rcm(q - eps * dq)) @ dq / (2 * eps)
         if self.Md is not None and self.damping_ratio is not None:
             D = np.diag(2.0 * self.damping_ratio * np.sqrt(self.Md * self.design_stiffness))
             spring = self.Kp * (x_d - x) + D @ (xd_d - xd)
@@ -230,7 +232,8 @@ class Impedance:
             spring = self.Kp * (x_d - x) + D @ (xd_d - xd)
         else:
             spring = self.Kp * (x_d - x) + self.Kd * (xd_d - xd)
-        q_target3 = float(K.ik_rcm(x_d, check_limits=False)[2]) if np.linalg.norm(x_d) > 1e-6 else q[2]
+        # joint 3 puts the tip at distance q3 - L_RCC + L_TOOL from the RCM
+        q_target3 = float(np.sqrt(x_d @ x_d)) + K.L_RCC - K.L_TOOL
         fric = self.friction(dq, q_target3 - q[2])
         if self.Md is None:
             y = np.linalg.solve(J, xdd_d - Jdot_dq)

@@ -68,6 +68,33 @@ class ImpedanceGains:
 
 
 @dataclass
+class PositionForceLoop:
+    """Thesis 7.7.3: both arms in position control; a slave steps its target by `step` (m)
+    every `period` (s) while the tension error is outside `deadband` (N)."""
+
+    step: float = 0.0002
+    period: float = 0.002
+    deadband: float = 0.4
+
+
+def preset(kind: str) -> tuple[ImpedanceGains, bool]:
+    """Impedance gains and whether slaves follow the master's measured motion, per object.
+
+    A compliant spring (~2.5 kN/m) tolerates feeding the measured force back with a light
+    desired inertia (0.5 kg), which gives the tension loop bandwidth. A string (>= 20 kN/m)
+    does not: the sampled, filtered force arrives too late for an arm-object mode above
+    200 rad/s, so the slave keeps its own inertia (no force feedback inside the impedance)
+    and follows the master's planned motion rather than the measured one, whose noise the
+    stiff string would turn straight into tension.
+    """
+    if kind == "spring":
+        return ImpedanceGains(Md=np.full(3, 0.5), Kp=np.full(3, 400.0), damping_ratio=0.7), True
+    if kind == "string":
+        return ImpedanceGains(Md=None, Kp=np.full(3, 400.0), damping_ratio=0.7), False
+    raise ValueError(f"object kind must be 'spring' or 'string', got {kind!r}")
+
+
+@dataclass
 class Motion:
     """Master motion in the world frame: translation (m) and object rotation (rad) over
     `duration` s, starting `start` s after the controller starts."""
@@ -100,9 +127,15 @@ class CooperativeController:
                  elements: list[tuple[str, str]], force: float, dt: float = 1e-3,
                  motion: Motion | None = None, loop: ForceLoop | None = None,
                  gains: ImpedanceGains | None = None, force_noise: float = 0.02,
-                 object_stiffness: float = 2450.0, follow_measured_master: bool = True):
+                 object_stiffness: float = 2450.0, follow_measured_master: bool = True,
+                 mode: str = "impedance", position_loop: PositionForceLoop | None = None):
         if master not in arms:
             raise ValueError(f"master {master!r} is not among the arms {arms}")
+        if mode not in ("impedance", "position"):
+            raise ValueError(f"mode must be 'impedance' or 'position', got {mode!r}")
+        self.mode = mode
+        self.position_loop = position_loop or PositionForceLoop()
+        self._next_position_step = 0.0
         self.arms = list(arms)
         self.master = master
         self.slaves = [a for a in arms if a != master]
@@ -152,12 +185,26 @@ class CooperativeController:
         self.centroid0 = np.mean([self.x0[a] for a in self.arms], axis=0)
         self.initial_tension = float(np.mean(tension)) if len(tension) else 0.0
         self.k_i = {s: self._force_gain(s, q[s]) for s in self.slaves}
-        # Pre-load each slave's impedance with the tension already on the object, so that
-        # switching the slave to effort control does not let the object pull it in.
-        for s in self.slaves:
-            u = self._outward(s, self.x0)
-            kp = float(u @ (self.impedance[s].Kp * (self.R[s].T @ u)) if False else np.mean(self.impedance[s].Kp))
-            self.x_f[s] = self.initial_tension / kp
+        if self.mode == "impedance":
+            # Pre-load each slave's impedance with the tension already on the object, so that
+            # switching the slave to effort control does not let the object pull it in.
+            for s in self.slaves:
+                self.x_f[s] = self.initial_tension / float(np.mean(self.impedance[s].Kp))
+
+    def _position_slave(self, s: str, t: float, error: float, x_d: np.ndarray, v_d: np.ndarray,
+                        u: np.ndarray) -> ArmCommand:
+        """Thesis 7.7.3: fixed target steps along the object while the error is outside the deadband."""
+        pl = self.position_loop
+        if t + 1e-12 >= self._next_position_step:
+            if abs(error) > pl.deadband:
+                self.x_f[s] = float(np.clip(self.x_f[s] + pl.step * np.sign(error),
+                                            -self.loop.x_f_limit, self.loop.x_f_limit))
+            if s == self.slaves[-1]:
+                self._next_position_step = t + pl.period
+        x_rcm = self.to_rcm(s, x_d + u * self.x_f[s])
+        q = K.ik_rcm(x_rcm)
+        dq = np.linalg.solve(K.tip_jacobian_rcm(q), self.R[s].T @ v_d)
+        return ArmCommand("position", q=q, dq=dq)
 
     def _outward(self, slave: str, tips: dict[str, np.ndarray]) -> np.ndarray:
         """Unit vector (world) along which the slave's target moves to raise the tension."""
@@ -197,11 +244,13 @@ class CooperativeController:
         v, a = (v / m.duration, a / m.duration**2) if inside else (0.0, 0.0)
         shift = p * m.translation + self.offset_translation
         angles = p * m.rotation + self.offset_rotation
-        R = euler_xyz(angles)
-        # angular velocity of the object for the (small) rotation rate: finite difference
-        eps = 1e-4
-        R_next = euler_xyz(angles + eps * m.rotation) if np.any(m.rotation) else R
-        dR = (R_next - R) / eps * v
+        if angles.any():
+            R = euler_xyz(angles)
+            # rate of the object's rotation along the planned profile: a finite difference
+            eps = 1e-4
+            dR = (euler_xyz(angles + eps * m.rotation) - R) / eps * v if m.rotation.any() else np.zeros((3, 3))
+        else:
+            R, dR = np.eye(3), np.zeros((3, 3))
         xd, vd, ad = {}, {}, {}
         for arm in self.arms:
             r0 = self.x0[arm] - self.centroid0
@@ -256,6 +305,9 @@ class CooperativeController:
                 u = tips[s] - centroid
             u = u / max(np.linalg.norm(u), 1e-9)
             error = self.force_setpoint - h_e
+            if self.mode == "position":
+                commands[s] = self._position_slave(s, t, error, xd[s] + 0.0, vd[s], u)
+                continue
             if abs(error) > self.loop.deadband:
                 rate = self.k_i[s] * (error - np.sign(error) * self.loop.deadband) - self.loop.k_damp * h_rate
             else:

@@ -1,0 +1,545 @@
+"""`rig cooperative`: hold a tension on an object between two or three PSMs while it moves.
+
+Steps (thesis 6.3, 7.7): power and home the arms; attach the object (a person on the real
+rig; the simulation on the simulated one); check the plan against every limit; hold the
+tension while the master moves (and rotates) the object; report.
+
+The master PSM follows its Cartesian trajectory under the dVRK's position control
+(servo_jp); each slave runs the impedance controller with tension tracking of
+`rig.cooperative` (servo_jf). Everything runs at the rig rate from the measured joint
+states and load-cell samples; every stream is recorded. Safety limits (tension ceiling,
+joint, velocity and effort limits, workspace box, stale streams) abort the run, which
+holds every arm it moved.
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import click
+import numpy as np
+
+from rig.params import Parameter, with_parameters
+from rig.run import AbortRun, Run, emit_result, exit_on_abort, json_option
+
+STEPS = ["power and home the arms", "attach the object", "check the plan",
+         "hold the tension while moving", "report"]
+
+PARAMETERS = [
+    Parameter("force", 5.0, "N", "Tension to hold on the object", minimum=0.0, maximum=12.0),
+    Parameter("duration", 5.0, "s", "Duration of the master's motion", minimum=0.1, maximum=120.0),
+    Parameter("settle", 2.0, "s", "Time to reach the tension before the motion starts", minimum=0.5, maximum=30.0),
+    Parameter("hold_after", 2.0, "s", "Time to keep holding after the motion", minimum=0.0, maximum=60.0),
+    Parameter("deadband", 0.4, "N", "Force deadband of the position-based mode (7.7.3)", minimum=0.0, maximum=5.0),
+    Parameter("tension_ceiling", 15.0, "N", "Abort above this tension", minimum=0.5, maximum=15.0),
+]
+
+
+def _vector(text: str | None, what: str) -> np.ndarray:
+    if text is None or text == "":
+        return np.zeros(3)
+    try:
+        v = np.array([float(x) for x in text.split(",")])
+    except ValueError:
+        raise click.BadParameter(f"expected three numbers separated by commas, got {text!r}", param_hint=what) from None
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise click.BadParameter(f"expected three finite numbers, got {text!r}", param_hint=what)
+    return v
+
+
+@click.command(name="cooperative")
+@with_parameters(PARAMETERS)
+@click.option("--move", default="0.05,0,0", show_default=True, metavar="DX,DY,DZ",
+              help="Master motion in the world frame, m (the slaves follow, eq. 6.2).")
+@click.option("--rotate", default="0,0,0", show_default=True, metavar="RX,RY,RZ",
+              help="Object reorientation about its centroid, x-y-z Euler angles in rad (eq. 6.3).")
+@click.option("--arms", default=None, metavar="PSM1,PSM2[,PSM3]",
+              help="Arms holding the object (default: the configuration's object arms).")
+@click.option("--master", default=None, help="The master arm (default: the last of --arms, as in the thesis).")
+@click.option("--object", "object_kind", type=click.Choice(["spring", "string"]), default=None,
+              help="Simulated object: spring (2450 N/m) or string (20000 N/m). Default: the configuration's.")
+@click.option("--mode", type=click.Choice(["impedance", "position"]), default="impedance", show_default=True,
+              help="Slave control: impedance with tension tracking, or the position-based tracking of 7.7.3.")
+@click.option("--model", "model_path", type=click.Path(dir_okay=False), default=None,
+              help="Identified model file (default: the newest `rig identify` result; nominal on the simulated rig).")
+@click.option("--seed", type=int, default=None, help="Seed of the simulated rig.")
+@click.option("--dry-run", is_flag=True, help="Check the plan against every limit, print it, move nothing.")
+@click.option("--ros-commands", is_flag=True,
+              help="Also take live increments from /psm/cmd_vel (Twist) and /psm/cmd_force (Float64).")
+@click.option("--interactive", is_flag=True, help="Steer from the keyboard (a small terminal UI).")
+@json_option
+@click.pass_context
+@exit_on_abort
+def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, model_path, seed, dry_run,
+            ros_commands, interactive, as_json):
+    """Cooperative manipulation with force tracking (thesis 6.3, 7.7).
+
+    Holds FORCE newtons of tension on the object between the tool tips while the master
+    moves it by --move over --duration seconds. Figures: max |F - force| during the
+    motion, RMS error after settling, start-up overshoot, settling time (N, s).
+    """
+    from rig import config as config_mod
+
+    try:
+        cfg = config_mod.load((ctx.obj or {}).get("config_path"))
+    except config_mod.ConfigError as exc:
+        raise click.ClickException(str(exc)) from None
+    names = [a.strip() for a in arms.split(",")] if arms else list(cfg.object["arms"] or list(cfg.arms)[:2])
+    if not 2 <= len(names) <= 3 or len(set(names)) != len(names):
+        raise click.BadParameter(f"name two or three different arms, got {names}", param_hint="--arms")
+    for n in names:
+        if n not in cfg.arms:
+            raise click.BadParameter(f"{n!r} is not an arm of {cfg.source} ({', '.join(cfg.arms)})", param_hint="--arms")
+    master = master or names[-1]
+    if master not in names:
+        raise click.BadParameter(f"{master!r} is not one of {names}", param_hint="--master")
+    translation, rotation = _vector(move, "--move"), _vector(rotate, "--rotate")
+    if object_kind is not None:
+        if not cfg.simulated:
+            raise click.BadParameter("chooses the simulated object; the real rig holds what is mounted", param_hint="--object")
+        cfg.object["kind"] = object_kind
+        cfg.object["stiffness"] = 2450.0 if object_kind == "spring" else 20000.0
+    cfg.object["arms"] = names
+    result = run_cooperative(cfg, names, master, dict(parameters), translation, rotation, mode,
+                             model_path=model_path, seed=seed, dry_run=dry_run, ros_commands=ros_commands,
+                             interactive=interactive, parameter_set=parameters)
+    emit_result(result, as_json, report=format_report(result))
+    if result.get("status") not in ("completed", "planned"):
+        sys.exit(1)
+
+
+# ----------------------------------------------------------------------------- set-up
+def _model_for(cfg, model_path, simulated: bool):
+    """(FeedforwardModel factory, StickSlip or None, description) from a model file or nominal."""
+    from rig import model_file
+    from rig.psm_dynamics import PSMDynamics
+
+    if model_path:
+        m = model_file.load_model(model_path)
+    else:
+        m = model_file.latest_model()
+        if m is not None and m.standard is None:
+            m = None
+    if m is None:
+        if not simulated:
+            raise click.ClickException("no identified model: run `rig identify` (and `rig friction-ramp`) first, "
+                                       "or pass --model FILE")
+        return PSMDynamics(), None, "nominal model (no identified model yet)"
+    return m.dynamics(), m.stick_slip(), f"identified model {m.path}"
+
+
+def _registration_for(cfg, names, simulated: bool):
+    """Each arm's RCM frame in the world, and where it came from."""
+    from rig import psm_kinematics as K
+    from rig.paths import latest_result
+
+    found = latest_result("register")
+    if found is not None:
+        run_dir, data = found
+        frames = {}
+        transforms = data.get("rcm_frames") or data.get("transforms") or {}
+        for n in names:
+            if n in transforms:
+                frames[n] = np.asarray(transforms[n], float)
+        if len(frames) == len(names):
+            return frames, f"registration {run_dir}"
+    if not simulated:
+        raise click.ClickException("no registration of the arms: run `rig register` first")
+    return {n: cfg.base_matrix(n) @ K.RCM_FRAME for n in names}, "the configuration's arm bases (simulated rig)"
+
+
+def build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
+                     object_kind, object_stiffness, elements, dt):
+    from rig.control import FeedforwardModel, StickSlipCompensation
+    from rig.cooperative import CooperativeController, ForceLoop, Motion, PositionForceLoop, preset
+
+    d = dyn.params.drive
+    friction = {}
+    for n in names:
+        comp = StickSlipCompensation(d.Fc.copy(), d.Fv.copy(), d.Fo.copy(), d.slope)
+        if stick is not None:
+            comp.Fs_pos, comp.Fs_neg = stick.fs_pos, stick.fs_neg
+        friction[n] = comp
+    gains, follow = preset(object_kind)
+    return CooperativeController(
+        names, master, rcm_frames, {n: FeedforwardModel(dyn) for n in names}, friction, elements,
+        params["force"], dt=dt, motion=Motion(translation, rotation, params["duration"], params["settle"]),
+        loop=ForceLoop(), gains=gains, object_stiffness=object_stiffness, follow_measured_master=follow,
+        mode=mode, position_loop=PositionForceLoop(deadband=params["deadband"]))
+
+
+# ----------------------------------------------------------------------------- the run
+def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, model_path=None, seed=None,
+                    dry_run=False, ros_commands=False, interactive=False, parameter_set=None, model=None,
+                    progress=True):
+    """The procedure; returns the result document. `model` overrides the model file (tests, bench)."""
+    from rig import psm_kinematics as K
+    from rig.devices import open_rig
+    from rig.safety import SafetyLimits
+
+    simulated = cfg.simulated
+    if model is not None:
+        dyn, stick, model_note = model, None, "model given by the caller"
+    else:
+        dyn, stick, model_note = _model_for(cfg, model_path, simulated)
+    rcm_frames, registration_note = _registration_for(cfg, names, simulated)
+    limits = SafetyLimits(tension_ceiling=params["tension_ceiling"])
+    if params["force"] >= limits.tension_ceiling:
+        raise click.BadParameter(f"{params['force']} N is not below the tension ceiling "
+                                 f"{limits.tension_ceiling} N", param_hint="--force")
+    rig = open_rig(cfg, names, seed=seed)
+    try:
+        return _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
+                    model_note, registration_note, limits, dry_run, ros_commands, interactive,
+                    parameter_set, seed, progress)
+    finally:
+        rig.close()
+
+
+def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames, model_note,
+         registration_note, limits, dry_run, ros_commands, interactive, parameter_set, seed, progress):
+    from rig import psm_kinematics as K
+    from rig.cooperative import min_jerk
+
+    clock = rig.clock
+    elements = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
+    kind = cfg.object["kind"]
+    stiffness = cfg.object["stiffness"]
+    with Run("cooperative", parameters=parameter_set if parameter_set is not None else params,
+             config=cfg.snapshot(), seed=seed if seed is not None else cfg.rig["seed"], steps=STEPS,
+             progress=progress) as run:
+        rec = run.recorder
+        notes = [f"model: {model_note}", f"registration: {registration_note}"]
+        for line in notes:
+            run._write(line + "\n")
+        with run.step(STEPS[0]):
+            for n in names:
+                arm = rig.arms[n]
+                if hasattr(arm, "power_on"):
+                    arm.power_on()
+        with run.step(STEPS[1]):
+            if rig.world is None:
+                click.pause(f"Attach the {kind} and the load cell between the tool tips of "
+                            f"{' and '.join(names)}, then press a key")
+            # the simulated object is attached at construction; let it settle under the PIDs
+            for _ in range(int(0.5 * clock.rate)):
+                clock.tick()
+            if rig.force is None:
+                raise AbortRun("no load cell: the tension cannot be tracked")
+        controller = build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick,
+                                      rcm_frames, kind, stiffness, elements, 1.0 / clock.rate)
+        js = {n: rig.arms[n].measured_js() for n in names}
+        q0 = {n: js[n].position[:3] for n in names}
+        sample = rig.force.read()
+        controller.start(clock.now(), q0, {n: js[n].velocity[:3] for n in names}, np.array([sample.force]))
+        total = params["settle"] + params["duration"] + params["hold_after"]
+        with run.step(STEPS[2]):
+            plan = _check_plan(controller, names, q0, total, limits)
+        if dry_run:
+            result = {"status": "planned", "plan": plan, "model": model_note, "registration": registration_note,
+                      "arms": names, "master": master, "mode": mode, "object": kind}
+            run.finish(result)
+            return result
+        for n in names:
+            run.claim(rig.arms[n])
+        live = _LiveCommands(controller, ros_commands, interactive, rig)
+        n_ticks = int(round(total * clock.rate))
+        log = {"t": np.empty(n_ticks), "tension": np.empty(n_ticks), "setpoint": np.empty(n_ticks),
+               "loop_us": np.empty(n_ticks)}
+        for n in names:
+            log[f"{n}.x"] = np.empty((n_ticks, 3))
+            log[f"{n}.xd"] = np.empty((n_ticks, 3))
+        last_force_t = sample.t
+        tension = np.array([sample.force])
+        t_start = clock.now()
+        with run.step(STEPS[3], total=n_ticks) as step:
+            for k in range(n_ticks):
+                clock.tick()
+                t = clock.now()
+                js = {n: rig.arms[n].measured_js() for n in names}
+                new = rig.force.samples()
+                for s in new:
+                    rec.tension("/loadcell/force", s.t, s.force)
+                fresh = None
+                if new:
+                    last_force_t = new[-1].t
+                    tension = np.array([new[-1].force])
+                    fresh = tension
+                elif t - last_force_t > cfg.loadcell["stale_timeout"]:
+                    raise AbortRun(f"load cell stale: no sample for {1000 * (t - last_force_t):.0f} ms")
+                live.poll()
+                c0 = time.perf_counter()
+                q = {n: js[n].position[:3] for n in names}
+                dq = {n: js[n].velocity[:3] for n in names}
+                commands = controller.step(t, q, dq, fresh)
+                loop_us = (time.perf_counter() - c0) * 1e6
+                limits.check_tension(float(tension.max()))
+                xd, _, _ = controller.desired(t)
+                for n in names:
+                    x = controller.tip_world(n, q[n])
+                    limits.check_arm(n, q[n], dq[n], js[n].effort[:3], x)
+                    cmd = commands[n]
+                    if cmd.kind == "position":
+                        rig.arms[n].servo_jp(cmd.q, cmd.dq)
+                        rec.joint_state(f"/{n}/servo_jp", t, cmd.q, cmd.dq, ())
+                    else:
+                        rig.arms[n].servo_jf(cmd.effort)
+                        rec.joint_state(f"/{n}/servo_jf", t, (), (), cmd.effort)
+                    rec.joint_state(f"/{n}/measured_js", js[n].t, js[n].position, js[n].velocity, js[n].effort)
+                    log[f"{n}.x"][k] = x
+                    log[f"{n}.xd"][k] = xd[n]
+                rec.scalar("/cooperative/force_setpoint", t, controller.force_setpoint)
+                rec.scalar("/cooperative/loop_time_us", t, loop_us)
+                log["t"][k] = t - t_start
+                log["tension"][k] = float(tension.mean())
+                log["setpoint"][k] = controller.force_setpoint
+                log["loop_us"][k] = loop_us
+                if k % 100 == 0:
+                    step.update(k)
+                    live.show(t - t_start, float(tension.mean()), {n: log[f"{n}.x"][k] for n in names})
+            step.update(n_ticks)
+        live.close()
+        with run.step(STEPS[4]):
+            result = _figures(log, params, names, master, mode, kind, controller)
+            result.update({"model": model_note, "registration": registration_note, "arms": names,
+                           "master": master, "mode": mode, "object": kind,
+                           "filter_delay": _filter_delays(controller)})
+            plot = Path(run.dir) / "cooperative.png"
+            _plot(log, names, params, plot)
+            result["plot"] = str(plot)
+            result["status"] = "completed"
+            run.finish(result)
+        return run.result
+
+
+def _check_plan(controller, names, q0, total, limits) -> dict:
+    """Sample the planned desired tips, check limits with the IK, return a summary."""
+    from rig import psm_kinematics as K
+
+    worst = {}
+    for t in np.linspace(0.0, total, 200):
+        xd, vd, _ = controller.desired(controller.t0 + t)
+        for n in names:
+            x_rcm = controller.to_rcm(n, xd[n])
+            try:
+                q = K.ik_rcm(x_rcm)
+            except K.IKError as exc:
+                raise AbortRun(f"plan: {n} cannot reach its target at t = {t:.2f} s: {exc}") from None
+            dq = np.linalg.solve(K.tip_jacobian_rcm(q), controller.R[n].T @ vd[n])
+            problem = limits.plan_violation(n, q[None], dq[None], xd[n][None])
+            if problem:
+                raise AbortRun(f"plan: {problem} at t = {t:.2f} s")
+            worst[n] = max(worst.get(n, 0.0), float(np.max(np.abs(dq) / K.DQ_MAX)))
+    return {"duration": total, "max_velocity_fraction": worst}
+
+
+def _figures(log, params, names, master, mode, kind, controller) -> dict:
+    t, F = log["t"], log["tension"]
+    force = params["force"]
+    e = F - force
+    m0 = params["settle"]
+    m1 = params["settle"] + params["duration"]
+    during = (t >= m0) & (t <= m1)
+    after = t >= 1.0 + 0.0 * m0
+    startup = t < m0
+    band = max(0.1 * force, 0.25)
+    outside = np.nonzero(np.abs(e) > band)[0]
+    settle_idx = outside[-1] + 1 if len(outside) else 0
+    settling_time = float(t[min(settle_idx, len(t) - 1)]) if len(outside) else 0.0
+    rms_mask = t >= max(settling_time, m0 * 0.5)
+    hold = t > m1
+    tail = e[hold] if hold.any() else e[-int(0.2 * len(e)):]
+    summary = {
+        "max_error_during_motion": float(np.max(np.abs(e[during]))) if during.any() else None,
+        "rms_error": float(np.sqrt(np.mean(e[rms_mask] ** 2))) if rms_mask.any() else None,
+        "overshoot": float(max(0.0, np.max(F[startup]) - force)) if startup.any() else 0.0,
+        "settling_time": settling_time,
+        "hold_peak_to_peak": float(np.ptp(tail)) if len(tail) else None,
+        "loop_time_us": {"median": float(np.median(log["loop_us"])),
+                         "p99": float(np.percentile(log["loop_us"], 99)),
+                         "max": float(np.max(log["loop_us"]))},
+    }
+    # A limit cycle: the tension keeps swinging after the motion by more than the band.
+    summary["limit_cycle"] = bool(summary["hold_peak_to_peak"] is not None and summary["hold_peak_to_peak"] > 2 * band)
+    return {"summary": {k: v for k, v in summary.items() if not isinstance(v, dict)}, **summary,
+            "force": force, "motion_duration": params["duration"]}
+
+
+def _filter_delays(controller) -> dict:
+    jf = controller.joint_filter[controller.master]
+    ff = controller.force_filter
+    out = {}
+    for f in (2.0, 10.0):
+        vq, rq = jf.delay(f, 0)
+        vf, rf = ff.delay(f, 0)
+        out[f"{f:g} Hz"] = {"joint_position_s": vq, "joint_velocity_s": rq, "tension_s": vf, "tension_rate_s": rf}
+    return out
+
+
+def _plot(log, names, params, path: Path) -> None:
+    """Figure 7.11: positions (desired and actual) of every arm and the tension against time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(4, 1, figsize=(9, 9), sharex=True)
+    t = log["t"]
+    for i, axis in enumerate("xyz"):
+        ax = axes[i]
+        for n in names:
+            line, = ax.plot(t, log[f"{n}.x"][:, i], label=f"{n} actual")
+            ax.plot(t, log[f"{n}.xd"][:, i], "--", color=line.get_color(), alpha=0.7, label=f"{n} desired")
+        ax.set_ylabel(f"{axis} [m]")
+    axes[0].legend(loc="upper left", fontsize=7, ncol=len(names))
+    axes[3].plot(t, log["tension"], label="tension")
+    axes[3].plot(t, log["setpoint"], "--", label="set-point")
+    axes[3].axvspan(params["settle"], params["settle"] + params["duration"], color="0.9")
+    axes[3].set_ylabel("tension [N]")
+    axes[3].set_xlabel("time [s]")
+    axes[3].legend(loc="lower right", fontsize=7)
+    fig.suptitle("Cooperative force tracking (shaded: master moving)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def format_report(result: dict) -> str:
+    if result.get("status") == "planned":
+        return (f"plan checked for {', '.join(result['arms'])} (master {result['master']}): inside every limit; "
+                f"nothing moved")
+    lines = [f"cooperative ({result.get('mode')}, {result.get('object')}): {result.get('status')}",
+             f"  {result.get('model')}", f"  {result.get('registration')}"]
+    if result.get("max_error_during_motion") is not None:
+        lines += [f"  max |F - {result['force']:.2f} N| during the motion: {result['max_error_during_motion']:.3f} N",
+                  f"  RMS error after settling: {result['rms_error']:.3f} N",
+                  f"  start-up overshoot: {result['overshoot']:.3f} N, settling time {result['settling_time']:.2f} s",
+                  f"  limit cycle: {'yes' if result['limit_cycle'] else 'no'} "
+                  f"(peak-to-peak while holding {result['hold_peak_to_peak']:.3f} N)",
+                  f"  controller step: median {result['loop_time_us']['median']:.0f} us, "
+                  f"p99 {result['loop_time_us']['p99']:.0f} us",
+                  f"  plot: {result.get('plot')}"]
+    if result.get("run_dir"):
+        lines.append(f"  run folder: {result['run_dir']}")
+    return "\n".join(lines)
+
+
+class _LiveCommands:
+    """Increments from the keyboard and from ROS 2 topics (thesis 6.3 teleop)."""
+
+    STEP_M = 0.002     # m per key press
+    STEP_RAD = 0.05    # rad per key press
+    STEP_N = 0.5       # N per key press
+
+    def __init__(self, controller, ros: bool, keyboard: bool, rig):
+        self.c = controller
+        self.keyboard = None
+        self.node = None
+        if keyboard:
+            self.keyboard = _Keyboard()
+        if ros:
+            self._start_ros()
+
+    def _start_ros(self) -> None:
+        import threading
+
+        import rclpy
+        from geometry_msgs.msg import Twist
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from std_msgs.msg import Float64
+
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("rig_cooperative_teleop", context=self.context)
+        self.pending: list = []
+        self.node.create_subscription(Twist, "/psm/cmd_vel", lambda m: self.pending.append(("vel", m)), 10)
+        self.node.create_subscription(Float64, "/psm/cmd_force", lambda m: self.pending.append(("force", m)), 10)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        threading.Thread(target=self._spin, daemon=True).start()
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin()
+        except Exception:  # noqa: BLE001 - the context was shut down
+            pass
+
+    def poll(self) -> None:
+        if self.node is not None:
+            while self.pending:
+                what, m = self.pending.pop(0)
+                if what == "vel":
+                    self.c.offset_translation += [m.linear.x, m.linear.y, m.linear.z]
+                    self.c.offset_rotation += [m.angular.x, m.angular.y, m.angular.z]
+                else:
+                    self.c.force_offset += float(m.data)
+        if self.keyboard is not None:
+            for key in self.keyboard.keys():
+                self.apply_key(key)
+
+    def apply_key(self, key: str) -> None:
+        moves = {"d": (0, 1), "a": (0, -1), "w": (1, 1), "s": (1, -1), "r": (2, 1), "f": (2, -1)}
+        turns = {"l": (2, 1), "j": (2, -1), "i": (1, 1), "k": (1, -1), "o": (0, 1), "u": (0, -1)}
+        if key in moves:
+            axis, sign = moves[key]
+            self.c.offset_translation[axis] += sign * self.STEP_M
+        elif key in turns:
+            axis, sign = turns[key]
+            self.c.offset_rotation[axis] += sign * self.STEP_RAD
+        elif key in "+=":
+            self.c.force_offset += self.STEP_N
+        elif key in "-_":
+            self.c.force_offset -= self.STEP_N
+
+    def show(self, t: float, tension: float, tips: dict) -> None:
+        if self.keyboard is not None:
+            pos = "  ".join(f"{n} {1000 * x[0]:7.1f} {1000 * x[1]:7.1f} {1000 * x[2]:7.1f} mm" for n, x in tips.items())
+            sys.stderr.write(f"\r t {t:6.2f} s  tension {tension:6.2f} N (set {self.c.force_setpoint:5.2f})  {pos}"
+                             "   [wasdrf move, ijkluo rotate, +/- force]")
+            sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.keyboard is not None:
+            self.keyboard.close()
+            sys.stderr.write("\n")
+        if self.node is not None:
+            import rclpy
+
+            self.executor.shutdown(timeout_sec=1.0)
+            self.node.destroy_node()
+            if self.context.ok():
+                rclpy.shutdown(context=self.context)
+
+
+class _Keyboard:
+    """Non-blocking single keys from a terminal (cbreak mode, restored on close)."""
+
+    def __init__(self):
+        import termios
+        import tty
+
+        if not sys.stdin.isatty():
+            raise click.ClickException("--interactive needs a terminal on stdin")
+        self.fd = sys.stdin.fileno()
+        self.saved = termios.tcgetattr(self.fd)
+        tty.setcbreak(self.fd)
+
+    def keys(self) -> list[str]:
+        import select
+
+        out = []
+        while select.select([sys.stdin], [], [], 0)[0]:
+            ch = sys.stdin.read(1)
+            if not ch:
+                break
+            out.append(ch)
+        return out
+
+    def close(self) -> None:
+        import termios
+
+        termios.tcsetattr(self.fd, termios.TCSADRAIN, self.saved)

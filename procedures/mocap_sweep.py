@@ -291,9 +291,9 @@ class SimPerson:
     """The simulated rig does the person's steps itself.
 
     Markers are mounted by construction; the object is detached from the world; a touch
-    moves every arm's tip to the same world point with inverse kinematics on the *true*
+    puts every arm's tip on the same world point with inverse kinematics on the *true*
     arm placement (what a person guiding the tips together achieves physically, whatever
-    the calibration believes) and waits until the tips are there and at rest.
+    the calibration believes).
     """
 
     def __init__(self, world, clock):
@@ -307,18 +307,14 @@ class SimPerson:
         self.world.detach_object()
 
     def touch(self, arms: dict, point_index: int, goal_world: np.ndarray) -> None:
+        # A person hand-guides the tips onto the point: the arms end exactly at the
+        # inverse kinematics of the true placement (world.set_state), then hold there.
         from rig import psm_kinematics as K
-        goals = {}
         for name, arm in arms.items():
             T = np.linalg.inv(self.world.arms[name].rcm_world)
-            goals[name] = K.ik_rcm((T @ np.append(goal_world, 1.0))[:3])
-            arm.move_jp(goals[name], wait=False)
-        t_end = self.clock.now() + 20.0
-        while self.clock.now() < t_end:
-            self.clock.tick()
-            if all(np.all(np.abs(self.world.true_state(n)[0] - goals[n]) < np.array([1e-4, 1e-4, 5e-5]))
-                   and np.all(np.abs(self.world.true_state(n)[1]) < 1e-3) for n in arms):
-                return
+            q = K.ik_rcm((T @ np.append(goal_world, 1.0))[:3])
+            self.world.set_state(name, q)
+            arm.hold()
 
 
 @dataclass

@@ -101,11 +101,17 @@ class GravitySlopeSearch:
         Processed training data (SI).
     n_inertial : int
         Number of inertial (body) columns; drive columns follow, 4 per joint.
+    mask : (n, nj) bool, optional
+        Joint samples to use; the others become zero equations (0 = 0), which leave the
+        least-squares solution untouched (e.g. a stuck joint whose effort no model gives).
     """
 
-    def __init__(self, make_model: Callable, q, dq, ddq, tau, n_inertial: int):
+    def __init__(self, make_model: Callable, q, dq, ddq, tau, n_inertial: int, mask=None):
         self.q, self.dq, self.ddq = (np.asarray(x, float) for x in (q, dq, ddq))
         self.tau = np.asarray(tau, float)
+        self.mask = None if mask is None else np.asarray(mask, bool)
+        if self.mask is not None:
+            self.tau = self.tau * self.mask
         self.nj = self.tau.shape[1]
         self.n_inertial = int(n_inertial)
         zero = np.zeros_like(self.q)
@@ -119,6 +125,9 @@ class GravitySlopeSearch:
             Wk = make_model(g, 400.0).regressor_batch(self.q, zero, zero)
             Wk[:, self.n_inertial:] = 0.0  # the offset column (1) belongs to W0 only
             blocks.append(Wk)
+        if self.mask is not None:
+            rows = self.mask.reshape(-1)
+            blocks = [B * rows[:, None] for B in blocks]
         self._blocks = blocks
         self._row_scale = 1.0 / np.linalg.norm(self.tau, axis=0)
         self._fc_cols = self.n_inertial + 4 * np.arange(self.nj)
@@ -129,7 +138,8 @@ class GravitySlopeSearch:
         if slope not in self._slope_grams:
             W0 = self._blocks[0].copy()
             for j in range(self.nj):
-                W0[j::self.nj, self._fc_cols[j]] = np.tanh(0.5 * slope * self.dq[:, j])
+                W0[j::self.nj, self._fc_cols[j]] = np.tanh(0.5 * slope * self.dq[:, j]) * (
+                    1.0 if self.mask is None else self.mask[:, j])
             grams = []
             for j in range(self.nj):
                 B = np.hstack([W0[j::self.nj]] + [Wk[j::self.nj] for Wk in self._blocks[1:]]

@@ -82,6 +82,8 @@ PARAMETERS = [
               minimum=0.02, maximum=1.0),
     Parameter("fill", 0.7, "", "Validation trajectory: fraction of the position and velocity limits used",
               minimum=0.1, maximum=0.95),
+    Parameter("velocity_fraction", 0.85, "", "Fraction of Table 4.2's velocity limits the excitation may use "
+              "(the rest is headroom for tracking overshoot)", minimum=0.2, maximum=1.0),
     Parameter("starts", 4, "", "Seeded starts of the excitation optimisation", minimum=1, maximum=20, type=int),
     Parameter("iterations", 60, "", "SLSQP iterations per start of the excitation optimisation", minimum=1,
               maximum=500, type=int),
@@ -91,6 +93,9 @@ PARAMETERS = [
               minimum=20.0, maximum=2000.0),
     Parameter("cutoff", 3.5, "Hz", "Butterworth cut-off of the zero-phase filter", minimum=0.2, maximum=50.0),
     Parameter("filter_order", 8, "", "Butterworth order", minimum=1, maximum=12, type=int),
+    Parameter("fit_deadband", True, "", "Leave joint samples slower than the 7.5.1 velocity deadband (0.01 rad/s, "
+              "0.01 rad/s, 0.005 m/s) out of the fit: a stuck joint's effort is not a function of the motion",
+              type=bool),
     Parameter("seed", -1, "", "Seed of the simulated rig (-1: the configuration's)", type=int),
     Parameter("plots", True, "", "Write the Figure 5.2/5.3-style PNGs", type=bool),
 ]
@@ -154,28 +159,56 @@ class FitOutcome:
     seconds: dict = field(default_factory=dict)
 
 
-def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None, progress=None) -> FitOutcome:
+#: Velocity deadband of thesis 7.5.1 (rad/s, rad/s, m/s): slower than this a joint may be
+#: stuck, and its effort is then whatever the controller left within the static friction
+#: band, which no rigid-body and friction model predicts.
+DEADBAND = np.array([0.01, 0.01, 0.005])
+
+
+def moving_mask(dq: np.ndarray, deadband=DEADBAND) -> np.ndarray:
+    """(n, 3) True where the joint moves faster than its deadband."""
+    return np.abs(np.asarray(dq, float)) >= np.asarray(deadband, float)
+
+
+def _masked_identification(model, data, base, mask):
+    """Identification with the joint samples outside ``mask`` turned into 0 = 0 equations."""
+    from calibration.estimators import Identification, model_nominal
+    from calibration.layout import ParamLayout
+
+    W = model.regressor_batch(data.q, data.dq, data.ddq)
+    tau = data.tau
+    if mask is not None:
+        W = W * mask.reshape(-1)[:, None]
+        tau = tau * mask
+    idx = np.linspace(0, data.n_samples - 1, min(50, data.n_samples)).astype(int)
+    return Identification(base.regressor(W), tau, base, ParamLayout.of(model), nominal=model_nominal(model),
+                          regressor=model.regressor, q_check=data.q[idx])
+
+
+def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None, progress=None,
+                       deadband=None) -> FitOutcome:
     """Base parameters, OLS, WLS and SDP on processed ``train`` data (JointData with ddq).
 
     ``gravity_mode``: 'auto', or a gravity vector (m/s^2, frame 0); ``configured_gravity``
     is the reference direction for the reported tilt. ``slope_mode``: 'auto' or a slope.
     With 'auto' gravity the two hemispheres' best directions are both fitted by the SDP and
-    the better physically consistent fit decides the sign.
+    the better physically consistent fit decides the sign. ``deadband`` (3,): joint samples
+    slower than it are left out of the fit (see DEADBAND); None uses every sample.
     """
     from calibration.base_params import base_parameters_of
-    from calibration.estimators import Identification
     from calibration.model_selection import DEFAULT_SLOPES, STANDARD_GRAVITY, GravitySlopeSearch
     from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
     say = progress or (lambda s: None)
     t0 = time.perf_counter()
     ref = np.array([0.0, 0.0, -1.0]) if configured_gravity is None else np.asarray(configured_gravity, float)
-    selection: dict = {}
+    selection: dict = {"deadband": None if deadband is None else np.asarray(deadband, float).tolist()}
     slopes = DEFAULT_SLOPES if slope_mode == "auto" else (float(slope_mode),)
     need_search = isinstance(gravity_mode, str) or slope_mode == "auto"
     candidates = []
     if need_search:
-        search = GravitySlopeSearch(make_model, train.q, train.dq, train.ddq, train.tau, n_inertial=70)
+        mask = None if deadband is None else moving_mask(train.dq, deadband)
+        search = GravitySlopeSearch(make_model, train.q, train.dq, train.ddq, train.tau, n_inertial=70, mask=mask)
         if isinstance(gravity_mode, str):
             res = search.search(slopes, magnitude=float(np.linalg.norm(ref)) if configured_gravity is not None
                                 else STANDARD_GRAVITY, nominal_direction=ref)
@@ -197,7 +230,7 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
     for k, g in enumerate(candidates):
         model = make_model(g, slope)
         base = base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
-        ident = Identification.from_model(model, train, base)
+        ident = _masked_identification(model, train, base, None if deadband is None else moving_mask(train.dq, deadband))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # "inaccurate" is in the fit's info and checks
             sdp = ident.sdp()
@@ -227,14 +260,20 @@ def predict(outcome: FitOutcome, data, method: str) -> np.ndarray:
 
 
 def validation_table(outcome: FitOutcome, data) -> dict:
-    """{method: {"relative_error": [3], "rms": [3]}} on processed ``data``."""
+    """{method: {"relative_error": [3], "rms": [3], "moving_relative_error": [3]}} on processed
+    ``data``; the moving figure counts only joint samples faster than DEADBAND."""
     from calibration.estimators import validation_errors
 
     out = {}
     W = outcome.base.regressor(outcome.model.regressor_batch(data.q, data.dq, data.ddq))
+    mask = moving_mask(data.dq)
     for m in ("ols", "wls", "sdp"):
-        e = validation_errors(data.tau, outcome.fits[m].predict(W, 3))
-        out[m] = {"relative_error": e["relative_error"].tolist(), "rms": e["rms"].tolist()}
+        pred = outcome.fits[m].predict(W, 3)
+        e = validation_errors(data.tau, pred)
+        moving = [float(np.linalg.norm((data.tau - pred)[mask[:, j], j]) / np.linalg.norm(data.tau[mask[:, j], j]))
+                  if mask[:, j].any() else float("nan") for j in range(3)]
+        out[m] = {"relative_error": e["relative_error"].tolist(), "rms": e["rms"].tolist(),
+                  "moving_relative_error": moving}
     return out
 
 
@@ -321,10 +360,11 @@ def design_excitation(parameters: dict, gravity: np.ndarray, progress=None) -> d
     from calibration.excitation import ExcitationDesigner, FourierTrajectory
     from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
+    dq_max = parameters["velocity_fraction"] * DQ_MAX
     settings = {"frequency_hz": parameters["frequency"], "harmonics": parameters["harmonics"],
                 "duration": parameters["duration"], "design_rate": 200.0, "starts": parameters["starts"],
                 "iterations": parameters["iterations"], "seed": parameters["design_seed"],
-                "q_min": Q_MIN.tolist(), "q_max": Q_MAX.tolist(), "dq_max": DQ_MAX.tolist(),
+                "q_min": Q_MIN.tolist(), "q_max": Q_MAX.tolist(), "dq_max": dq_max.tolist(),
                 "gravity": np.round(np.asarray(gravity, float), 9).tolist(), "model": "PSMDynamics nominal, slope 400"}
     key = hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
     path = cache_dir() / f"excitation-{key}.json"
@@ -338,7 +378,7 @@ def design_excitation(parameters: dict, gravity: np.ndarray, progress=None) -> d
             pass  # a damaged cache entry is designed again and overwritten
     model = make_model(gravity, 400.0)
     base = base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
-    designer = ExcitationDesigner(model.regressor_batch, base.independent, Q_MIN, Q_MAX, DQ_MAX,
+    designer = ExcitationDesigner(model.regressor_batch, base.independent, Q_MIN, Q_MAX, dq_max,
                                   frequency_hz=parameters["frequency"], harmonics=parameters["harmonics"],
                                   duration=parameters["duration"], rate=200.0)
     res = designer.optimise(n_starts=parameters["starts"], seed=parameters["design_seed"],
@@ -371,6 +411,25 @@ def validation_trajectory(frequency_hz: float, duration: float, harmonics: int, 
     dev = np.abs(q - q.mean(axis=0)).max(axis=0)
     s = np.minimum(fill * half / dev, fill * DQ_MAX / np.abs(dq).max(axis=0))
     return FourierTrajectory(frequency_hz, raw.a * s[:, None], raw.b * s[:, None], mid - s * q.mean(axis=0), duration)
+
+
+#: Close enough to a trajectory's start to begin streaming (rad, rad, m): the first
+#: servo_jp set-points then differ from the measured joints by less than the PID's
+#: usual tracking error (a loaded joint can rest a few mrad short under the dVRK PID).
+START_TOLERANCE = np.array([0.02, 0.02, 0.005])
+
+
+def reach_start(arm, goal, what: str, say) -> None:
+    """move_jp to ``goal``; accept arrival within START_TOLERANCE, else abort the run."""
+    if arm.move_jp(goal, wait=True, timeout=20.0):
+        return
+    q = np.asarray(arm.measured_js().position[:3], float)
+    off = np.abs(q - goal)
+    if np.all(off <= START_TOLERANCE):
+        say(f"start of the {what} trajectory reached within {np.round(off, 4).tolist()} (rad, rad, m)")
+        return
+    raise AbortRun(f"{arm.name} did not reach the start of the {what} trajectory within 20 s "
+                   f"(off by {np.round(off, 4).tolist()} rad, rad, m)")
 
 
 def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits) -> dict:
@@ -437,6 +496,9 @@ def report_text(result: dict) -> str:
         lines.append("  method  rel. error j1 / j2 / j3        RMS j1 [N m] / j2 [N m] / j3 [N]")
         for m in ("ols", "wls", "sdp"):
             lines.append(f"  {m.upper():6s}  {_fmt3(v[m]):28s}  {_fmt3(rms.get(m, [np.nan] * 3))}")
+        mv = result.get("validation_moving", {}).get("sdp")
+        if mv:
+            lines.append(f"  SDP on moving samples only (|dq| above the 7.5.1 deadband): {_fmt3(mv)}")
         if result.get("source") == "csv":
             lines.append(f"  published 7-DOF (SDP, unseen trajectory): {_fmt3(PUBLISHED_7DOF, 3)} "
                          "(not like for like: other trajectory, other model)")
@@ -488,6 +550,7 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
         gravity.update(tilt_deg=outcome.selection["gravity_tilt_deg"],
                        reference=np.asarray(reference_gravity, float).tolist())
     validation_doc = {"source": val_source, "relative_error": {m: table[m]["relative_error"] for m in table},
+                      "moving_relative_error": {m: table[m]["moving_relative_error"] for m in table},
                       "rms": {m: table[m]["rms"] for m in table},
                       "training_relative_error": {m: train_table[m]["relative_error"] for m in train_table}}
     checks = {m: f.checks for m, f in outcome.fits.items() if m in ("ols", "wls", "sdp")}
@@ -504,7 +567,9 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
         "model": str(path),
         "validation": {m: table[m]["relative_error"] for m in table},
         "validation_rms": {m: table[m]["rms"] for m in table},
+        "validation_moving": {m: table[m]["moving_relative_error"] for m in table},
         "validation_source": val_source,
+        "fit_deadband": outcome.selection.get("deadband"),
         "training": {m: train_table[m]["relative_error"] for m in train_table},
         "gravity": gravity,
         "friction_slope": outcome.slope,
@@ -565,7 +630,8 @@ def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
                 val_source = (f"held-out last {parameters['heldout'] * 100:.0f} % of {parameters['csv']} "
                               f"({val.n_samples} samples, guard {guard})")
         with run.step(STEPS_CSV[2]):
-            outcome = fit_identification(train, gmode, smode, progress=say)
+            outcome = fit_identification(train, gmode, smode, progress=say,
+                                         deadband=DEADBAND if parameters["fit_deadband"] else None)
         with run.step(STEPS_CSV[3]):
             result = _finish_fit(run, outcome, train, val, val_source, "csv", str(parameters["csv"]), parameters,
                                  None, np.array([0.0, 0.0, -9.81]))
@@ -608,14 +674,12 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
                 power = getattr(arm, "power_on", None)
                 if power is not None:
                     power()
-                if not arm.move_jp(traj.sample([0.0])[0][0], wait=True, timeout=20.0):
-                    raise AbortRun(f"{arm_name} did not reach the start of the excitation within 20 s")
+                reach_start(arm, traj.sample([0.0])[0][0], "excitation", say)
             n = int(round(parameters["duration"] * clock.rate)) + 1
             with run.step(STEPS_LIVE[2], total=n) as st:
                 rec_x = stream_trajectory(run, arm, clock, traj, "excitation", st, limits)
             with run.step(STEPS_LIVE[3], total=n) as st:
-                if not arm.move_jp(vtraj.sample([0.0])[0][0], wait=True, timeout=20.0):
-                    raise AbortRun(f"{arm_name} did not reach the start of the validation trajectory within 20 s")
+                reach_start(arm, vtraj.sample([0.0])[0][0], "validation", say)
                 rec_v = stream_trajectory(run, arm, clock, vtraj, "validation", st, limits)
             arm.hold()
             with run.step(STEPS_LIVE[4]):
@@ -624,7 +688,8 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
                 val = processed(block_mean(rec_v, parameters["sample_rate"], f"{run.dir / 'run.mcap'} validation"),
                                 parameters["cutoff"], parameters["filter_order"])
             with run.step(STEPS_LIVE[5]):
-                outcome = fit_identification(train, gmode, smode, configured_gravity=g_config, progress=say)
+                outcome = fit_identification(train, gmode, smode, configured_gravity=g_config, progress=say,
+                                             deadband=DEADBAND if parameters["fit_deadband"] else None)
             with run.step(STEPS_LIVE[6]):
                 extra = {"arm": arm_name, "excitation": {"cached": exc["cached"], "cache_file": exc["path"],
                                                          "trajectory": traj.to_dict(), **{k: v for k, v in exc["figures"].items() if k != "starts"}},

@@ -248,7 +248,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         live = _LiveCommands(controller, ros_commands, interactive, rig)
         n_ticks = int(round(total * clock.rate))
         log = {"t": np.empty(n_ticks), "tension": np.empty(n_ticks), "setpoint": np.empty(n_ticks),
-               "loop_us": np.empty(n_ticks)}
+               "loop_us": np.empty(n_ticks), "x_f": np.empty((n_ticks, len(controller.slaves)))}
         for n in names:
             log[f"{n}.x"] = np.empty((n_ticks, 3))
             log[f"{n}.xd"] = np.empty((n_ticks, 3))
@@ -286,6 +286,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                         rig.arms[n].servo_jp(cmd.q, cmd.dq)
                         rec.joint_state(f"/{n}/servo_jp", t, cmd.q, cmd.dq, ())
                     else:
+                        limits.check_effort(n, cmd.effort)
                         rig.arms[n].servo_jf(cmd.effort)
                         rec.joint_state(f"/{n}/servo_jf", t, (), (), cmd.effort)
                     rec.joint_state(f"/{n}/measured_js", js[n].t, js[n].position, js[n].velocity, js[n].effort)
@@ -297,6 +298,8 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                 log["tension"][k] = float(tension.mean())
                 log["setpoint"][k] = controller.force_setpoint
                 log["loop_us"][k] = loop_us
+                log["x_f"][k] = [controller.x_f[s] for s in controller.slaves]
+                rec.scalar("/cooperative/x_f", t, float(log["x_f"][k][0]))
                 if k % 100 == 0:
                     step.update(k)
                     live.show(t - t_start, float(tension.mean()), {n: log[f"{n}.x"][k] for n in names})
@@ -362,8 +365,19 @@ def _figures(log, params, names, master, mode, kind, controller) -> dict:
                          "p99": float(np.percentile(log["loop_us"], 99)),
                          "max": float(np.max(log["loop_us"]))},
     }
-    # A limit cycle: the tension keeps swinging after the motion by more than the band.
-    summary["limit_cycle"] = bool(summary["hold_peak_to_peak"] is not None and summary["hold_peak_to_peak"] > 2 * band)
+    # A limit cycle: after the motion the force loop keeps hunting, its target reversing
+    # again and again (position mode steps), or the tension keeps swinging beyond the band.
+    xf = log["x_f"][t > m1] if (t > m1).any() else log["x_f"][-int(0.2 * len(t)):]
+    reversals = 0
+    for col in xf.T:
+        d = np.diff(col)
+        d = d[np.abs(d) > 1e-12]
+        reversals = max(reversals, int(np.sum(np.diff(np.sign(d)) != 0)) if len(d) > 1 else 0)
+    summary["hold_reversals"] = reversals
+    if mode == "position":
+        summary["limit_cycle"] = reversals >= 6
+    else:
+        summary["limit_cycle"] = bool(summary["hold_peak_to_peak"] is not None and summary["hold_peak_to_peak"] > 2 * band)
     return {"summary": {k: v for k, v in summary.items() if not isinstance(v, dict)}, **summary,
             "force": force, "motion_duration": params["duration"]}
 
@@ -418,7 +432,8 @@ def format_report(result: dict) -> str:
                   f"  RMS error after settling: {result['rms_error']:.3f} N",
                   f"  start-up overshoot: {result['overshoot']:.3f} N, settling time {result['settling_time']:.2f} s",
                   f"  limit cycle: {'yes' if result['limit_cycle'] else 'no'} "
-                  f"(peak-to-peak while holding {result['hold_peak_to_peak']:.3f} N)",
+                  f"(peak-to-peak while holding {result['hold_peak_to_peak']:.3f} N, "
+                  f"{result['hold_reversals']} reversals of the force loop)",
                   f"  controller step: median {result['loop_time_us']['median']:.0f} us, "
                   f"p99 {result['loop_time_us']['p99']:.0f} us",
                   f"  plot: {result.get('plot')}"]

@@ -1,0 +1,202 @@
+"""rig cooperative on the simulated rig: figures, modes and every safety trigger."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from rig import config
+from rig.cli import main
+from rig.records import read_recording
+
+
+def _invoke(args):
+    res = CliRunner().invoke(main, ["cooperative", *args, "--json"])
+    lines = [line for line in res.stdout.strip().splitlines() if line.startswith("{")]
+    data = json.loads(lines[-1]) if lines else None
+    return res, data
+
+
+def _run_dir_result(res_data):
+    with open(os.path.join(res_data["run_dir"], "result.json")) as f:
+        return json.load(f)
+
+
+def test_holds_five_newtons_on_the_spring_while_moving():
+    res, data = _invoke(["--force", "5", "--duration", "3", "--settle", "1.5", "--hold-after", "1"])
+    assert res.exit_code == 0, res.output
+    assert data["status"] == "completed"
+    assert data["max_error_during_motion"] < 0.25
+    assert data["overshoot"] < 0.5
+    assert not data["limit_cycle"]
+    rec = read_recording(os.path.join(data["run_dir"], "run.mcap"))
+    assert rec.finalised and rec.stop["status"] == "completed"
+    counts = rec.counts()
+    assert counts["/PSM1/measured_js"] >= 5400 and counts["/loadcell/force"] >= 2700
+    assert os.path.exists(data["plot"])
+
+
+def test_dry_run_moves_nothing_and_checks_limits():
+    res, data = _invoke(["--dry-run"])
+    assert res.exit_code == 0, res.output
+    assert data["status"] == "planned"
+    res, data = _invoke(["--dry-run", "--move", "0.6,0,0"])
+    assert res.exit_code != 0
+    assert "plan:" in res.output
+
+
+@pytest.mark.parametrize("args, reason", [
+    (["--force", "5", "--tension-ceiling", "5.05"], "above the ceiling 5.05 N"),
+    (["--move", "0,0,-0.4"], "plan:"),
+])
+def test_limits_abort_hold_and_finalise(args, reason):
+    res, _ = _invoke(args + ["--duration", "2", "--settle", "1.5"])
+    assert res.exit_code != 0
+    assert reason in res.output
+    runs = sorted(p for p in os.listdir("logs"))
+    result = json.load(open(os.path.join("logs", runs[-1], "result.json")))
+    assert result["status"] == "aborted" and reason in result["error"]
+    rec = read_recording(os.path.join("logs", runs[-1], "run.mcap"))
+    assert rec.finalised and rec.stop["status"] == "aborted"
+
+
+def _api_run(monkeypatch, patch):
+    from procedures import cooperative as coop
+
+    cfg = config.load()
+    params = {"force": 5.0, "duration": 2.0, "settle": 1.0, "hold_after": 0.5, "deadband": 0.4,
+              "tension_ceiling": 15.0}
+    patch(monkeypatch)
+    return coop.run_cooperative(cfg, ["PSM1", "PSM2"], "PSM2", params, np.array([0.02, 0, 0]), np.zeros(3),
+                                "impedance", progress=False)
+
+
+def test_effort_ceiling_aborts_and_every_moved_arm_holds(monkeypatch):
+    from rig import safety
+    from rig.run import AbortRun
+
+    held = []
+    from drivers import sim_arm
+
+    orig_hold = sim_arm.SimArm.hold
+
+    def spy(self):
+        held.append((self.name, self.world.mode(self.name)))
+        return orig_hold(self)
+
+    def patch(mp):
+        mp.setattr(safety.SafetyLimits, "__init__", _limits_with(effort_limit=np.array([0.05, 5.0, 15.0])))
+        mp.setattr(sim_arm.SimArm, "hold", spy)
+
+    with pytest.raises(AbortRun, match="effort .* above the ceiling"):
+        _api_run(monkeypatch, patch)
+    assert {n for n, _ in held} == {"PSM1", "PSM2"}
+
+
+def _limits_with(**overrides):
+    from rig import safety
+
+    original = safety.SafetyLimits.__init__
+
+    def init(self, *a, **k):
+        original(self, *a, **k)
+        for key, value in overrides.items():
+            setattr(self, key, value)
+    return init
+
+
+def test_workspace_box_aborts_at_run_time(monkeypatch):
+    from rig import safety
+    from rig.run import AbortRun
+
+    calls = {"n": 0}
+    original = safety.SafetyLimits.check_arm
+
+    def narrowing(self, name, q, dq, effort, tip):
+        calls["n"] += 1
+        if calls["n"] > 400:  # the box shrinks mid-run: the live check must catch it
+            self.workspace_max = np.array([0.3, 0.35, 0.15])
+        return original(self, name, q, dq, effort, tip)
+
+    with pytest.raises(AbortRun, match="outside the workspace box"):
+        _api_run(monkeypatch, lambda mp: mp.setattr(safety.SafetyLimits, "check_arm", narrowing))
+
+
+def test_joint_velocity_limit_aborts(monkeypatch):
+    from rig import safety
+    from rig.run import AbortRun
+
+    with pytest.raises(AbortRun, match="velocity .* above"):
+        _api_run(monkeypatch, lambda mp: mp.setattr(safety.SafetyLimits, "__init__",
+                                                    _limits_with(velocity_margin=1e-4)))
+
+
+def test_stale_load_cell_aborts(monkeypatch):
+    from drivers import loadcell_sim
+    from rig.run import AbortRun
+
+    original = loadcell_sim.SimForceSensor.samples
+    state = {"calls": 0}
+
+    def dying(self):
+        state["calls"] += 1
+        return original(self) if state["calls"] < 300 else []
+
+    with pytest.raises(AbortRun, match="load cell stale"):
+        _api_run(monkeypatch, lambda mp: mp.setattr(loadcell_sim.SimForceSensor, "samples", dying))
+
+
+def test_stale_arm_stream_aborts(monkeypatch):
+    from drivers import sim_arm
+    from drivers.crtk import StaleStream
+
+    original = sim_arm.SimArm.measured_js
+    state = {"calls": 0}
+
+    def dying(self):
+        state["calls"] += 1
+        if state["calls"] > 800:
+            raise StaleStream(f"/{self.name}/measured_js", 0.06, 0.05)
+        return original(self)
+
+    with pytest.raises(StaleStream):
+        _api_run(monkeypatch, lambda mp: mp.setattr(sim_arm.SimArm, "measured_js", dying))
+    runs = sorted(os.listdir("logs"))
+    result = json.load(open(os.path.join("logs", runs[-1], "result.json")))
+    assert result["status"] in ("failed", "aborted") and "measured_js" in result["error"]
+
+
+def test_ctrl_c_holds_and_finalises(tmp_path):
+    env = dict(os.environ, RIG_LOGS=str(tmp_path / "logs"))
+    proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "cooperative", "--duration", "30"],
+                            cwd=tmp_path, env=env, stderr=subprocess.PIPE, text=True)
+    seen = ""
+    deadline = time.time() + 60
+    while "hold the tension while moving" not in seen and time.time() < deadline:
+        seen += proc.stderr.readline()
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    out = proc.communicate(timeout=60)[1]
+    assert proc.returncode == 130
+    assert "aborted" in out
+    run = sorted((tmp_path / "logs").iterdir())[-1]
+    result = json.loads((run / "result.json").read_text())
+    assert result["status"] == "aborted"
+    assert set(result["held"]) == {"PSM1", "PSM2"}
+    rec = read_recording(run / "run.mcap")
+    assert rec.finalised and rec.stop["status"] == "aborted"
+
+
+def test_position_mode_limit_cycles_with_a_small_deadband_and_not_with_a_large_one():
+    res, small = _invoke(["--mode", "position", "--deadband", "0.05", "--duration", "2", "--settle", "2",
+                          "--hold-after", "2"])
+    res2, large = _invoke(["--mode", "position", "--deadband", "0.4", "--duration", "2", "--settle", "2",
+                           "--hold-after", "2"])
+    assert small is not None and large is not None, res.output + res2.output
+    assert small["limit_cycle"] and not large["limit_cycle"]

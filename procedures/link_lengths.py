@@ -89,7 +89,8 @@ PARAMETERS = [
     Parameter("q3", 0.12, "m", "Insertion held during the q1 and q2 sweeps", minimum=0.02, maximum=0.24),
     Parameter("q3_stroke", 0.10, "m", "Insertion stroke of the q3 phase (from --q3 outwards)",
               minimum=0.0, maximum=0.2),
-    Parameter("passes", 1, "", "Sweeps back and forth per joint", minimum=1, maximum=10, type=int),
+    Parameter("passes", 2, "", "Sweeps back and forth of q2 (the passive joints' fits average over them; "
+              "q1 sweeps once)", minimum=1, maximum=10, type=int),
     Parameter("seed", -1, "", "Seed of the simulated rig (-1: the configuration's)", type=int),
 ]
 
@@ -546,7 +547,7 @@ def run_link_lengths(cfg, parameters: dict, run_root=None, progress: bool = True
                 move_capture(dev, run, arm, [np.array([0.0, 0.0, q3h])], home)
             phases = {}
             for idx, (joint, span) in ((1, (0, parameters["q1_range"])), (2, (1, parameters["q2_range"]))):
-                goals = _symmetric_sweep(joint, span, parameters["passes"], q3h)
+                goals = _symmetric_sweep(joint, span, parameters["passes"] if joint == 1 else 1, q3h)
                 col = _Collector(f"q{joint + 1} sweep", all_bodies)
                 with run.step(STEPS[idx], total=len(goals)) as st:
                     move_capture(dev, run, arm, goals, col, step=st)

@@ -129,7 +129,11 @@ class GravitySlopeSearch:
             rows = self.mask.reshape(-1)
             blocks = [B * rows[:, None] for B in blocks]
         self._blocks = blocks
-        self._row_scale = 1.0 / np.linalg.norm(self.tau, axis=0)
+        norms = np.linalg.norm(self.tau, axis=0)
+        if np.any(norms == 0):
+            raise ValueError(f"joint(s) {(np.flatnonzero(norms == 0) + 1).tolist()} have no torque samples "
+                             "to fit (all zero or masked out)")
+        self._row_scale = 1.0 / norms
         self._fc_cols = self.n_inertial + 4 * np.arange(self.nj)
         self._slope_grams: dict[float, list[np.ndarray]] = {}
 

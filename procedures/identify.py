@@ -67,6 +67,8 @@ PARAMETERS = [
     Parameter("rate", 200.0, "Hz", "Offline: sampling rate of the CSV rows", minimum=1.0, maximum=20000.0),
     Parameter("joints", 3, "", "Offline: joints used from the CSV (the model has joints 1-3)", minimum=3,
               maximum=3, type=int),
+    Parameter("time_column", False, "", "Offline: the CSV's first column is the sample time (s), followed by the "
+              "3n WPI columns; the rows are resampled to --rate", type=bool),
     Parameter("heldout", 0.25, "", "Offline without --validate-csv: fraction of FILE held out at its end",
               minimum=0.05, maximum=0.5),
     Parameter("gravity", "", "m/s^2", "Gravity in frame 0: 'auto' (estimate the direction), 'config' (world "
@@ -195,7 +197,7 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
     the better physically consistent fit decides the sign. ``deadband`` (3,): joint samples
     slower than it are left out of the fit (see DEADBAND); None uses every sample.
     """
-    from calibration.base_params import base_parameters_of
+    from calibration.base_params import RankDeficientError, base_parameters_of
     from calibration.model_selection import DEFAULT_SLOPES, STANDARD_GRAVITY, GravitySlopeSearch
     from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
@@ -204,6 +206,13 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
     ref = np.array([0.0, 0.0, -1.0]) if configured_gravity is None else np.asarray(configured_gravity, float)
     selection: dict = {"deadband": None if deadband is None else np.asarray(deadband, float).tolist()}
     slopes = DEFAULT_SLOPES if slope_mode == "auto" else (float(slope_mode),)
+    if deadband is not None:
+        moving = moving_mask(train.dq, deadband).mean(axis=0)
+        for j in np.flatnonzero(moving < 0.1):
+            raise RankDeficientError(
+                f"{train.source}: joint {j + 1} moves faster than its deadband ({deadband[j]:g} "
+                f"{'m/s' if j == 2 else 'rad/s'}) in only {moving[j] * 100:.1f} % of the samples: the trajectory "
+                "does not excite it (or use --no-fit-deadband)")
     need_search = isinstance(gravity_mode, str) or slope_mode == "auto"
     candidates = []
     if need_search:
@@ -230,7 +239,11 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
     for k, g in enumerate(candidates):
         model = make_model(g, slope)
         base = base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
-        ident = _masked_identification(model, train, base, None if deadband is None else moving_mask(train.dq, deadband))
+        try:
+            ident = _masked_identification(model, train, base,
+                                           None if deadband is None else moving_mask(train.dq, deadband))
+        except RankDeficientError as exc:
+            raise RankDeficientError(f"{train.source}: {exc}") from None
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # "inaccurate" is in the fit's info and checks
             sdp = ident.sdp()
@@ -595,6 +608,60 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
     return result
 
 
+def load_timed_csv(path, rate: float, joints: int):
+    """A CSV whose first column is time (s) and the rest the WPI columns, checked and
+    resampled to a uniform grid at ``rate`` Hz (linear interpolation) as JointData.
+
+    Raises the calibration.datasets errors naming the line (column count, non-numbers,
+    non-finite values) or the sample (time that does not increase).
+    """
+    from calibration.datasets import ColumnCountError, EmptyDataError, JointData, NonFiniteError
+
+    path = Path(path)
+    try:
+        lines = [ln for ln in path.read_text().splitlines()]
+    except OSError as exc:
+        from calibration.datasets import DataError
+
+        raise DataError(f"{path}: cannot read ({exc.strerror})") from None
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if not lines:
+        raise EmptyDataError(f"{path}: file is empty: expected rows of t, q1..qn, dq1..dqn, tau1..taun")
+    rows = [ln.split(",") for ln in lines]
+    ncol = len(rows[0])
+    if ncol < 4 or (ncol - 1) % 3:
+        raise ColumnCountError(f"{path}, line 1: {ncol} columns: with --time-column expected 1 + 3n columns "
+                               "(t, q1..qn, dq1..dqn, tau1..taun)")
+    for i, r in enumerate(rows):
+        if len(r) != ncol:
+            raise ColumnCountError(f"{path}, line {i + 1}: {len(r)} columns where line 1 has {ncol}")
+    try:
+        arr = np.array(rows, dtype=float)
+    except ValueError:
+        for i, r in enumerate(rows):
+            for c, f in enumerate(r):
+                try:
+                    float(f)
+                except ValueError:
+                    raise NonFiniteError(f"{path}, line {i + 1}, column {c + 1}: {f.strip()!r} is not a number") from None
+        raise
+    n_file = (ncol - 1) // 3
+    if joints > n_file:
+        raise ColumnCountError(f"{path}: {joints} joints asked but the file has {n_file}")
+    t = arr[:, 0]
+    q, dq, tau = (arr[:, 1 + g * n_file:1 + g * n_file + joints] for g in range(3))
+    data = JointData.from_arrays(q, dq, tau, t=t, source=str(path))  # checks finite and increasing time
+    grid = np.arange(t[0], t[-1] + 0.5 / rate, 1.0 / rate)
+    grid = grid[grid <= t[-1]]
+
+    def resample(x):
+        return np.column_stack([np.interp(grid, data.t, x[:, j]) for j in range(x.shape[1])])
+
+    return JointData.from_arrays(resample(data.q), resample(data.dq), resample(data.tau), rate=rate,
+                                 t=grid, source=f"{path} [resampled to {rate:g} Hz]")
+
+
 def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
     """`rig identify --csv`: identification of recorded data. Returns the result."""
     from calibration.datasets import load_csv, processed, split_blocks
@@ -610,8 +677,9 @@ def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
              progress=progress) as run:
         say = _sayer(progress)
         with run.step(STEPS_CSV[0]):
-            raw = load_csv(parameters["csv"], rate=parameters["rate"], joints=parameters["joints"])
-            raw_val = (load_csv(parameters["validate_csv"], rate=parameters["rate"], joints=parameters["joints"])
+            loader = load_timed_csv if parameters["time_column"] else load_csv
+            raw = loader(parameters["csv"], parameters["rate"], parameters["joints"])
+            raw_val = (loader(parameters["validate_csv"], parameters["rate"], parameters["joints"])
                        if parameters["validate_csv"] else None)
         with run.step(STEPS_CSV[1]):
             proc = processed(raw, parameters["cutoff"], parameters["filter_order"])

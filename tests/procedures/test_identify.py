@@ -1,0 +1,182 @@
+"""`rig identify`: offline on the real dVRK CSV, bad inputs, and live on the simulated rig."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rig import config
+from rig.params import resolve
+
+REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "wpi-psm" / "one_results.csv"
+
+
+def rig_cli(*args, cwd):
+    """Run `rig ...` in a subprocess; returns (exit code, stdout, stderr)."""
+    p = subprocess.run([sys.executable, "-m", "rig.cli", *args], cwd=cwd, capture_output=True, text=True,
+                       env=dict(os.environ), timeout=120)
+    return p.returncode, p.stdout, p.stderr
+
+
+@pytest.mark.skipif(not REAL.exists(), reason="shared/data/wpi-psm/one_results.csv not available")
+def test_offline_real_csv_json(tmp_path):
+    from calibration.datasets import load_csv, processed
+    from rig.model_file import latest_model, load_model
+
+    code, out, err = rig_cli("identify", "--csv", str(REAL), "--json", cwd=tmp_path)
+    assert code == 0, err
+    doc = json.loads(out)
+    assert Path(doc["model"]).exists()
+    for m in ("ols", "wls", "sdp"):
+        e = np.array(doc["validation"][m])
+        assert e.shape == (3,) and np.all(np.isfinite(e)) and np.all(e < 0.25), (m, e)
+    assert doc["checks"]["sdp"] is True
+    assert doc["gravity"]["source"] == "estimated"
+    assert abs(np.linalg.norm(doc["gravity"]["vector"]) - 9.81) < 1e-6
+    # The model file is found by later runs and predicts what the SDP fit predicted.
+    model = latest_model()
+    assert model is not None and model.path == Path(doc["model"])
+    assert model.path == load_model(doc["model"]).path
+    dyn = model.dynamics()
+    data = processed(load_csv(REAL, 200.0, 3))
+    k = np.linspace(0, data.n_samples - 1, 40).astype(int)
+    pred = np.array([dyn.inverse_dynamics(data.q[i], data.dq[i], data.ddq[i]) for i in k])
+    W = dyn.regressor_batch(data.q[k], data.dq[k], data.ddq[k])
+    beta = np.array(model.document["base_parameters"]["values"])
+    cols = np.array(model.document["base_parameters"]["independent"])
+    assert np.allclose(pred, (W[:, cols] @ beta).reshape(-1, 3), rtol=1e-6, atol=1e-6)
+    assert len(list(Path(doc["run_dir"]).glob("figure_5_*.png"))) == 2
+
+
+def _write(path, rows):
+    path.write_text("\n".join(",".join(f"{x:.9g}" for x in r) for r in rows) + "\n")
+    return path
+
+
+def _synthetic_rows(n=1200, rate=200.0, seed=0):
+    """Exciting 3-joint data in the WPI layout (q | dq | tau), torques from the nominal model."""
+    from calibration.excitation import FourierTrajectory, rest_basis
+    from rig.psm_dynamics import PSMDynamics
+
+    rng = np.random.default_rng(seed)
+    Z = rest_basis(0.2, n / rate)
+    c = rng.normal(size=(3, Z.shape[1])) @ Z.T * np.array([[0.5], [0.4], [0.05]])
+    tr = FourierTrajectory(0.2, c[:, :5], c[:, 5:], np.array([0.0, 0.0, 0.12]), n / rate)
+    q, dq, ddq = tr.sample(np.arange(n) / rate)
+    dyn = PSMDynamics()
+    tau = np.array([dyn.inverse_dynamics(a, b, d) for a, b, d in zip(q, dq, ddq)])
+    return np.hstack([q, dq, tau])
+
+
+@pytest.mark.parametrize("case", ["columns", "nan", "time", "not_exciting", "joint_still"])
+def test_bad_csv_clear_error(tmp_path, case):
+    rows = _synthetic_rows()
+    extra = []
+    if case == "columns":
+        f = _write(tmp_path / "bad.csv", rows[:, :-1])  # 8 columns
+        expect = "not a multiple of 3"
+    elif case == "nan":
+        rows[100, 4] = np.nan
+        f = _write(tmp_path / "bad.csv", rows)
+        expect = "line 101"
+    elif case == "time":
+        t = np.arange(len(rows)) / 200.0
+        t[500] = t[498]
+        f = _write(tmp_path / "bad.csv", np.column_stack([t, rows]))
+        extra = ["--time-column"]
+        expect = "time does not increase"
+    else:
+        # Constant velocities: no acceleration and one Coulomb sign, so the rotor inertias
+        # and Coulomb levels cannot be told from the offsets.
+        n = len(rows)
+        t = np.arange(n) / 200.0
+        q = np.column_stack([0.1 * t, 0.05 * t, 0.12 + 0.01 * t])
+        dq = np.tile([0.1, 0.05, 0.01], (n, 1))
+        tau = np.random.default_rng(1).normal(size=(n, 3))
+        f = _write(tmp_path / "bad.csv", np.hstack([q, dq, tau]))
+        expect = "does not excite"
+        if case == "joint_still":  # joint 3 creeps below the 7.5.1 deadband the whole time
+            q[:, 2], dq[:, 2] = 0.12 + 0.001 * t, 0.001
+            tau = _synthetic_rows()[:, 6:]
+            f = _write(tmp_path / "bad.csv", np.hstack([q, dq, tau]))
+            expect = "joint 3 moves faster than its deadband"
+    code, out, err = rig_cli("identify", "--csv", str(f), *extra, "--json", cwd=tmp_path)
+    assert code != 0
+    assert expect in err, err
+    assert str(f) in err
+    assert "Traceback" not in err
+
+
+def test_timed_csv_is_resampled(tmp_path):
+    from procedures.identify import load_timed_csv
+
+    rows = _synthetic_rows(n=400)
+    t = np.arange(400) / 200.0 + np.random.default_rng(2).uniform(-1e-4, 1e-4, 400)
+    f = _write(tmp_path / "timed.csv", np.column_stack([t, rows]))
+    data = load_timed_csv(f, 200.0, 3)
+    assert np.allclose(np.diff(data.t), 1 / 200.0)
+    assert np.allclose(data.q[:, 0], np.interp(data.t, t, rows[:, 0]))
+
+
+def test_excitation_design_is_cached(tmp_path):
+    from procedures.identify import PARAMETERS, design_excitation
+
+    p = resolve(PARAMETERS, {"duration": 6.0, "starts": 1, "iterations": 2})
+    g = np.array([0.0, 0.0, -9.81])
+    first = design_excitation(p, g)
+    second = design_excitation(p, g)
+    assert not first["cached"] and second["cached"] and first["key"] == second["key"]
+    assert np.allclose(first["trajectory"].a, second["trajectory"].a)
+    other = design_excitation(resolve(PARAMETERS, {"duration": 6.0, "starts": 1, "iterations": 2,
+                                                   "frequency": 0.2}), g)
+    assert not other["cached"] and other["key"] != first["key"]
+
+
+STICTION_RIG = "[effects.PSM1]\nstiction = [0.0, 0.0, 1.0]\n"
+
+
+def _live(tmp_path, values):
+    from procedures.identify import PARAMETERS, run_live
+
+    (tmp_path / "rig.toml").write_text(STICTION_RIG)
+    cfg = config.load(tmp_path / "rig.toml")
+    assert cfg.arms["PSM1"]["sensor_noise"] is True
+    return run_live(cfg, resolve(PARAMETERS, values), progress=False)
+
+
+def test_live_simulated_short(tmp_path):
+    """A 10 s excitation on the simulated rig with sensor noise and joint-3 stiction:
+    the SDP model must predict the true parameters' torques within 5 % per joint."""
+    from rig.model_file import latest_model
+    from rig.psm_dynamics import PSMDynamics
+
+    r = _live(tmp_path, {"duration": 10.0, "starts": 1, "iterations": 5, "plots": False})
+    assert r["status"] == "completed"
+    truth = np.array(r["truth"]["sdp_vs_true_relative_error"])
+    assert np.all(truth <= 0.05), truth
+    assert r["checks"]["sdp"] is True
+    assert np.all(np.array(r["validation"]["sdp"][:2]) < 0.05)
+    # The model file: found, and its dynamics close to the simulator's true parameters.
+    model = latest_model()
+    dyn, true = model.dynamics(), PSMDynamics()
+    assert np.allclose(model.gravity, [0.0, 0.0, -9.81])
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q = np.array([rng.uniform(-1, 1), rng.uniform(-0.6, 0.6), rng.uniform(0.05, 0.2)])
+        g_err = dyn.gravity_torque(q) - true.gravity_torque(q)
+        assert np.all(np.abs(g_err) < np.array([0.1, 0.1, 0.2])), g_err
+
+
+@pytest.mark.slow
+def test_live_simulated_full_target(tmp_path):
+    """The issue's target with the default 30 s trajectories (the design takes ~1 min)."""
+    r = _live(tmp_path, {})
+    truth = np.array(r["truth"]["sdp_vs_true_relative_error"])
+    assert np.all(truth <= 0.05), truth
+    moving = np.array(r["validation_moving"]["sdp"])
+    assert np.all(moving[:2] <= 0.05), moving
+    assert r["table_5_1"]["optimisation_condition"] < 300

@@ -179,9 +179,12 @@ def _record_frames(run, collector: _Collector, frames: list[TrackerFrame]) -> No
     rec = run.recorder
     for f in frames:
         collector.frames.append(f)
-        for b, pose in f.bodies.items():
-            if pose is not None:
-                rec.pose(f"/mocap/{b}/pose", f.t, pose.position, matrix_to_quat_xyzw(pose.rotation), "mocap")
+        seen = [(b, pose) for b, pose in f.bodies.items() if pose is not None]
+        if seen:
+            # one batched conversion per frame: per-body calls cost more than the physics
+            quats = matrix_to_quat_xyzw(np.stack([pose.rotation for _, pose in seen]))
+            for (b, pose), q in zip(seen, quats):
+                rec.pose(f"/mocap/{b}/pose", f.t, pose.position, q, "mocap")
         for m, v in f.markers.items():
             if v is not None:
                 # one PoseStamped per labelled marker (identity orientation): ROS 2 has no

@@ -229,12 +229,19 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                 clock.tick()
             if rig.force is None:
                 raise AbortRun("no load cell: the tension cannot be tracked")
+            sensed = sorted(rig.forces)
+            if len(sensed) != len(elements):
+                held = [elements[k] for k in sensed]
+                raise AbortRun(f"the object has {len(elements)} elements but load cells on only {held}: "
+                               "a triangle of three arms needs a load cell on every element")
         controller = build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick,
                                       rcm_frames, kind, stiffness, elements, 1.0 / clock.rate)
         js = {n: rig.arms[n].measured_js() for n in names}
         q0 = {n: js[n].position[:3] for n in names}
-        sample = rig.force.read()
-        controller.start(clock.now(), q0, {n: js[n].velocity[:3] for n in names}, np.array([sample.force]))
+        sensors = [rig.forces[k] for k in sorted(rig.forces)]
+        first = [s.read() for s in sensors]
+        tension = np.array([s.force for s in first])
+        controller.start(clock.now(), q0, {n: js[n].velocity[:3] for n in names}, tension)
         total = params["settle"] + params["duration"] + params["hold_after"]
         with run.step(STEPS[2]):
             plan = _check_plan(controller, names, q0, total, limits)
@@ -247,26 +254,29 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             run.claim(rig.arms[n])
         live = _LiveCommands(controller, ros_commands, interactive, rig)
         n_ticks = int(round(total * clock.rate))
-        log = {"t": np.empty(n_ticks), "tension": np.empty(n_ticks), "setpoint": np.empty(n_ticks),
+        log = {"t": np.empty(n_ticks), "tension": np.empty((n_ticks, len(elements))), "setpoint": np.empty(n_ticks),
                "loop_us": np.empty(n_ticks), "x_f": np.empty((n_ticks, len(controller.slaves)))}
         for n in names:
             log[f"{n}.x"] = np.empty((n_ticks, 3))
             log[f"{n}.xd"] = np.empty((n_ticks, 3))
-        last_force_t = sample.t
-        tension = np.array([sample.force])
+        last_force_t = min(s.t for s in first)
         t_start = clock.now()
         with run.step(STEPS[3], total=n_ticks) as step:
             for k in range(n_ticks):
                 clock.tick()
                 t = clock.now()
                 js = {n: rig.arms[n].measured_js() for n in names}
-                new = rig.force.samples()
-                for s in new:
-                    rec.tension("/loadcell/force", s.t, s.force)
                 fresh = None
-                if new:
-                    last_force_t = new[-1].t
-                    tension = np.array([new[-1].force])
+                newest = []
+                for k_el, sensor in enumerate(sensors):
+                    new = sensor.samples()
+                    topic = "/loadcell/force" if k_el == 0 else f"/loadcell{k_el}/force"
+                    for s in new:
+                        rec.tension(topic, s.t, s.force)
+                    newest.append(new[-1] if new else None)
+                if all(s is not None for s in newest):
+                    last_force_t = min(s.t for s in newest)
+                    tension = np.array([s.force for s in newest])
                     fresh = tension
                 elif t - last_force_t > cfg.loadcell["stale_timeout"]:
                     raise AbortRun(f"load cell stale: no sample for {1000 * (t - last_force_t):.0f} ms")
@@ -295,7 +305,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                 rec.scalar("/cooperative/force_setpoint", t, controller.force_setpoint)
                 rec.scalar("/cooperative/loop_time_us", t, loop_us)
                 log["t"][k] = t - t_start
-                log["tension"][k] = float(tension.mean())
+                log["tension"][k] = tension
                 log["setpoint"][k] = controller.force_setpoint
                 log["loop_us"][k] = loop_us
                 log["x_f"][k] = [controller.x_f[s] for s in controller.slaves]
@@ -340,9 +350,11 @@ def _check_plan(controller, names, q0, total, limits) -> dict:
 
 
 def _figures(log, params, names, master, mode, kind, controller) -> dict:
-    t, F = log["t"], log["tension"]
+    t, F = log["t"], log["tension"]           # F: one column per object element
     force = params["force"]
-    e = F - force
+    e_all = F - force
+    # the element furthest from the set-point at each instant
+    e = e_all[np.arange(len(t)), np.argmax(np.abs(e_all), axis=1)]
     m0 = params["settle"]
     m1 = params["settle"] + params["duration"]
     during = (t >= m0) & (t <= m1)
@@ -359,6 +371,7 @@ def _figures(log, params, names, master, mode, kind, controller) -> dict:
         "max_error_during_motion": float(np.max(np.abs(e[during]))) if during.any() else None,
         "rms_error": float(np.sqrt(np.mean(e[rms_mask] ** 2))) if rms_mask.any() else None,
         "overshoot": float(max(0.0, np.max(F[startup]) - force)) if startup.any() else 0.0,
+        "element_rms_error": [float(np.sqrt(np.mean(c[rms_mask] ** 2))) for c in e_all.T] if rms_mask.any() else None,
         "settling_time": settling_time,
         "hold_peak_to_peak": float(np.ptp(tail)) if len(tail) else None,
         "loop_time_us": {"median": float(np.median(log["loop_us"])),
@@ -409,7 +422,8 @@ def _plot(log, names, params, path: Path) -> None:
             ax.plot(t, log[f"{n}.xd"][:, i], "--", color=line.get_color(), alpha=0.7, label=f"{n} desired")
         ax.set_ylabel(f"{axis} [m]")
     axes[0].legend(loc="upper left", fontsize=7, ncol=len(names))
-    axes[3].plot(t, log["tension"], label="tension")
+    for k in range(log["tension"].shape[1]):
+        axes[3].plot(t, log["tension"][:, k], label=f"tension, element {k + 1}" if log["tension"].shape[1] > 1 else "tension")
     axes[3].plot(t, log["setpoint"], "--", label="set-point")
     axes[3].axvspan(params["settle"], params["settle"] + params["duration"], color="0.9")
     axes[3].set_ylabel("tension [N]")

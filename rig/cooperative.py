@@ -11,8 +11,11 @@ the object vector to track the tension (eq. 7.10-7.12):
 The thesis' x_f update is a pure integrator (K_f = k_i dt); its 1-2 N start-up transient
 came from the missing damping, which here is the rate term k_damp dh_e/dt on the filtered
 tension, and the tension set-point is ramped up with a minimum-jerk profile.
-With three arms the object is a triangle; each slave tracks the mean tension of the
-elements it holds and pushes away from the object's centroid (eq. 6.4's c_i).
+With three arms the object is a triangle. Each slave tracks the tension of its element
+with the master, moving away from the master; the pull of the element between the two
+slaves is measured too and fed forward into the slave's target (its tension divided by
+the impedance stiffness, along that element), so the impedance does not yield to it and
+the slave-slave element keeps the stretch of the other two.
 
 The controller sees only measurements (joint states, tension samples); it never reads
 the simulated world. It returns, per arm, a position command or an effort command.
@@ -190,12 +193,15 @@ class CooperativeController:
         self.x0 = {a: self.tip_world(a, q[a]) for a in self.arms}
         self.centroid0 = np.mean([self.x0[a] for a in self.arms], axis=0)
         self.initial_tension = float(np.mean(tension)) if len(tension) else 0.0
+        self.initial_element_tension = np.asarray(tension, float).copy()
         self.k_i = {s: self._force_gain(s, q[s]) for s in self.slaves}
         if self.mode == "impedance":
             # Pre-load each slave's impedance with the tension already on the object, so that
             # switching the slave to effort control does not let the object pull it in.
             for s in self.slaves:
-                self.x_f[s] = self.initial_tension / float(np.mean(self.impedance[s].Kp))
+                tracked = [k for k, e in enumerate(self.elements) if s in e and self.master in e]
+                held = float(np.mean(self.initial_element_tension[tracked])) if tracked else 0.0
+                self.x_f[s] = held / float(np.mean(self.impedance[s].Kp))
 
     def _position_slave(self, s: str, t: float, error: float, x_d: np.ndarray, v_d: np.ndarray,
                         u: np.ndarray) -> ArmCommand:
@@ -212,12 +218,20 @@ class CooperativeController:
         dq = np.linalg.solve(K.tip_jacobian_rcm(q), self.R[s].T @ v_d)
         return ArmCommand("position", q=q, dq=dq)
 
+    def _neighbour_directions(self, slave: str, tips: dict[str, np.ndarray]) -> list[np.ndarray]:
+        """Unit vectors from each arm the slave shares an element with, to the slave."""
+        out = []
+        for a, b in self.elements:
+            if slave in (a, b):
+                other = b if a == slave else a
+                v = tips[slave] - tips[other]
+                out.append(v / max(np.linalg.norm(v), 1e-9))
+        return out
+
     def _outward(self, slave: str, tips: dict[str, np.ndarray]) -> np.ndarray:
-        """Unit vector (world) along which the slave's target moves to raise the tension."""
-        if len(self.arms) == 2:
-            v = tips[slave] - tips[self.master]
-        else:
-            v = tips[slave] - np.mean([tips[a] for a in self.arms], axis=0)
+        """Unit vector (world) along which the slave's target moves to raise its tension:
+        away from the master along their element."""
+        v = tips[slave] - tips[self.master]
         return v / max(np.linalg.norm(v), 1e-9)
 
     def _force_gain(self, slave: str, q: np.ndarray) -> float:
@@ -225,10 +239,7 @@ class CooperativeController:
         mechanical mode against the object (sqrt((Kp + K_obj) / Lambda_u)): faster than that
         and the loop drives the arm-object oscillation."""
         imp = self.impedance[slave]
-        other = self.master if len(self.arms) == 2 else None
-        x_s = self.tip_world(slave, q)
-        ref = self.x0[other] if other else self.centroid0
-        u_world = (x_s - ref) / max(np.linalg.norm(x_s - ref), 1e-9)
+        u_world = self._outward(slave, {**self.x0, slave: self.tip_world(slave, q)})
         u = self.R[slave].T @ u_world
         if imp.Md is None:
             J = K.tip_jacobian_rcm(q)
@@ -236,9 +247,13 @@ class CooperativeController:
         else:
             Lam = np.diag(imp.Md)
         kp = float(u @ (imp.Kp * u))
-        stiffness = kp + self.object_stiffness
+        # the object's stiffness along u: each element contributes K (u . its direction)^2
+        dirs = self._neighbour_directions(slave, {**self.x0, slave: self.tip_world(slave, q)})
+        k_obj = self.object_stiffness * sum(float(u_world @ d) ** 2 for d in dirs)
+        stiffness = kp + k_obj
         omega = np.sqrt(stiffness / float(u @ Lam @ u))
-        series = kp * self.object_stiffness / stiffness
+        # d(tension of the tracked element)/d(x_f) with the impedance in series
+        series = self.object_stiffness * kp / stiffness
         return float(min(self.loop.k_i, omega / (self.loop.bandwidth_ratio * series)))
 
     def desired(self, t: float) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
@@ -295,7 +310,6 @@ class CooperativeController:
         dq_m = np.linalg.solve(J, self.R[m].T @ vd[m])
         commands[m] = ArmCommand("position", q=q_m, dq=dq_m)
 
-        centroid = np.mean([tips[a] for a in self.arms], axis=0)
         if self.follow_measured_master:
             shift = tips[m] - xd[m]
         for s in self.slaves:
@@ -303,13 +317,10 @@ class CooperativeController:
                 xd[s] = xd[s] + shift
             # Which elements this slave holds, and its outward direction.
             mine = [k for k, e in enumerate(self.elements) if s in e]
-            h_e = float(np.mean(self.tension[mine])) if mine else 0.0
-            h_rate = float(np.mean(self.tension_rate[mine])) if mine else 0.0
-            if len(self.arms) == 2:
-                u = tips[s] - tips[m]
-            else:
-                u = tips[s] - centroid
-            u = u / max(np.linalg.norm(u), 1e-9)
+            tracked = [k for k in mine if m in self.elements[k]]
+            h_e = float(np.mean(self.tension[tracked])) if tracked else 0.0
+            h_rate = float(np.mean(self.tension_rate[tracked])) if tracked else 0.0
+            u = self._outward(s, tips)
             error = self.force_setpoint - h_e
             if self.mode == "position":
                 commands[s] = self._position_slave(s, t, error, xd[s] + 0.0, vd[s], u)
@@ -320,8 +331,21 @@ class CooperativeController:
                 rate = -self.loop.k_damp * h_rate
             self.x_f[s] = float(np.clip(self.x_f[s] + self.dt * rate, -self.loop.x_f_limit, self.loop.x_f_limit))
             x_t = xd[s] + u * self.x_f[s]
-            # The force the tip exerts on the object points away from it (outward).
-            h_world = h_e * u
+            kp_mean = float(np.mean(self.impedance[s].Kp))
+            for k in mine:
+                if k not in tracked:  # the slave-slave element: feed its pull forward
+                    a, b = self.elements[k]
+                    other = b if a == s else a
+                    d = tips[s] - tips[other]
+                    x_t = x_t + self.tension[k] * d / max(np.linalg.norm(d), 1e-9) / kp_mean
+            # The force the tip exerts on the object: each element's tension, pointing from
+            # the neighbour to this tip (outward).
+            h_world = np.zeros(3)
+            for k in mine:
+                a, b = self.elements[k]
+                other = b if a == s else a
+                d = tips[s] - tips[other]
+                h_world += self.tension[k] * d / max(np.linalg.norm(d), 1e-9)
             R = self.R[s]
             tau = self.impedance[s](qf[s], dqf[s], R.T @ (x_t - self.p[s]), R.T @ vd[s], R.T @ ad[s], R.T @ h_world)
             commands[s] = ArmCommand("effort", effort=tau)

@@ -30,6 +30,10 @@ class Rig:
     clock: Any
     arms: dict[str, Any]
     force: Any | None = None
+    # One force sensor per object element, in the world's element order. The simulated rig
+    # puts a load cell on every element (three arms hold a triangle); a real rig has the
+    # one configured load cell, on element `loadcell.element`.
+    forces: dict = field(default_factory=dict)
     tracker: Any | None = None
     world: Any | None = None
     _closers: list = field(default_factory=list, repr=False)
@@ -83,9 +87,12 @@ def _open_simulated(cfg, names: list[str], seed: int | None) -> Rig:
     rig = Rig(clock=clock, arms={n: SimArm(world, n, clock) for n in names}, world=world)
     lc = cfg.loadcell
     if lc["driver"] != "none" and world.object is not None:
-        rig.force = SimForceSensor(world, clock, element=lc["element"], rate=lc["rate"],
-                                   noise=lc["noise"], seed=world.seed + 2)
-        rig._closers.append(rig.force.close)
+        for k in range(len(world.object_elements)):
+            sensor = SimForceSensor(world, clock, element=k, rate=lc["rate"], noise=lc["noise"],
+                                    seed=world.seed + 2 + 7 * k)
+            rig.forces[k] = sensor
+            rig._closers.append(sensor.close)
+        rig.force = rig.forces[min(lc["element"], len(rig.forces) - 1)]
     m = cfg.mocap
     if m["driver"] != "none":
         rig.tracker = SimTracker(world, clock, noise=m["noise"], latency=m["latency"],
@@ -124,6 +131,7 @@ def _open_ros(cfg, names: list[str]) -> Rig:
         lc = cfg.loadcell
         if lc["driver"] in ("serial", "can"):
             rig.force = _open_loadcell(lc, rig)
+            rig.forces = {lc["element"]: rig.force}
         elif lc["driver"] == "sim":
             raise ValueError(f"{cfg.source}: loadcell.driver = 'sim' needs simulated arms; with ROS arms "
                              "use 'serial' with the pty that `rig sim` prints (or 'none')")

@@ -1,6 +1,5 @@
 """Base parameters: exact regrouping W_b K = W, null space, inverse map, names, speed."""
 
-import time
 
 import numpy as np
 import pinocchio as pin
@@ -87,10 +86,9 @@ def test_sample_manipulator_regressor():
     assert "body1.m" in bp.names
 
 
-def test_speed_for_about_100_parameters(arm):
-    t0 = time.perf_counter()
+def test_about_100_parameters_reduce(arm):
+    # (its speed is a benchmark figure: bench/bench_identification.py)
     bp = base_parameters_of(arm.regressor_batch, arm.param_layout, arm.q_min, arm.q_max, arm.dq_max)
-    assert time.perf_counter() - t0 < 0.5
     assert arm.param_layout.n_params == 92 and bp.n_base < 92
 
 

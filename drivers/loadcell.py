@@ -21,6 +21,8 @@ a name ends in `_us` (device microseconds), raw ADC values in counts.
 
 from __future__ import annotations
 
+import abc
+
 import json
 import math
 import os
@@ -594,7 +596,7 @@ class LoadCellStats:
         return "\n".join(f"{k:>16} {v}" for k, v in asdict(self).items())
 
 
-class _StreamingLoadCell:
+class _StreamingLoadCell(abc.ABC):
     """Sample buffering, staleness, calibration and commands shared by serial and CAN drivers."""
 
     def __init__(self, calibration: LoadCellCalibration | None, stale_timeout: float,
@@ -739,8 +741,9 @@ class _StreamingLoadCell:
                 return out
             time.sleep(0.005)
 
+    @abc.abstractmethod
     def _send(self, ctype: int, payload: bytes) -> None:
-        raise NotImplementedError
+        """Put one command on the transport (a framed serial write, or a CAN frame)."""
 
     def command(self, ctype: int, payload: bytes = b"", timeout: float = 0.5) -> bytes:
         """Send one command and return its reply payload; raises LoadCellCommandError."""

@@ -446,8 +446,9 @@ def format_report(result: dict) -> str:
                   f"  RMS error after settling: {result['rms_error']:.3f} N",
                   f"  start-up overshoot: {result['overshoot']:.3f} N, settling time {result['settling_time']:.2f} s",
                   f"  limit cycle: {'yes' if result['limit_cycle'] else 'no'} "
-                  f"(peak-to-peak while holding {result['hold_peak_to_peak']:.3f} N, "
-                  f"{result['hold_reversals']} reversals of the force loop)",
+                  f"(peak-to-peak while holding {result['hold_peak_to_peak']:.3f} N"
+                  + (f", {result['hold_reversals']} reversals of the position steps)" if result.get("mode") == "position"
+                     else ")"),
                   f"  controller step: median {result['loop_time_us']['median']:.0f} us, "
                   f"p99 {result['loop_time_us']['p99']:.0f} us",
                   f"  plot: {result.get('plot')}"]

@@ -70,11 +70,12 @@ def _vector(text: str | None, what: str) -> np.ndarray:
 @click.option("--ros-commands", is_flag=True,
               help="Also take live increments from /psm/cmd_vel (Twist) and /psm/cmd_force (Float64).")
 @click.option("--interactive", is_flag=True, help="Steer from the keyboard (a small terminal UI).")
+@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
 @json_option
 @click.pass_context
 @exit_on_abort
 def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, model_path, seed, dry_run,
-            ros_commands, interactive, as_json):
+            ros_commands, interactive, list_steps, as_json):
     """Cooperative manipulation with force tracking (thesis 6.3, 7.7).
 
     Holds FORCE newtons of tension on the object between the tool tips while the master
@@ -83,6 +84,9 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
     """
     from rig import config as config_mod
 
+    if list_steps:
+        click.echo("\n".join(f"{i + 1}. {name}" for i, name in enumerate(STEPS)))
+        return
     try:
         cfg = config_mod.load((ctx.obj or {}).get("config_path"))
     except config_mod.ConfigError as exc:

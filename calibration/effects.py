@@ -1,0 +1,473 @@
+"""The effect catalogue of the discrepancy workflow (issue 7): fixed, versioned, named physics.
+
+Each :class:`Effect` is one physical component a rigid-body + viscous/Coulomb/offset model
+(thesis eq. 4.16) lacks. It gives, for one joint j (1-3):
+
+* its regressor columns, torque = columns @ theta, linear in theta. Components that are
+  non-linear in one parameter (Stribeck velocity, period of a position ripple, Dahl travel
+  constant, backlash width, delay, exponent of the damping law) carry a small grid over
+  that parameter; the workflow fits theta linearly inside each grid value and keeps the
+  best (a profile likelihood). The grid value counts as one more parameter in the BIC;
+* its parameters with units (``params``), from theta and the grid value;
+* a sanity check on those parameters (e.g. Fs >= Fc >= 0): a fit that needs unphysical
+  values is not that effect, whatever its score;
+* the torque it adds, ``torque(params, q, dq, tau_model, rate)`` (n, 3), so the augmented
+  model can be evaluated by controllers and by the simulated rig.
+
+Columns are computed on the raw samples (``EffectContext.q``, ``dq`` at ``rate``) and the
+workflow filters them with the same zero-phase low-pass as the measured torques (parallel
+filtering: a linear-in-parameters model stays exact through a linear filter), except those
+marked ``prefiltered`` (they are built from already filtered model torques or regressors).
+
+Units: joints 1-2 rad, rad/s, N m; joint 3 m, m/s, N. ``sigma(dq)`` is the model's smooth
+sign tanh(a dq / 2) with the baseline slope a.
+
+Observational equivalences (said, not hidden): while a joint moves, a direction-dependent
+Coulomb level (Fc+ for dq > 0, Fc- for dq < 0) equals a symmetric level plus a constant
+(Fc+ - Fc-)/2, so ``coulomb_asymmetry`` and ``torque_offset`` explain the same data; and a
+model identified on the same data already has both in its offset Fo and a payload in its
+tool parameters. The workflow reports such effects as absorbed or equivalent instead of
+picking one by chance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+CATALOGUE_VERSION = "1.0"
+
+#: Bodies a payload is attributed to for joint 1, 2, 3 (rig.psm_dynamics.BODY_NAMES).
+PAYLOAD_BODIES = ("yaw_link", "pitch_end", "tool")
+
+
+@dataclass
+class EffectContext:
+    """What an effect's columns may use: raw samples (n, 3) at ``rate`` Hz, the smooth-sign
+    slope a (s/rad), the current model's filtered torque prediction (n, 3) and the
+    filtered standard regressor (3n, 82) for payload columns."""
+
+    q: np.ndarray
+    dq: np.ndarray
+    rate: float
+    slope: float
+    tau_model: np.ndarray | None = None
+    W_standard: np.ndarray | None = None
+    body_names: tuple[str, ...] = ()
+
+    def sign(self, v):
+        return np.tanh(0.5 * self.slope * v)
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One catalogue entry (see the module docstring)."""
+
+    id: str
+    description: str
+    variable: str                       # what the residual depends on, for the attribution
+    regime: str                         # where it acts
+    linear_names: tuple[str, ...]
+    units: Callable[[int], dict]        # joint (1-3) -> {param: unit}
+    grid: Callable[[int], tuple]        # joint -> grid of the non-linear parameter (or (None,))
+    grid_name: str | None
+    _columns: Callable                  # (ctx, joint, g) -> (n, 3, k) raw or prefiltered columns
+    _params: Callable                   # (theta, g, joint, baseline) -> dict
+    _sanity: Callable                   # (params, joint) -> str | None (None: passes)
+    _torque: Callable                   # (params, joint, q, dq, tau_model, rate, slope) -> (n,) on the joint
+    prefiltered: bool = False
+    all_joints: bool = False            # payload: columns on every joint's rows
+    in_rigid_body_model: bool = False   # absorbed by a model identified on the same data
+    equivalent_to: tuple[str, ...] = ()
+
+    @property
+    def n_linear(self) -> int:
+        return len(self.linear_names)
+
+    @property
+    def n_params(self) -> int:
+        """Free parameters for the information criterion (linear + the grid parameter)."""
+        return self.n_linear + (1 if self.grid_name else 0)
+
+    def columns(self, ctx: EffectContext, joint: int, g) -> np.ndarray:
+        """(n, 3, k): torque on every joint per unit of each linear parameter."""
+        return self._columns(ctx, joint, g)
+
+    def params(self, theta, g, joint: int, baseline: dict) -> dict:
+        """Named parameters from the linear ``theta`` and grid value ``g``; ``baseline``
+        carries the joint's identified Fc (for levels like Fs = Fc + dFs)."""
+        return self._params(np.asarray(theta, float), g, joint, baseline)
+
+    def sanity(self, params: dict, joint: int) -> str | None:
+        """None when physically plausible, else the reason it is not."""
+        return self._sanity(params, joint)
+
+    def torque(self, params: dict, joint: int, q, dq, tau_model=None, rate: float = 200.0,
+               slope: float = 400.0) -> np.ndarray:
+        """(n, 3) torque the effect adds (N m, N) on raw samples (n, 3)."""
+        q, dq = np.atleast_2d(q), np.atleast_2d(dq)
+        out = np.zeros_like(q, dtype=float)
+        res = self._torque(params, joint, q, dq, tau_model, rate, slope)
+        if self.all_joints:
+            return res
+        out[:, joint - 1] = res
+        return out
+
+
+# ----------------------------------------------------------------------------- helpers
+def _u(joint: int, rot: str, lin: str) -> str:
+    return lin if joint == 3 else rot
+
+
+def _on(joint: int, col: np.ndarray) -> np.ndarray:
+    """(n, 3, 1) with ``col`` on the joint's rows."""
+    out = np.zeros((col.shape[0], 3, 1))
+    out[:, joint - 1, 0] = col
+    return out
+
+
+def _on_k(joint: int, cols: list) -> np.ndarray:
+    return np.concatenate([_on(joint, c) for c in cols], axis=2)
+
+
+def _sig(dq, slope):
+    return np.tanh(0.5 * slope * dq)
+
+
+def dahl_state(q: np.ndarray, travel: float) -> np.ndarray:
+    """Unit Dahl friction state along a joint's path q (n,): z -> sign(dq) exponentially with
+    the travel since the last reversal, travel constant ``travel`` (rad or m). Exact for
+    motion that is monotone between samples: the sim's own update composed over a sample."""
+    dx = np.diff(q, prepend=q[0])
+    z = np.empty_like(q, dtype=float)
+    zk = 0.0
+    for k, d in enumerate(dx):
+        if d != 0.0:
+            s = 1.0 if d > 0 else -1.0
+            zk = s + (zk - s) * np.exp(-abs(d) / travel)
+        z[k] = zk
+    return z
+
+
+def gap_window(q: np.ndarray, tau_model: np.ndarray, width: float) -> np.ndarray:
+    """1 while the motor has travelled less than ``width`` (rad or m) since the transmitted
+    torque last changed sign (where a backlash gap is crossed), else 0."""
+    s = np.sign(tau_model)
+    w = np.zeros_like(q, dtype=float)
+    start = None
+    for k in range(len(q)):
+        if k > 0 and s[k] != 0 and s[k] != s[k - 1]:
+            start = q[k]
+        if start is not None and abs(q[k] - start) < width:
+            w[k] = 1.0
+    return w
+
+
+def delayed(x: np.ndarray, samples: float) -> np.ndarray:
+    """x(t - samples / rate) by linear interpolation; the first values held."""
+    n = len(x)
+    idx = np.arange(n) - samples
+    return np.interp(idx, np.arange(n), x)
+
+
+def _geom(lo, hi, n):
+    return tuple(float(v) for v in np.geomspace(lo, hi, n))
+
+
+# ----------------------------------------------------------------------------- the catalogue
+def _stiction() -> Effect:
+    def cols(ctx, j, vs):
+        v = ctx.dq[:, j - 1]
+        return _on(j, ctx.sign(v) * np.exp(-(v / vs) ** 2))
+
+    def params(th, vs, j, base):
+        fc = base.get("Fc", 0.0)
+        return {"dFs": float(th[0]), "Fs": float(fc + th[0]), "Fc": float(fc), "vs": float(vs)}
+
+    def sanity(p, j):
+        if not p["Fs"] >= p["Fc"] >= 0.0:
+            return f"needs Fs >= Fc >= 0, got Fs {p['Fs']:.4g}, Fc {p['Fc']:.4g}"
+        return None
+
+    def torque(p, j, q, dq, tm, rate, slope):
+        v = dq[:, j - 1]
+        return p["dFs"] * _sig(v, slope) * np.exp(-(v / p["vs"]) ** 2)
+
+    return Effect("stiction", "Stribeck / breakaway friction above Coulomb near zero velocity: "
+                  "(Fs - Fc) exp(-(dq/vs)^2) sigma(dq)", "dq", "|dq| < 2 vs", ("dFs",),
+                  lambda j: {"dFs": _u(j, "N m", "N"), "Fs": _u(j, "N m", "N"), "Fc": _u(j, "N m", "N"),
+                             "vs": _u(j, "rad/s", "m/s")},
+                  lambda j: _geom(0.002, 0.1, 7) if j < 3 else _geom(0.0004, 0.02, 7), "vs",
+                  cols, params, sanity, torque)
+
+
+def _coulomb_asymmetry() -> Effect:
+    def cols(ctx, j, g):
+        return _on(j, 0.5 * (1.0 + ctx.sign(ctx.dq[:, j - 1])))
+
+    def params(th, g, j, base):
+        fc = base.get("Fc", 0.0)
+        # Positive-direction level raised by d, the negative one unchanged relative to the
+        # (offset-corrected) baseline.
+        return {"dFc": float(th[0]), "Fc_pos": float(fc + 0.5 * th[0]), "Fc_neg": float(fc - 0.5 * th[0])}
+
+    def sanity(p, j):
+        if min(p["Fc_pos"], p["Fc_neg"]) < 0:
+            return f"a Coulomb level would be negative (Fc+ {p['Fc_pos']:.4g}, Fc- {p['Fc_neg']:.4g})"
+        return None
+
+    def torque(p, j, q, dq, tm, rate, slope):
+        return p["dFc"] * 0.5 * (1.0 + _sig(dq[:, j - 1], slope))
+
+    return Effect("coulomb_asymmetry", "direction-dependent Coulomb level: Fc+ for dq > 0, Fc- for dq < 0",
+                  "sign(dq)", "dq > 0 vs dq < 0", ("dFc",),
+                  lambda j: {k: _u(j, "N m", "N") for k in ("dFc", "Fc_pos", "Fc_neg")},
+                  lambda j: (None,), None, cols, params, sanity, torque,
+                  in_rigid_body_model=True, equivalent_to=("torque_offset",))
+
+
+def _position_friction() -> Effect:
+    def cols(ctx, j, period):
+        s = ctx.sign(ctx.dq[:, j - 1])
+        x = 2 * np.pi * ctx.q[:, j - 1] / period
+        return _on_k(j, [s * np.sin(x), s * np.cos(x)])
+
+    def params(th, period, j, base):
+        amp = float(np.hypot(th[0], th[1]))
+        fc = base.get("Fc", 0.0)
+        return {"amplitude": amp, "phase": float(np.arctan2(th[1], th[0])), "period": float(period),
+                "Fc": float(fc), "relative_amplitude": amp / fc if fc > 0 else float("inf")}
+
+    def sanity(p, j):
+        # The friction level Fc + A sin(.) must stay >= 0 (within a 20 % allowance).
+        if p["amplitude"] > 1.2 * max(p["Fc"], 0.0):
+            return f"ripple amplitude {p['amplitude']:.4g} exceeds the Coulomb level {p['Fc']:.4g}"
+        return None
+
+    def torque(p, j, q, dq, tm, rate, slope):
+        x = 2 * np.pi * q[:, j - 1] / p["period"] + p["phase"]
+        return p["amplitude"] * _sig(dq[:, j - 1], slope) * np.sin(x)
+
+    return Effect("position_friction", "Coulomb level varying with position: "
+                  "sigma(dq) A sin(2 pi q / P + phi)", "q (in motion)", "whole stroke", ("a_sin", "a_cos"),
+                  lambda j: {"amplitude": _u(j, "N m", "N"), "phase": "rad", "period": _u(j, "rad", "m"),
+                             "Fc": _u(j, "N m", "N"), "relative_amplitude": "1"},
+                  lambda j: _geom(0.15, 2.0, 9) if j < 3 else _geom(0.015, 0.2, 9), "period",
+                  cols, params, sanity, torque)
+
+
+def _spring() -> Effect:
+    def cols(ctx, j, g):
+        q = ctx.q[:, j - 1]
+        return _on_k(j, [q, np.ones_like(q)])
+
+    def params(th, g, j, base):
+        k = float(th[0])
+        if th[1] == 0.0:
+            # The constant part k q0 is not separable from the model's offset Fo here.
+            return {"k": k, "q0": None}
+        return {"k": k, "q0": float(-th[1] / k) if k != 0 else float("nan")}
+
+    def sanity(p, j):
+        if not p["k"] > 0:
+            return f"stiffness {p['k']:.4g} is not positive (not a restoring spring)"
+        return None
+
+    def torque(p, j, q, dq, tm, rate, slope):
+        return p["k"] * (q[:, j - 1] - (p["q0"] or 0.0))
+
+    return Effect("spring", "torque proportional to position: k (q - q0) (cables, a balancing spring)",
+                  "q", "whole stroke", ("k", "c0"),
+                  lambda j: {"k": _u(j, "N m/rad", "N/m"), "q0": _u(j, "rad", "m")},
+                  lambda j: (None,), None, cols, params, sanity, torque)
+
+
+def _payload() -> Effect:
+    def cols(ctx, j, g):
+        b = ctx.body_names.index(PAYLOAD_BODIES[j - 1])
+        W = ctx.W_standard[:, 10 * b:10 * b + 4]  # m, m cx, m cy, m cz of that body
+        return W.reshape(-1, 3, 4)
+
+    def params(th, g, j, base):
+        m = float(th[0])
+        com = (th[1:4] / m).tolist() if m != 0 else [float("nan")] * 3
+        return {"mass": m, "com": com, "body": PAYLOAD_BODIES[j - 1]}
+
+    def sanity(p, j):
+        if not p["mass"] > 0:
+            return f"mass {p['mass']:.4g} kg is not positive"
+        if not np.all(np.abs(p["com"]) < 0.6):
+            return f"centre of mass {np.round(p['com'], 3).tolist()} m lies outside the arm"
+        return None
+
+    def torque(p, j, q, dq, tm, rate, slope):
+        raise NotImplementedError("a payload changes the rigid-body parameters: use payload_standard_delta")
+
+    return Effect("payload", "unmodelled point mass on the link of the joint (default the tool): "
+                  "its gravity and inertia", "q (gravity), ddq", "whole workspace", ("m", "mcx", "mcy", "mcz"),
+                  lambda j: {"mass": "kg", "com": "m (body joint frame)", "body": ""},
+                  lambda j: (None,), None, cols, params, sanity, torque,
+                  prefiltered=True, all_joints=True, in_rigid_body_model=True)
+
+
+def payload_standard_delta(params: dict, body_names) -> np.ndarray:
+    """Change of the 82 standard parameters for a point-mass payload (its m and first
+    moments; the point mass's own rotational inertia about the frame origin is included)."""
+    b = list(body_names).index(params["body"])
+    m = params["mass"]
+    c = np.asarray(params["com"], float)
+    d = np.zeros(10 * len(body_names) + 12)
+    # Inertia about the origin of a point mass: m (|c|^2 I - c c^T).
+    Io = m * (c @ c * np.eye(3) - np.outer(c, c))
+    d[10 * b:10 * b + 10] = [m, m * c[0], m * c[1], m * c[2], Io[0, 0], Io[0, 1], Io[1, 1], Io[0, 2],
+                             Io[1, 2], Io[2, 2]]
+    return d
+
+
+def _backlash() -> Effect:
+    def cols(ctx, j, width):
+        w = gap_window(ctx.q[:, j - 1], ctx.tau_model[:, j - 1], width)
+        return _on(j, -w * ctx.tau_model[:, j - 1])
+
+    def params(th, width, j, base):
+        return {"width": float(width), "unloaded_fraction": float(th[0])}
+
+    def sanity(p, j):
+        if not 0.2 <= p["unloaded_fraction"] <= 1.5:
+            return (f"the load seen while crossing the gap drops by {p['unloaded_fraction']:.3g} of the "
+                    "model torque (a gap unloads by about 1)")
+        return None
+
+    def torque(p, j, q, dq, tm, rate, slope):
+        w = gap_window(q[:, j - 1], tm[:, j - 1], p["width"])
+        return -p["unloaded_fraction"] * w * tm[:, j - 1]
+
+    return Effect("backlash", "dead zone at torque reversal: the drive is unloaded while the motor "
+                  "crosses the play of width b", "q travel after a torque reversal",
+                  "first b of travel after each reversal", ("unloaded_fraction",),
+                  lambda j: {"width": _u(j, "rad", "m"), "unloaded_fraction": "1"},
+                  lambda j: _geom(0.002, 0.04, 7) if j < 3 else _geom(0.0003, 0.006, 7), "width",
+                  cols, params, sanity, torque, prefiltered=True)
+
+
+def _hysteresis() -> Effect:
+    def cols(ctx, j, travel):
+        return _on(j, dahl_state(ctx.q[:, j - 1], travel))
+
+    def params(th, travel, j, base):
+        fd = float(th[0])
+        return {"Fd": fd, "travel": float(travel), "sigma0": fd / travel if travel > 0 else float("nan")}
+
+    def sanity(p, j):
+        if not p["Fd"] > 0:
+            return f"Dahl level {p['Fd']:.4g} is not positive"
+        return None
+
+    def torque(p, j, q, dq, tm, rate, slope):
+        return p["Fd"] * dahl_state(q[:, j - 1], p["travel"])
+
+    return Effect("hysteresis", "Dahl pre-sliding friction: a state z -> Fd sign(dq) over a travel "
+                  "Fd / sigma0 after each reversal", "q travel after a velocity reversal",
+                  "first few travel constants after each reversal", ("Fd",),
+                  lambda j: {"Fd": _u(j, "N m", "N"), "travel": _u(j, "rad", "m"),
+                             "sigma0": _u(j, "N m/rad", "N/m")},
+                  lambda j: _geom(0.0005, 0.03, 8) if j < 3 else _geom(0.0001, 0.006, 8), "travel",
+                  cols, params, sanity, torque)
+
+
+def _time_delay() -> Effect:
+    def cols(ctx, j, delay):
+        x = ctx.tau_model[:, j - 1]
+        return _on(j, delayed(x, delay * ctx.rate) - x)
+
+    def params(th, delay, j, base):
+        return {"delay": float(delay * th[0]), "grid_delay": float(delay), "gain": float(th[0])}
+
+    def sanity(p, j):
+        # The baseline refit takes up part of a delay (gain < 1 at a longer grid delay).
+        if not 0.3 <= p["gain"] <= 1.5:
+            return f"the delayed-torque gain {p['gain']:.3g} is far from 1 (not a pure delay)"
+        return None
+
+    def torque(p, j, q, dq, tm, rate, slope):
+        x = tm[:, j - 1]
+        return delayed(x, p["delay"] * rate) - x
+
+    return Effect("time_delay", "measured effort lagging the motion by d: tau(t - d)",
+                  "lag of the model torque", "fast torque changes", ("gain",),
+                  lambda j: {"delay": "s", "grid_delay": "s", "gain": "1"},
+                  lambda j: (0.005, 0.01, 0.015, 0.02, 0.03, 0.04, 0.06), "delay",
+                  cols, params, sanity, torque, prefiltered=True)
+
+
+def _torque_offset() -> Effect:
+    def cols(ctx, j, g):
+        return _on(j, np.ones(ctx.q.shape[0]))
+
+    def params(th, g, j, base):
+        return {"offset": float(th[0])}
+
+    def torque(p, j, q, dq, tm, rate, slope):
+        return np.full(q.shape[0], p["offset"])
+
+    return Effect("torque_offset", "constant bias on the joint's effort", "none (constant)", "everywhere",
+                  ("offset",), lambda j: {"offset": _u(j, "N m", "N")}, lambda j: (None,), None,
+                  cols, params, lambda p, j: None, torque,
+                  in_rigid_body_model=True, equivalent_to=("coulomb_asymmetry",))
+
+
+def _viscous_nonlinear() -> Effect:
+    def cols(ctx, j, p):
+        v = ctx.dq[:, j - 1]
+        return _on(j, np.sign(v) * np.abs(v) ** p)
+
+    def params(th, p, j, base):
+        return {"c": float(th[0]), "exponent": float(p)}
+
+    def sanity(p, j):
+        if not p["c"] > 0:
+            return f"coefficient {p['c']:.4g} is not positive (damping would fall with speed)"
+        return None
+
+    def torque(p, j, q, dq, tm, rate, slope):
+        v = dq[:, j - 1]
+        return p["c"] * np.sign(v) * np.abs(v) ** p["exponent"]
+
+    return Effect("viscous_nonlinear", "damping growing faster than linearly: c sign(dq) |dq|^n, n > 1",
+                  "|dq|", "high speed", ("c",),
+                  lambda j: {"c": _u(j, "N m (s/rad)^n", "N (s/m)^n"), "exponent": "1"},
+                  lambda j: (1.5, 2.0, 3.0), "exponent", cols, params, sanity, torque)
+
+
+CATALOGUE: dict[str, Effect] = {e.id: e for e in (
+    _stiction(), _coulomb_asymmetry(), _position_friction(), _spring(), _payload(), _backlash(),
+    _hysteresis(), _time_delay(), _torque_offset(), _viscous_nonlinear())}
+
+IDS = tuple(CATALOGUE)
+
+
+def describe() -> dict:
+    """The catalogue as data (for reports and the model file)."""
+    return {"version": CATALOGUE_VERSION,
+            "effects": {e.id: {"description": e.description, "variable": e.variable, "regime": e.regime,
+                               "grid": e.grid_name, "units_joint1": e.units(1), "units_joint3": e.units(3),
+                               "absorbed_by_identified_model": e.in_rigid_body_model,
+                               "equivalent_to": list(e.equivalent_to)} for e in CATALOGUE.values()}}
+
+
+def effects_torque(effects: list[dict], q, dq, tau_model=None, rate: float = 200.0, slope: float = 400.0,
+                   exclude=("payload",)) -> np.ndarray:
+    """Sum of the torques (n, 3) of a model file's ``effects`` entries on raw samples.
+
+    A payload is part of the rigid-body parameters (see ``payload_standard_delta``) and is
+    excluded here. ``tau_model`` (n, 3) is needed for time_delay and backlash.
+    """
+    q, dq = np.atleast_2d(q), np.atleast_2d(dq)
+    out = np.zeros_like(q, dtype=float)
+    for e in effects:
+        if e["name"] in exclude:
+            continue
+        out += CATALOGUE[e["name"]].torque(e["params"], int(e["joint"]), q, dq, tau_model, rate, slope)
+    return out

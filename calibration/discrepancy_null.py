@@ -1,0 +1,120 @@
+"""Thresholds of the discrepancy workflow, set on null simulations (issue 7).
+
+The residual of a correct model on filtered data is not white (the filter colours it, and
+the plant's hard stick-slip switching leaves a small mismatch no smooth model removes), so
+textbook chi-square quantiles would flag every data set. Instead the statistics are
+measured on simulated data WITHOUT any hidden effect (the null), per joint, over seeded
+runs of the generator (`calibration.hidden_effects`), and each threshold is set above the
+largest null value with a margin:
+
+* Ljung-Box Q:           1.25 x max over null seeds;
+* library R^2:           max over null seeds + 0.05 (at least 0.05);
+* candidate gain:        max over null seeds of the best sane catalogue candidate's held-out
+                         variance removal on that joint + 0.05;
+* delta BIC:             max over null seeds and joints of the best sane candidate's gain + 10.
+
+Both baselines are calibrated: "identified" (the thesis model fitted on the training block)
+and "given_model" (a model identified beforehand on another null run of the same rig, its
+reference seed). Run ``python -m calibration.discrepancy_null [n_seeds]`` to regenerate
+``discrepancy_thresholds.json``; the file records the seeds, the per-seed statistics and the
+rule. Seeds used here (1000 + k) are disjoint from the test and bench seeds.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from datetime import datetime, timezone
+
+import numpy as np
+
+from calibration.discrepancy import THRESHOLDS_PATH, Discrepancy, Settings
+
+NULL_SEED_BASE = 1000
+_HUGE = {"ljung_box": [1e12] * 3, "library_r2": [1e12] * 3, "gain": [1e12] * 3, "delta_bic": 1e12}
+
+
+def sim_model_and_base():
+    """The model of the simulated rig's arm (frame-0 gravity of an untilted base) and its
+    base parameters."""
+    from calibration.base_params import base_parameters_of
+    from rig.psm_dynamics import PSMDynamics
+    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+
+    model = PSMDynamics()
+    return model, base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
+
+
+def reference_model(model, base, seed: int) -> np.ndarray:
+    """Standard parameters identified on the reference (null) run that goes with ``seed``."""
+    from calibration.hidden_effects import HiddenCase, generate, reference_seed
+
+    rec, _ = generate(HiddenCase((), reference_seed(seed)))
+    w = Discrepancy(model, base, rec.q, rec.dq, rec.tau, rec.rate,
+                    settings=Settings(thresholds={"identified": _HUGE, "given_model": _HUGE}))
+    w.model.slope = w.slope
+    return w.base.standard_from_base(w.coef[:w.Wb.shape[1]], w.model.standard_params()), w.slope
+
+
+def null_statistics(model, base, seed: int, mode: str) -> dict:
+    """Detection statistics and the best sane candidate per joint on one null run."""
+    from calibration.hidden_effects import HiddenCase, generate
+
+    given = None
+    if mode == "given_model":
+        given, slope = reference_model(model, base, seed)
+        model.slope = slope
+    rec, _ = generate(HiddenCase((), seed))
+    w = Discrepancy(model, base, rec.q, rec.dq, rec.tau, rec.rate, given,
+                    Settings(thresholds={"identified": _HUGE, "given_model": _HUGE}))
+    det = w.detect()
+    cands = [c for c in w.candidates([1, 2, 3]) if not c["absorbed"] and c["sanity"] is None]
+    best = {}
+    for j in (1, 2, 3):
+        on = [c for c in cands if c["joint"] == j]
+        best[j] = {"gain": max([c["heldout_gain"] for c in on], default=0.0),
+                   "delta_bic": max([c["delta_bic"] for c in on], default=0.0),
+                   "best": max(on, key=lambda c: c["delta_bic"])["effect"] if on else None}
+    return {"seed": seed, "ljung_box": [d["ljung_box"] for d in det], "library_r2": [d["library_r2"] for d in det],
+            "gain": [best[j]["gain"] for j in (1, 2, 3)], "delta_bic": [best[j]["delta_bic"] for j in (1, 2, 3)],
+            "best_candidate": [best[j]["best"] for j in (1, 2, 3)], "heldout_rms": w.heldout_rms().tolist()}
+
+
+def thresholds_from(stats: list[dict]) -> dict:
+    a = {k: np.array([s[k] for s in stats]) for k in ("ljung_box", "library_r2", "gain", "delta_bic")}
+    return {"ljung_box": (1.25 * a["ljung_box"].max(0)).tolist(),
+            "library_r2": np.maximum(a["library_r2"].max(0) + 0.05, 0.05).tolist(),
+            "gain": (a["gain"].max(0) + 0.05).tolist(),
+            "delta_bic": float(a["delta_bic"].max() + 10.0)}
+
+
+def calibrate(n_seeds: int = 16, progress=print) -> dict:
+    model, base = sim_model_and_base()
+    t0 = time.perf_counter()
+    out = {"thresholds": {}, "null_runs": {}}
+    seeds = [NULL_SEED_BASE + k for k in range(n_seeds)]
+    for mode in ("identified", "given_model"):
+        stats = []
+        for s in seeds:
+            model.slope = 400.0
+            stats.append(null_statistics(model, base, s, mode))
+            progress(f"{mode} seed {s}: LB {np.round(stats[-1]['ljung_box'], 1).tolist()} "
+                     f"R2 {np.round(stats[-1]['library_r2'], 3).tolist()} gain {np.round(stats[-1]['gain'], 3).tolist()}")
+        out["thresholds"][mode] = thresholds_from(stats)
+        out["null_runs"][mode] = stats
+    from calibration.hidden_effects import GENERATOR_VERSION, N_SAMPLES, RATE
+
+    out["method"] = {"summary": f"null simulations, {n_seeds} seeds x 2 baselines",
+                     "rule": __doc__.split("* Ljung-Box")[1].split("Both baselines")[0].strip(),
+                     "seeds": seeds, "generator_version": GENERATOR_VERSION, "samples": N_SAMPLES, "rate_hz": RATE,
+                     "settings": vars(Settings()) | {"thresholds": None},
+                     "date": datetime.now(timezone.utc).isoformat(), "seconds": time.perf_counter() - t0}
+    return out
+
+
+if __name__ == "__main__":
+    n = int(sys.argv[1]) if len(sys.argv) > 1 else 16
+    doc = calibrate(n)
+    THRESHOLDS_PATH.write_text(json.dumps(doc, indent=1) + "\n")
+    print(json.dumps(doc["thresholds"], indent=1))

@@ -1,0 +1,244 @@
+"""`rig discrepancy`: where model and measurement disagree, which catalogue effect explains
+it, the model with it added, and the held-out gap before and after (issue 7).
+
+    rig discrepancy (RUN_DIR | --csv FILE [--rate 200]) [--model MODEL.json] [--joints 3] [--json]
+
+Input: a recorded run (its /<arm>/measured_js, resampled to --rate) or a CSV in the WPI
+format. Only the measured arrays reach the workflow (`calibration.discrepancy`): a run's
+configuration snapshot and any simulated effects are never read.
+
+Baseline: with --model, that identified model as it is; without, the thesis model
+(rigid body + Fc tanh(a dq/2) + Fv dq + Fo + Ia ddq) identified on the training block, the
+gravity direction in frame 0 estimated from the data (`calibration.model_selection`),
+since the arm's tilt is unknown. Train and held-out are contiguous blocks (held-out at the
+end). Writes result.json, model.json (the model with an "effects" section: each effect's
+name, joint, parameters with units; a payload is also folded into the standard
+parameters) and PNGs of the held-out residual against the variable that explains it,
+before and after.
+
+Units: SI (rad, m, rad/s, m/s, N m, N, s, Hz).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+import numpy as np
+
+from rig.params import Parameter, with_parameters
+from rig.run import Run, emit_result, exit_on_abort, json_option
+
+PROCEDURE = "discrepancy"
+STEPS = ("load the measured data", "baseline model", "detect, attribute, name and add effects",
+         "write the augmented model, report and plots")
+
+PARAMETERS = [
+    Parameter("csv", "", "", "Measured data in the WPI CSV format (q1..qn, dq1..dqn, tau1..taun) instead of RUN_DIR",
+              type=str),
+    Parameter("rate", 200.0, "Hz", "Sampling rate of the CSV rows; a run's samples are resampled to it",
+              minimum=20.0, maximum=5000.0),
+    Parameter("model", "", "", "Identified model file (model.json) to use as the baseline; default: identify the "
+              "thesis model on the training block", type=str),
+    Parameter("joints", 3, "", "Joints used (the model has joints 1-3)", minimum=3, maximum=3, type=int),
+    Parameter("arm", "PSM1", "", "Arm whose /<arm>/measured_js a RUN_DIR provides", type=str),
+    Parameter("heldout", 0.25, "", "Fraction of the data held out at its end", minimum=0.1, maximum=0.5),
+    Parameter("cutoff", 10.0, "Hz", "Cut-off of the zero-phase Butterworth filter", minimum=1.0, maximum=50.0),
+    Parameter("plots", True, "", "Write the residual PNGs", type=bool),
+]
+
+
+def load_run_arrays(run_dir, arm: str, rate: float):
+    """q, dq, tau (n, 3) of a run's measured_js at ``rate`` Hz."""
+    from rig.records import read_recording
+    from rig.runs_cli import joint_arrays, resample, resolve_run
+
+    d = resolve_run(str(run_dir))
+    topic = f"/{arm}/measured_js"
+    rec = read_recording(d / "run.mcap", topics=[topic])
+    t, q, dq, tau = joint_arrays(rec, topic)
+    _, table = resample(t, np.hstack((q[:, :3], dq[:, :3], tau[:, :3])), rate)
+    return table[:, :3], table[:, 3:6], table[:, 6:9], f"{d / 'run.mcap'} {topic}"
+
+
+def estimate_gravity(q, dq, tau, rate: float, settings) -> np.ndarray:
+    """Gravity in frame 0 from the data (least-squares scan of the sphere, best direction)."""
+    from calibration.discrepancy import prepare
+    from calibration.model_selection import GravitySlopeSearch
+    from rig.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
+
+    p = prepare(q, dq, tau, rate, settings)
+
+    def make(g, slope):
+        return PSMDynamics(PSMParameters(drive=DriveParameters(slope=float(slope))), gravity=np.asarray(g, float))
+
+    sl = p.train
+    search = GravitySlopeSearch(make, p.qf[sl], p.dqf[sl], p.ddqf[sl], p.tauf[sl], n_inertial=70)
+    res = search.search((400.0,), n_directions=200)
+    return res.gravity(0)
+
+
+def plot_residuals(pairs: list[dict], structured: list[dict], w, path_dir: Path) -> dict:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = {}
+    for k, pr in enumerate(pairs, 1):
+        unit = "N" if pr["joint"] == 3 else "N m"
+        fig, ax = plt.subplots(figsize=(7, 4.2))
+        ax.plot(pr["x"], pr["before"], ".", ms=2, alpha=0.5, label="before (baseline)")
+        ax.plot(pr["x"], pr["after"], ".", ms=2, alpha=0.5, label=f"after (+ {pr['effect']})")
+        ax.set_xlabel(pr["variable"])
+        ax.set_ylabel(f"held-out residual joint {pr['joint']} [{unit}]")
+        ax.set_title(f"{pr['effect']} on joint {pr['joint']}: residual against {pr['variable']}")
+        ax.legend(markerscale=4)
+        ax.grid(alpha=0.3)
+        name = f"residual_{k}_{pr['effect']}_joint{pr['joint']}.png"
+        fig.tight_layout()
+        fig.savefig(path_dir / name, dpi=110)
+        plt.close(fig)
+        out[name] = str(path_dir / name)
+    # Structured joints nothing explained: the residual against its best variable.
+    for d in structured:
+        j = d["joint"]
+        att = w.attribute(j)
+        from calibration.discrepancy import _variable
+
+        x = _variable(w, att["variable"])
+        r = w.residual()[:, j - 1]
+        ho = w.mov_ho[j - 1]
+        fig, ax = plt.subplots(figsize=(7, 4.2))
+        ax.plot(x[ho], r[ho], ".", ms=2, alpha=0.5)
+        ax.set_xlabel(att["variable"])
+        ax.set_ylabel(f"held-out residual joint {j}")
+        ax.set_title(f"joint {j}: structured residual no catalogue effect explains")
+        ax.grid(alpha=0.3)
+        name = f"residual_unexplained_joint{j}.png"
+        fig.tight_layout()
+        fig.savefig(path_dir / name, dpi=110)
+        plt.close(fig)
+        out[name] = str(path_dir / name)
+    return out
+
+
+def report_text(result: dict) -> str:
+    b = result["baseline"]
+    lines = [f"rig discrepancy: verdict {result['verdict']}  ({result['data']['source']})",
+             f"baseline: {result['baseline_kind']}",
+             "held-out RMS per joint (N m, N m, N):  baseline " + ", ".join(f"{v:.4g}" for v in b["heldout_rms"])
+             + "  ->  final " + ", ".join(f"{v:.4g}" for v in result["final"]["heldout_rms"]),
+             "held-out relative error per joint:      baseline " + ", ".join(f"{v:.3f}" for v in b["heldout_rel_error"])
+             + "  ->  final " + ", ".join(f"{v:.3f}" for v in result["final"]["heldout_rel_error"])]
+    for d in result["detection"]["initial"]:
+        lines.append(f"  joint {d['joint']}: Ljung-Box {d['ljung_box']:.1f} (threshold {d['ljung_box_threshold']:.1f}), "
+                     f"library R^2 {d['library_r2']:.3f} (threshold {d['library_r2_threshold']:.3f})"
+                     + ("  STRUCTURED" if d["structured"] else ""))
+    for e in result["effects"]:
+        ev = e["evidence"]
+        par = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in e["params"].items())
+        lines.append(f"effect {e['name']} on joint {e['joint']}: {par}")
+        lines.append(f"    dBIC {ev['delta_bic']:.1f}, held-out variance removed {ev['heldout_variance_removed']:.2f} "
+                     f"(needed {ev['heldout_gain_needed']:.2f}); explains: {ev['attribution']['variable']}"
+                     + (f"; equivalent: {', '.join(ev['equivalent_explanations'])}" if ev["equivalent_explanations"] else ""))
+        lines.append("    held-out RMS " + ", ".join(f"{v:.4g}" for v in e["heldout_rms_before"]) + " -> "
+                     + ", ".join(f"{v:.4g}" for v in e["heldout_rms_after"]))
+    if result["detection"]["structured_left"]:
+        lines.append(f"structured residual left on joint(s) {result['detection']['structured_left']}: "
+                     "no catalogue effect explains it")
+    lines.append(f"model: {result['model']}")
+    lines.append(f"time: {result['seconds']:.1f} s")
+    return "\n".join(lines)
+
+
+def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: bool = True) -> dict:
+    from calibration.base_params import base_parameters_of
+    from calibration.datasets import load_csv
+    from calibration.discrepancy import Settings, run_workflow
+    from calibration.effects import describe
+    from rig.model_file import load_model, provenance, save_model
+    from rig.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
+    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+
+    settings = Settings(cutoff=parameters["cutoff"], heldout=parameters["heldout"])
+    with Run(PROCEDURE, parameters=parameters, config=None, steps=list(STEPS), root=run_root,
+             progress=progress) as rn:
+        with rn.step(STEPS[0]):
+            if parameters["csv"]:
+                data = load_csv(parameters["csv"], parameters["rate"], parameters["joints"])
+                q, dq, tau, source = data.q, data.dq, data.tau, str(parameters["csv"])
+            else:
+                q, dq, tau, source = load_run_arrays(run_dir, parameters["arm"], parameters["rate"])
+        with rn.step(STEPS[1]):
+            given = None
+            if parameters["model"]:
+                m = load_model(parameters["model"])
+                model = m.dynamics()
+                given = m.standard
+                kind = f"given model {m.path}"
+            else:
+                g = estimate_gravity(q, dq, tau, parameters["rate"], settings)
+                model = PSMDynamics(PSMParameters(drive=DriveParameters()), gravity=g)
+                kind = ("thesis model identified on the training block (gravity estimated: "
+                        + ", ".join(f"{v:.3f}" for v in g) + " m/s^2)")
+            base = base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
+        with rn.step(STEPS[2]):
+            result, w = run_workflow(model, base, q, dq, tau, parameters["rate"], given, settings)
+        with rn.step(STEPS[3]):
+            pi = w.standard_parameters(result)
+            effects = [{"name": e["name"], "joint": e["joint"], "params": e["params"], "units": e["units"]}
+                       for e in result["effects"]]
+            for e in effects:
+                if e["name"] == "payload":
+                    e["applied_to"] = "standard_parameters"
+            model_path = save_model(
+                rn.dir / "model.json", standard=pi, names=model.param_names(), slope=w.slope,
+                gravity=model.gravity, gravity_source="given model" if given is not None else "estimated",
+                validation={"heldout_rms_before": result["baseline"]["heldout_rms"],
+                            "heldout_rms_after": result["final"]["heldout_rms"]},
+                provenance_info=provenance(source, rn.dir, {"procedure": PROCEDURE}),
+                extra={"effects": effects, "effects_catalogue": describe()["version"],
+                       "effects_note": "torques of the effects add to the rigid-body model: "
+                                       "calibration.effects.effects_torque(effects, q, dq, tau_model)"})
+            pairs = w.residual_pairs(result) if parameters["plots"] else []
+            result.pop("_reid")
+            result.update({"model": str(model_path), "baseline_kind": kind,
+                           "data": {"source": source, "samples": int(q.shape[0]), "rate_hz": parameters["rate"]}})
+            if parameters["plots"]:
+                structured = [d for d in result["detection"]["final"] if d["structured"]]
+                result["plots"] = plot_residuals(pairs, structured, w, rn.dir)
+            rn.finish(result)
+    return rn.result
+
+
+@click.command(name=PROCEDURE)
+@click.argument("run_dir", required=False)
+@with_parameters(PARAMETERS)
+@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit.")
+@json_option
+@exit_on_abort
+def command(run_dir, parameters, list_steps: bool, as_json: bool) -> None:
+    """Find where the model and the measurement disagree, name the missing effect from the
+    catalogue, add it and show the held-out gap shrink (issue 7). RUN_DIR or --csv FILE.
+    """
+    if list_steps:
+        for i, s in enumerate(STEPS, 1):
+            click.echo(f"{i}. {s}")
+        return
+    if bool(run_dir) == bool(parameters["csv"]):
+        raise click.UsageError("give either RUN_DIR or --csv FILE")
+    from calibration.base_params import RankDeficientError
+    from calibration.datasets import DataError
+    from calibration.discrepancy import DiscrepancyError
+    from calibration.signals import SignalError
+    from rig.model_file import ModelFileError
+    from rig.runs_cli import ExportError
+
+    try:
+        result = run(parameters, run_dir)
+    except (DataError, SignalError, RankDeficientError, DiscrepancyError, ModelFileError, ExportError) as exc:
+        click.echo(f"rig {PROCEDURE}: {exc}", err=True)
+        sys.exit(1)
+    emit_result(result, as_json, report_text(result))

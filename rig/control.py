@@ -210,6 +210,10 @@ class Impedance:
     damping_ratio: float | None = None
     design_stiffness: float = 0.0
 
+    def _stiffness(self, e: np.ndarray) -> np.ndarray:
+        """Kp e, with Kp diagonal (a vector) or a full symmetric 3x3 matrix (N/m)."""
+        return self.Kp @ e if np.ndim(self.Kp) == 2 else self.Kp * e
+
     def __call__(self, q: np.ndarray, dq: np.ndarray, x_d: np.ndarray, xd_d: np.ndarray,
                  xdd_d: np.ndarray, h_e: np.ndarray) -> np.ndarray:
         # J, and J-dot q-dot by a directional difference of the closed-form Jacobian (exact
@@ -222,16 +226,16 @@ class Impedance:
         xd = J @ dq
         if self.Md is not None and self.damping_ratio is not None:
             D = np.diag(2.0 * self.damping_ratio * np.sqrt(self.Md * self.design_stiffness))
-            spring = self.Kp * (x_d - x) + D @ (xd_d - xd)
+            spring = self._stiffness(x_d - x) + D @ (xd_d - xd)
         elif self.Md is None and self.damping_ratio is not None:
             Minv = np.linalg.inv(self.model.mass_matrix(q))
             Lam = np.linalg.inv(J @ Minv @ J.T)
             w, V = np.linalg.eigh(Lam)
             Lam_half = (V * np.sqrt(np.maximum(w, 0.0))) @ V.T
             D = 2.0 * self.damping_ratio * np.sqrt(self.design_stiffness) * Lam_half
-            spring = self.Kp * (x_d - x) + D @ (xd_d - xd)
+            spring = self._stiffness(x_d - x) + D @ (xd_d - xd)
         else:
-            spring = self.Kp * (x_d - x) + self.Kd * (xd_d - xd)
+            spring = self._stiffness(x_d - x) + self.Kd * (xd_d - xd)
         # joint 3 puts the tip at distance q3 - L_RCC + L_TOOL from the RCM
         q_target3 = float(np.sqrt(x_d @ x_d)) + K.L_RCC - K.L_TOOL
         fric = self.friction(dq, q_target3 - q[2])

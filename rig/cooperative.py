@@ -65,7 +65,11 @@ class ForceLoop:
 @dataclass
 class ImpedanceGains:
     Md: np.ndarray | None = None   # kg; None: the arm's own Cartesian inertia (see Impedance)
-    Kp: np.ndarray = field(default_factory=lambda: np.array([400.0, 400.0, 400.0]))  # N/m
+    Kp: np.ndarray = field(default_factory=lambda: np.array([400.0, 400.0, 400.0]))  # N/m, along the object
+    # N/m across the object; None: Kp in every direction. A slave soft along the object but
+    # stiff across it holds its place against model and gravity errors without stiffening
+    # the force loop.
+    Kp_across: float | None = None
     Kd: np.ndarray = field(default_factory=lambda: np.array([20.0, 20.0, 20.0]))  # N s/m (with Md)
     damping_ratio: float | None = 0.7   # with Md None: ratio against Kp + the object's stiffness
 
@@ -101,7 +105,7 @@ def preset(kind: str) -> tuple[ImpedanceGains, bool]:
     if kind == "string":
         # Kp 200 N/m: of 50-800 N/m this gave the smallest error while moving (a softer
         # slave lags the master, a stiffer one passes the master's lag into the string)
-        return ImpedanceGains(Md=None, Kp=np.full(3, 200.0), damping_ratio=0.7), False
+        return ImpedanceGains(Md=None, Kp=np.full(3, 200.0), damping_ratio=0.7, Kp_across=None), False
     raise ValueError(f"object kind must be 'spring' or 'string', got {kind!r}")
 
 
@@ -158,6 +162,8 @@ class CooperativeController:
         self.motion = motion or Motion()
         self.loop = loop or ForceLoop()
         g = gains or ImpedanceGains()
+        self.kp_along = float(np.mean(g.Kp))
+        self.kp_across = g.Kp_across
         self.impedance = {s: Impedance(models[s], friction[s], None if g.Md is None else g.Md.copy(),
                                        g.Kp.copy(), g.Kd.copy(), g.damping_ratio,
                                        float(np.max(g.Kp)) + object_stiffness)
@@ -197,13 +203,15 @@ class CooperativeController:
         self.initial_tension = float(np.mean(tension)) if len(tension) else 0.0
         self.initial_element_tension = np.asarray(tension, float).copy()
         self.k_i = {s: self._force_gain(s, q[s]) for s in self.slaves}
+        # x_f must be able to reach the ceiling tension through the impedance spring
+        self.x_f_limit = max(self.loop.x_f_limit, 2.0 * self.force / self.kp_along + 0.01)
         if self.mode == "impedance":
             # Pre-load each slave's impedance with the tension already on the object, so that
             # switching the slave to effort control does not let the object pull it in.
             for s in self.slaves:
                 tracked = [k for k, e in enumerate(self.elements) if s in e and self.master in e]
                 held = float(np.mean(self.initial_element_tension[tracked])) if tracked else 0.0
-                self.x_f[s] = held / float(np.mean(self.impedance[s].Kp))
+                self.x_f[s] = held / self.kp_along
 
     def _position_slave(self, s: str, t: float, error: float, x_d: np.ndarray, v_d: np.ndarray,
                         u: np.ndarray) -> ArmCommand:
@@ -212,7 +220,7 @@ class CooperativeController:
         if t + 1e-12 >= self._next_position_step:
             if abs(error) > pl.deadband:
                 self.x_f[s] = float(np.clip(self.x_f[s] + pl.step * np.sign(error),
-                                            -self.loop.x_f_limit, self.loop.x_f_limit))
+                                            -self.x_f_limit, self.x_f_limit))
             if s == self.slaves[-1]:
                 self._next_position_step = t + pl.period
         x_rcm = self.to_rcm(s, x_d + u * self.x_f[s])
@@ -248,7 +256,7 @@ class CooperativeController:
             Lam = np.linalg.inv(J @ np.linalg.inv(imp.model.mass_matrix(q)) @ J.T)
         else:
             Lam = np.diag(imp.Md)
-        kp = float(u @ (imp.Kp * u))
+        kp = self.kp_along
         # the object's stiffness along u: each element contributes K (u . its direction)^2
         dirs = self._neighbour_directions(slave, {**self.x0, slave: self.tip_world(slave, q)})
         k_obj = self.object_stiffness * sum(float(u_world @ d) ** 2 for d in dirs)
@@ -331,9 +339,13 @@ class CooperativeController:
                 rate = self.k_i[s] * (error - np.sign(error) * self.loop.deadband) - self.loop.k_damp * h_rate
             else:
                 rate = -self.loop.k_damp * h_rate
-            self.x_f[s] = float(np.clip(self.x_f[s] + self.dt * rate, -self.loop.x_f_limit, self.loop.x_f_limit))
+            self.x_f[s] = float(np.clip(self.x_f[s] + self.dt * rate, -self.x_f_limit, self.x_f_limit))
             x_t = xd[s] + u * self.x_f[s]
-            kp_mean = float(np.mean(self.impedance[s].Kp))
+            if self.kp_across is not None:
+                u_r = self.R[s].T @ u
+                self.impedance[s].Kp = (self.kp_across * np.eye(3)
+                                        + (self.kp_along - self.kp_across) * np.outer(u_r, u_r))
+            kp_mean = self.kp_along
             for k in mine:
                 if k not in tracked:  # the slave-slave element: feed its pull forward
                     a, b = self.elements[k]

@@ -60,8 +60,8 @@ THRESHOLDS_PATH = Path(__file__).with_name("discrepancy_thresholds.json")
 #: Used only when no calibrated file exists (a fresh checkout before calibration): wide,
 #: conservative values; the result says which were used.
 FALLBACK_THRESHOLDS = {
-    "identified": {"ljung_box": [200.0] * 3, "library_r2": [0.5] * 3, "gain": [0.3] * 3, "delta_bic": 50.0},
-    "given_model": {"ljung_box": [200.0] * 3, "library_r2": [0.5] * 3, "gain": [0.3] * 3, "delta_bic": 50.0},
+    "identified": {"ljung_box": [200.0] * 3, "library_r2": [0.5] * 3, "gain": [0.3] * 3, "delta_bic": [50.0] * 3},
+    "given_model": {"ljung_box": [200.0] * 3, "library_r2": [0.5] * 3, "gain": [0.3] * 3, "delta_bic": [50.0] * 3},
 }
 #: A candidate must remove at least this share of what the generic library explains.
 LIBRARY_SHARE = 0.5
@@ -512,7 +512,7 @@ class Discrepancy:
                     continue
                 best = on_joint[0]
                 gain_needed = max(self.th["gain"][joint - 1], LIBRARY_SHARE * lib[joint])
-                ok = best["delta_bic"] > self.th["delta_bic"] and best["heldout_gain"] >= gain_needed
+                ok = best["delta_bic"] > self.th["delta_bic"][joint - 1] and best["heldout_gain"] >= gain_needed
                 best["gain_needed"] = gain_needed
                 if ok and (accepted is None or best["delta_bic"] > accepted["delta_bic"]):
                     accepted = best
@@ -559,7 +559,7 @@ class Discrepancy:
         ties += [f"{e}@{c['joint']} (identical while moving)" for e in eff.equivalent_to]
         evidence = {"detection": next(d for d in det if d["joint"] == c["joint"]),
                     "attribution": self.attribute(c["joint"]),
-                    "delta_bic": c["delta_bic"], "delta_bic_threshold": self.th["delta_bic"],
+                    "delta_bic": c["delta_bic"], "delta_bic_threshold": self.th["delta_bic"][c["joint"] - 1],
                     "heldout_variance_removed": c["heldout_gain"], "heldout_gain_needed": c["gain_needed"],
                     "grid": {"name": eff.grid_name, "value": c["grid"]}, "sanity": "pass",
                     "equivalent_explanations": ties}

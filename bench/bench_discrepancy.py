@@ -1,0 +1,184 @@
+"""Benchmark of the discrepancy workflow (issue 7): confusion matrix over seeded hidden cases,
+null false discoveries, held-out gap against the rig's noise floor, time, real data.
+
+    python bench/bench_discrepancy.py [--seeds 2] [--workers 2]
+
+Every catalogue effect on each joint (1-3) is hidden in the simulated rig (seeds 0..S-1,
+`calibration.hidden_effects`); the workflow sees only the recorded arrays. Effects a model
+identified on the same data already contains (payload, torque offset, Coulomb asymmetry:
+see calibration.effects) are run against a model identified beforehand on another null run
+(--model); the others against the thesis model identified on the training block. The noise
+floor of a case is the same baseline's held-out RMS on its null twin (same seed, trajectory
+and sensor noise, no effect). Null seeds 100.. are disjoint from the threshold calibration's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from multiprocessing import Pool
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench._table import print_table  # noqa: E402
+
+EQUIVALENT = {"coulomb_asymmetry": "torque_offset", "torque_offset": "torque_offset"}
+NULL_SEEDS_BASE = 100
+
+
+def _mode_for(effects) -> str:
+    from calibration.effects import CATALOGUE
+
+    return "given_model" if any(e in CATALOGUE and CATALOGUE[e].in_rigid_body_model for e, _ in effects) \
+        else "identified"
+
+
+def run_case(args):
+    """(label, effects, seed, mode) -> figures of one case (runs in a worker)."""
+    effects, seed, mode = args
+    from calibration.discrepancy import Discrepancy, Settings
+    from calibration.discrepancy_null import reference_model, sim_model_and_base
+    from calibration.hidden_effects import HiddenCase, generate
+
+    model, base = sim_model_and_base()
+    given = None
+    if mode == "given_model":
+        given, slope = reference_model(model, base, seed)
+        model.slope = slope
+    rec, truth = generate(HiddenCase(tuple(effects), seed))
+    t0 = time.perf_counter()
+    w = Discrepancy(model, base, rec.q, rec.dq, rec.tau, rec.rate, given, Settings())
+    res = w.run()
+    seconds = time.perf_counter() - t0
+    floor = None
+    if effects:
+        nrec, _ = generate(HiddenCase((), seed))
+        wn = Discrepancy(model, base, nrec.q, nrec.dq, nrec.tau, nrec.rate, given, Settings())
+        floor = wn.heldout_rms().tolist()
+    return {"effects": effects, "seed": seed, "mode": mode, "verdict": res["verdict"],
+            "found": [(e["name"], e["joint"]) for e in res["effects"]],
+            "baseline_rms": res["baseline"]["heldout_rms"], "final_rms": res["final"]["heldout_rms"],
+            "floor": floor, "seconds": seconds, "truth": truth.params}
+
+
+def predicted_label(r) -> str:
+    if r["found"]:
+        e, j = r["found"][0]
+        return f"{e}@{j}"
+    return r["verdict"]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--null-seeds", type=int, default=20)
+    ap.add_argument("--workers", type=int, default=2)
+    a = ap.parse_args(argv)
+    from calibration.effects import IDS
+    from calibration.hidden_effects import OUTSIDE_CASES
+
+    jobs = []
+    for s in range(a.seeds):
+        for e in IDS:
+            for j in (1, 2, 3):
+                jobs.append(([(e, j)], s, _mode_for([(e, j)])))
+    nulls = [([], NULL_SEEDS_BASE + k, mode) for k in range(a.null_seeds) for mode in ("identified", "given_model")]
+    pairs = [([("spring", 1), ("hysteresis", 3)], s, "identified") for s in range(a.seeds)] + \
+            [([("time_delay", 2), ("viscous_nonlinear", 3)], s, "identified") for s in range(a.seeds)]
+    outside = [([(o, j)], s, "identified") for o in OUTSIDE_CASES for j in (1, 3) for s in range(a.seeds)]
+    t0 = time.perf_counter()
+    with Pool(a.workers) as pool:
+        results = pool.map(run_case, jobs + nulls + pairs + outside, chunksize=1)
+    wall = time.perf_counter() - t0
+    cat = results[:len(jobs)]
+    nul = results[len(jobs):len(jobs) + len(nulls)]
+    two = results[len(jobs) + len(nulls):len(jobs) + len(nulls) + len(pairs)]
+    out = results[len(jobs) + len(nulls) + len(pairs):]
+
+    # Confusion matrix: truth effect (any joint) x predicted effect; joint correctness separately.
+    labels = list(IDS) + ["none", "unexplained"]
+    conf = {t: {p: 0 for p in labels} for t in IDS}
+    strict = equiv = 0
+    gap_ok = gap_n = 0
+    rows_gap = []
+    for r in cat:
+        (e, j), = r["effects"]
+        pe = r["found"][0][0] if r["found"] else r["verdict"]
+        conf[e][pe] += 1
+        ok = bool(r["found"]) and r["found"][0] == (e, j)
+        ok_eq = bool(r["found"]) and r["found"][0][1] == j and (
+            r["found"][0][0] == e or (e in EQUIVALENT and EQUIVALENT.get(r["found"][0][0]) == EQUIVALENT[e]))
+        strict += ok
+        equiv += ok_eq
+        if ok_eq:
+            b, f, fl = r["baseline_rms"][j - 1], r["final_rms"][j - 1], r["floor"][j - 1]
+            good = f <= 0.5 * b and f <= 1.2 * fl
+            gap_n += 1
+            gap_ok += good
+            rows_gap.append((e, j, r["seed"], b, f, fl, good))
+    n = len(cat)
+    fd = [r for r in nul if r["verdict"] != "none"]
+    two_ok = sum(set(map(tuple, r["effects"])) <= set(r["found"]) for r in two)
+    two_some = sum(bool(set(map(tuple, r["effects"])) & set(r["found"])) for r in two)
+    out_ok = sum(r["verdict"] == "unexplained" for r in out)
+    out_named = sum(r["verdict"] == "explained" for r in out)
+    tmax = max(r["seconds"] for r in results)
+
+    print("\nConfusion matrix (rows: hidden effect, any joint; columns: first effect named or verdict)")
+    short = {k: k[:9] for k in labels}
+    print(f"{'hidden':>18} " + " ".join(f"{short[p]:>9}" for p in labels))
+    for t in IDS:
+        print(f"{t:>18} " + " ".join(f"{conf[t][p]:>9}" for p in labels))
+    print("\nPer case (hidden -> found, verdict):")
+    for r in cat:
+        (e, j), = r["effects"]
+        print(f"  {e}@{j} seed {r['seed']} [{r['mode']}]: {predicted_label(r)} ({r['verdict']}) "
+              f"rms {np.round(r['baseline_rms'][j - 1], 4)} -> {np.round(r['final_rms'][j - 1], 4)} "
+              f"floor {np.round(r['floor'][j - 1], 4)}")
+    for r in two + out:
+        print(f"  {'+'.join(f'{e}@{j}' for e, j in r['effects'])} seed {r['seed']}: found {r['found']} ({r['verdict']})")
+    for r in fd:
+        print(f"  null seed {r['seed']} [{r['mode']}]: false discovery {r['found']} ({r['verdict']})")
+
+    real = real_data()
+    rows = [
+        ("correct name and joint (strict)", f"{strict}/{n} = {strict / n:.0%}", ">= 90%", strict / n >= 0.9),
+        ("correct name and joint (coulomb_asymmetry = torque_offset)", f"{equiv}/{n} = {equiv / n:.0%}", ">= 90%",
+         equiv / n >= 0.9),
+        ("null false discoveries", f"{len(fd)}/{len(nul)} = {len(fd) / len(nul):.0%}", "<= 5%",
+         len(fd) / len(nul) <= 0.05),
+        ("held-out RMS <= 50% baseline and <= 1.2 x floor (correct cases)",
+         f"{gap_ok}/{gap_n}" + (f" = {gap_ok / gap_n:.0%}" if gap_n else ""), "all", gap_n > 0 and gap_ok == gap_n),
+        ("two effects: both named", f"{two_ok}/{len(two)} (one of two: {two_some})", "all", two_ok == len(two)),
+        ("outside the catalogue: verdict unexplained", f"{out_ok}/{len(out)} (wrongly explained: {out_named})",
+         "all", out_ok == len(out)),
+        ("workflow time, 6000 x 3 (max over cases)", f"{tmax:.1f} s", "< 60 s", tmax < 60),
+        ("real data: verdict / effects", real["summary"], "report", True),
+        ("real data: held-out RMS baseline -> final (N m, N m, N)", real["gap"], "report", True),
+    ]
+    print()
+    print_table("Discrepancy workflow (issue 7)", rows)
+    print(f"\nbench wall time {wall:.0f} s on {a.workers} workers; {len(results)} cases")
+    return 0
+
+
+def real_data() -> dict:
+    from procedures.discrepancy import PARAMETERS, run
+    from rig.params import resolve
+    import tempfile
+
+    params = dict(resolve(PARAMETERS, {"csv": "/work/shared/data/wpi-psm/one_results.csv", "plots": False}))
+    root = Path(tempfile.mkdtemp())
+    r = run(params, run_root=root, progress=False)
+    eff = ", ".join(f"{e['name']}@{e['joint']}" for e in r["effects"]) or "no effect"
+    b, f = r["baseline"]["heldout_rms"], r["final"]["heldout_rms"]
+    gap = " / ".join(f"{x:.4f} -> {y:.4f} ({(y / x - 1) * 100:+.0f}%)" for x, y in zip(b, f))
+    return {"summary": f"{r['verdict']}: {eff}", "gap": gap}
+
+
+if __name__ == "__main__":
+    sys.exit(main())

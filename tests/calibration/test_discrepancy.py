@@ -1,0 +1,135 @@
+"""The discrepancy workflow on hidden-effect data from the simulated rig (issue 7).
+
+Data are generated once per session (a cache fixture); the workflow sees only the arrays.
+The full sweep (every catalogue effect on every joint) is marked slow; bench/ prints its
+confusion matrix.
+"""
+
+import numpy as np
+import pytest
+
+from calibration.discrepancy import Discrepancy, Settings, ljung_box
+from calibration.discrepancy_null import reference_model, sim_model_and_base
+from calibration.effects import CATALOGUE, IDS, dahl_state, effects_torque
+from calibration.hidden_effects import CATALOGUE_CASES, HiddenCase, generate
+
+
+@pytest.fixture(scope="session")
+def sim():
+    return sim_model_and_base()
+
+
+@pytest.fixture(scope="session")
+def workflow(sim):
+    cache = {}
+
+    def run(effects, seed, mode="identified"):
+        key = (tuple(effects), seed, mode)
+        if key not in cache:
+            model, base = sim
+            model.slope = 400.0
+            given = None
+            if mode == "given_model":
+                given, slope = reference_model(model, base, seed)
+                model.slope = slope
+            rec, truth = generate(HiddenCase(tuple(effects), seed))
+            w = Discrepancy(model, base, rec.q, rec.dq, rec.tau, rec.rate, given, Settings())
+            cache[key] = (w.run(), w, truth)
+        return cache[key]
+
+    return run
+
+
+def test_catalogue_is_fixed_and_versioned():
+    assert IDS == ("stiction", "coulomb_asymmetry", "position_friction", "spring", "payload", "backlash",
+                   "hysteresis", "time_delay", "torque_offset", "viscous_nonlinear")
+    assert set(CATALOGUE_CASES) == set(IDS)
+
+
+def test_sanity_checks_refuse_unphysical_parameters():
+    st = CATALOGUE["stiction"]
+    assert st.sanity({"dFs": -0.1, "Fs": 0.4, "Fc": 0.5, "vs": 0.01}, 3) is not None   # Fs < Fc
+    assert st.sanity({"dFs": 0.2, "Fs": 0.7, "Fc": 0.5, "vs": 0.01}, 3) is None
+    assert CATALOGUE["spring"].sanity({"k": -1.0, "q0": 0.0}, 1) is not None
+    assert CATALOGUE["hysteresis"].sanity({"Fd": -0.1, "travel": 1e-3, "sigma0": -100}, 2) is not None
+
+
+def test_dahl_state_saturates_and_reverses():
+    q = np.concatenate([np.linspace(0, 0.01, 50), np.linspace(0.01, 0.0, 50)])
+    z = dahl_state(q, 0.001)
+    assert z[49] == pytest.approx(1.0, abs=1e-3)
+    assert z[-1] == pytest.approx(-1.0, abs=1e-3)
+
+
+def test_ljung_box_white_vs_coloured():
+    rng = np.random.default_rng(0)
+    white = rng.normal(size=400)
+    coloured = np.convolve(white, np.ones(8) / 8, "same")
+    assert ljung_box(white) < 30 < ljung_box(coloured)
+
+
+def test_null_case_finds_nothing(workflow):
+    res, _, _ = workflow([], 3)
+    assert res["verdict"] == "none", res["iterations"]
+    assert res["effects"] == []
+
+
+@pytest.mark.parametrize("effect,joint", [("spring", 1), ("hysteresis", 3), ("time_delay", 2), pytest.param(
+    "viscous_nonlinear", 3, marks=pytest.mark.xfail(strict=True, reason=(
+        "known limit: ranked first with 56 % held-out gain, but joint 3's null-calibrated BIC threshold "
+        "(222, set by the plant's stick-slip mismatch on null runs) rejects it")))])
+def test_hidden_effect_is_named_on_its_joint(workflow, effect, joint):
+    res, _, truth = workflow([(effect, joint)], 0)
+    assert res["effects"], f"nothing found for {effect}@{joint}: {res['iterations']}"
+    first = res["effects"][0]
+    assert (first["name"], first["joint"]) == (effect, joint), res["iterations"]
+    j = joint - 1
+    assert first["heldout_rms_after"][j] < first["heldout_rms_before"][j]
+    assert CATALOGUE[effect].sanity(first["params"], joint) is None
+
+
+def test_spring_stiffness_close_to_truth(workflow):
+    res, _, truth = workflow([("spring", 1)], 0)
+    k = res["effects"][0]["params"]["k"]
+    assert k == pytest.approx(truth.params[0]["size"], rel=0.2)
+
+
+def test_payload_against_an_earlier_model(workflow):
+    res, _, _ = workflow([("payload", 3)], 0, "given_model")
+    names = [(e["name"], e["joint"]) for e in res["effects"]]
+    assert ("payload", 3) in names, res["iterations"]
+    p = next(e for e in res["effects"] if e["name"] == "payload")["params"]
+    assert p["mass"] > 0
+
+
+def test_two_effects_at_once(workflow):
+    res, _, _ = workflow([("spring", 1), ("hysteresis", 3)], 0)
+    found = {(e["name"], e["joint"]) for e in res["effects"]}
+    assert {("spring", 1), ("hysteresis", 3)} <= found, res["iterations"]
+
+
+def test_outside_catalogue_is_not_named(workflow):
+    res, _, _ = workflow([("sinusoidal_disturbance", 1)], 0)
+    # Structured (detected) but never explained by the nearest catalogue guess.
+    assert res["verdict"] == "unexplained", res["iterations"]
+    assert all(e["joint"] != 1 for e in res["effects"])
+
+
+def test_effects_torque_reproduces_the_fit(workflow):
+    res, w, _ = workflow([("spring", 1), ("hysteresis", 3)], 0)
+    e = next(e for e in res["effects"] if e["name"] == "spring")
+    tq = effects_torque([e], w.p.q, w.p.dq)
+    np.testing.assert_allclose(tq[:, 0], e["params"]["k"] * (w.p.q[:, 0] - (e["params"]["q0"] or 0.0)))
+    assert np.all(tq[:, 1:] == 0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("effect", IDS)
+@pytest.mark.parametrize("joint", [1, 2, 3])
+def test_every_catalogue_effect_on_every_joint(workflow, effect, joint):
+    mode = "given_model" if CATALOGUE[effect].in_rigid_body_model else "identified"
+    res, _, _ = workflow([(effect, joint)], 0, mode)
+    found = [(e["name"], e["joint"]) for e in res["effects"]]
+    equivalent = {("coulomb_asymmetry", joint), ("torque_offset", joint)}
+    want = equivalent if (effect, joint) in equivalent else {(effect, joint)}
+    assert found and found[0] in want, (found, res["verdict"])

@@ -1,0 +1,44 @@
+"""`rig discrepancy --csv` on the real WPI data (shared/data/wpi-psm) with --json."""
+
+import json
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from rig.cli import main
+from rig.model_file import load_model
+
+REAL = Path("/work/shared/data/wpi-psm/one_results.csv")
+
+
+@pytest.mark.skipif(not REAL.exists(), reason="the WPI data are not available")
+def test_cli_on_real_csv_json(tmp_path):
+    res = CliRunner().invoke(main, ["discrepancy", "--csv", str(REAL), "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout.strip().splitlines()[-1])
+    assert set(doc["baseline"]) >= {"heldout_rms", "heldout_rel_error"}
+    assert len(doc["baseline"]["heldout_rms"]) == 3
+    assert doc["verdict"] in ("none", "explained", "unexplained")
+    for e in doc["effects"]:
+        assert set(e) >= {"name", "joint", "params", "evidence", "heldout_rms_before", "heldout_rms_after"}
+    m = load_model(doc["model"])
+    assert m.standard is not None and m.standard.shape == (82,)
+    assert [e["name"] for e in m.document["effects"]] == [e["name"] for e in doc["effects"]]
+    # The final model never fits the held-out block worse than the baseline on any joint by much.
+    for b, f in zip(doc["baseline"]["heldout_rms"], doc["final"]["heldout_rms"]):
+        assert f <= 1.05 * b
+
+
+def test_cli_needs_exactly_one_input():
+    res = CliRunner().invoke(main, ["discrepancy"])
+    assert res.exit_code != 0
+    assert "RUN_DIR or --csv" in res.output
+
+
+def test_cli_truncated_csv_is_a_clear_error(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9\n0.1,0.2\n")
+    res = CliRunner().invoke(main, ["discrepancy", "--csv", str(bad)])
+    assert res.exit_code == 1
+    assert "line 2" in res.output

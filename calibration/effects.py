@@ -303,7 +303,8 @@ def _payload() -> Effect:
         return None
 
     def torque(p, j, q, dq, tm, rate, slope):
-        raise NotImplementedError("a payload changes the rigid-body parameters: use payload_standard_delta")
+        # A payload is a change of the rigid-body parameters, not an added torque term.
+        raise ValueError("a payload changes the rigid-body parameters: use payload_standard_delta")
 
     return Effect("payload", "unmodelled point mass on the link of the joint (default the tool): "
                   "its gravity and inertia", "q (gravity), ddq", "whole workspace", ("m", "mcx", "mcy", "mcz"),

@@ -745,6 +745,23 @@ class _StreamingLoadCell(abc.ABC):
     def _send(self, ctype: int, payload: bytes) -> None:
         """Put one command on the transport (a framed serial write, or a CAN frame)."""
 
+    def close(self) -> None:
+        """Stop streaming (if the device still answers) and the reader thread. Leaves the
+        transport (port or bus) open: whoever opened it closes it."""
+        if self._error is None and self._streaming:
+            try:
+                self.stop()
+            except LoadCellError:
+                pass
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
     def command(self, ctype: int, payload: bytes = b"", timeout: float = 0.5) -> bytes:
         """Send one command and return its reply payload; raises LoadCellCommandError."""
         with self._cmd_lock:
@@ -924,21 +941,6 @@ class LoadCell(_StreamingLoadCell):
             self._copy_parser_stats()
         self._fail(LoadCellDisconnected(f"load cell on {self.name} disconnected: {why}"))
 
-    def close(self) -> None:
-        """Stop streaming (if the device still answers) and the reader thread. Leaves the port open."""
-        if self._error is None and self._streaming:
-            try:
-                self.stop()
-            except LoadCellError:
-                pass
-        self._stop.set()
-        self._thread.join(timeout=1.0)
-
-    def __enter__(self) -> "LoadCell":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 # --------------------------------------------------------------------------- firmware fake

@@ -26,7 +26,6 @@ from drivers.loadcell import (
     LoadCellCalibration,
     LoadCellDeviceModel,
     LoadCellDisconnected,
-    LoadCellError,
     RawSample,
     _StreamingLoadCell,
 )
@@ -128,21 +127,6 @@ class CanLoadCell(_StreamingLoadCell):
                     st.gaps, st.lost, st.out_of_order, st.restarts = sq.gaps, sq.lost, sq.out_of_order, sq.restarts
             self._check_stale(self.clock())
 
-    def close(self) -> None:
-        """Stop streaming (if the cell still answers) and the reader thread. Leaves the bus open."""
-        if self._error is None and self._streaming:
-            try:
-                self.stop()
-            except LoadCellError:
-                pass
-        self._stop.set()
-        self._thread.join(timeout=1.0)
-
-    def __enter__(self) -> "CanLoadCell":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 class FakeCanLoadCellFirmware:

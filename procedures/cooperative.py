@@ -14,7 +14,6 @@ holds every arm it moved.
 
 from __future__ import annotations
 
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -180,7 +179,6 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
                     dry_run=False, ros_commands=False, interactive=False, parameter_set=None, model=None,
                     progress=True):
     """The procedure; returns the result document. `model` overrides the model file (tests, bench)."""
-    from rig import psm_kinematics as K
     from rig.devices import open_rig
     from rig.safety import SafetyLimits
 
@@ -205,9 +203,6 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
 
 def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames, model_note,
          registration_note, limits, dry_run, ros_commands, interactive, parameter_set, seed, progress):
-    from rig import psm_kinematics as K
-    from rig.cooperative import min_jerk
-
     clock = rig.clock
     elements = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
     kind = cfg.object["kind"]

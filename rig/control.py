@@ -128,6 +128,11 @@ class StickSlipCompensation:
     Joints 1-2 (and joint 3 when moving): Fc tanh(a x / 2) + Fv x + Fo with x = 0 inside the
     velocity deadband. Joint 3 at rest: +Fs_pos or Fs_neg when the position error leaves
     the position deadband (the joint is about to be pushed out of stiction), else 0.
+
+    `dq_ref` (optional): the velocity the controller is about to command (its reference).
+    A joint at rest whose reference moves gets the friction of the reference velocity: the
+    controller then pushes it out of static friction as the motion starts instead of after
+    the lag the deadband would cost (friction feedforward). Without it, thesis 7.5.1 as is.
     """
 
     Fc: np.ndarray
@@ -139,17 +144,35 @@ class StickSlipCompensation:
     velocity_deadband: np.ndarray = field(default_factory=lambda: np.array([0.01, 0.01, 0.005]))
     position_deadband: float = 0.0003
     scale: float = 1.0   # fraction of the model friction to compensate (robustness margin)
+    reference_deadband: float = 0.2   # fraction of the velocity deadband a reference must exceed
+    _held: int = field(default=0, repr=False)   # sign of the breakaway force being applied
+    _moving: np.ndarray = field(default_factory=lambda: np.zeros(3, bool), repr=False)
 
-    def __call__(self, dq: np.ndarray, position_error3: float) -> np.ndarray:
-        x = np.where(np.abs(dq) < self.velocity_deadband, 0.0, dq)
+    def __call__(self, dq: np.ndarray, position_error3: float, dq_ref: np.ndarray | None = None) -> np.ndarray:
+        # A joint counts as moving once |dq| leaves the deadband and until it falls below half
+        # of it: a joint sliding at about the deadband speed would otherwise flick the
+        # compensation on and off with the velocity noise.
+        speed = np.abs(dq)
+        self._moving = np.where(self._moving, speed >= 0.5 * self.velocity_deadband, speed >= self.velocity_deadband)
+        x = np.where(self._moving, dq, 0.0)
+        if dq_ref is not None:
+            # a planned motion sets the friction's direction and size: smooth, noise-free
+            x = np.where(np.abs(dq_ref) >= self.reference_deadband * self.velocity_deadband, dq_ref, x)
         f = self.scale * (self.Fc * np.tanh(0.5 * self.slope * x) + self.Fv * x) + self.Fo
-        if abs(dq[2]) < self.velocity_deadband[2]:
-            if position_error3 > self.position_deadband:
-                f[2] = self.Fo[2] + self.Fs_pos
-            elif position_error3 < -self.position_deadband:
-                f[2] = self.Fo[2] + self.Fs_neg
-            else:
-                f[2] = self.Fo[2]
+        if not self._moving[2] and x[2] == 0.0:
+            # Schmitt trigger: the breakaway force goes on when the error leaves the deadband
+            # and stays on until the error has come back through zero (or the joint moves),
+            # so sensor noise at the deadband's edge cannot make it chatter.
+            e = position_error3
+            if e > self.position_deadband:
+                self._held = 1
+            elif e < -self.position_deadband:
+                self._held = -1
+            elif self._held * e <= 0.0:
+                self._held = 0
+            f[2] = self.Fo[2] + (self.Fs_pos if self._held > 0 else self.Fs_neg if self._held < 0 else 0.0)
+        else:
+            self._held = 0
         return f
 
 
@@ -236,9 +259,14 @@ class Impedance:
             spring = self._stiffness(x_d - x) + D @ (xd_d - xd)
         else:
             spring = self._stiffness(x_d - x) + self.Kd * (xd_d - xd)
-        # joint 3 puts the tip at distance q3 - L_RCC + L_TOOL from the RCM
-        q_target3 = float(np.sqrt(x_d @ x_d)) + K.L_RCC - K.L_TOOL
-        fric = self.friction(dq, q_target3 - q[2])
+        # Stiction (7.5.1) acts on the error to where the impedance would come to rest, the
+        # target displaced by the measured force (x_d - Kp^-1 h_e): in contact the target
+        # itself is never reached, and its error would hold the breakaway force on for good
+        # and flip it as the geometry changes. Joint 3 puts the tip at distance
+        # q3 - L_RCC + L_TOOL from the RCM.
+        rest = x_d - (np.linalg.solve(self.Kp, h_e) if np.ndim(self.Kp) == 2 else h_e / self.Kp)
+        q_target3 = float(np.sqrt(rest @ rest)) + K.L_RCC - K.L_TOOL
+        fric = self.friction(dq, q_target3 - q[2], np.linalg.solve(J, xd_d))
         if self.Md is None:
             y = np.linalg.solve(J, xdd_d - Jdot_dq)
             return self.model(q, dq, y) + fric + J.T @ spring

@@ -58,6 +58,13 @@ class ForceLoop:
     k_damp: float = 0.0015     # m/N: x_f rate per N/s of tension rate (the damping term)
     deadband: float = 0.02     # N: no integration inside it
     ramp_time: float = 1.0     # s: minimum-jerk ramp of the set-point from the initial tension
+    # A slack object (tension below `contact` N) is taken up with the slave's tip moving
+    # outward at `take_up_speed` (m/s; x_f integrates the speed error with `take_up_gain`,
+    # 1/s) before the set-point ramp starts: integrating the tension error over the slack
+    # would arrive at the object fast with the target far beyond it (2 N overshoot on a string).
+    contact: float = 0.5
+    take_up_speed: float = 0.01
+    take_up_gain: float = 10.0
     x_f_limit: float = 0.03    # m: |x_f| ceiling (the object cannot need more)
     bandwidth_ratio: float = 3.0  # the loop stays this factor below the arm-object mode
 
@@ -174,6 +181,7 @@ class CooperativeController:
         self.force_filter = KalmanDifferentiator(len(self.elements), dt, force_noise, 200.0)
         self.t0: float | None = None
         self.x_f = {s: 0.0 for s in self.slaves}
+        self.x_g: dict[tuple[str, int], float] = {}   # slave-slave element offsets (m)
         self.tension = np.zeros(len(self.elements))
         self.tension_rate = np.zeros(len(self.elements))
         self.force_setpoint = 0.0
@@ -202,6 +210,10 @@ class CooperativeController:
         self.centroid0 = np.mean([self.x0[a] for a in self.arms], axis=0)
         self.initial_tension = float(np.mean(tension)) if len(tension) else 0.0
         self.initial_element_tension = np.asarray(tension, float).copy()
+        # the set-point ramp starts once every slave holds its object taut
+        self.slack = {s: (self.mode == "impedance" and self.force > self.loop.contact
+                          and self._tracked_tension(s, tension) < self.loop.contact) for s in self.slaves}
+        self.ramp_start = t if not any(self.slack.values()) else None
         self.k_i = {s: self._force_gain(s, q[s]) for s in self.slaves}
         # x_f must be able to reach the ceiling tension through the impedance spring
         self.x_f_limit = max(self.loop.x_f_limit, 2.0 * self.force / self.kp_along + 0.01)
@@ -290,8 +302,14 @@ class CooperativeController:
             ad[arm] = a * m.translation
         return xd, vd, ad
 
+    def _tracked_tension(self, slave: str, tension: np.ndarray) -> float:
+        tracked = [k for k, e in enumerate(self.elements) if slave in e and self.master in e]
+        return float(np.mean(np.asarray(tension)[tracked])) if tracked else 0.0
+
     def force_target(self, t: float) -> float:
-        s = (t - self.t0) / self.loop.ramp_time if self.loop.ramp_time > 0 else 1.0
+        if self.ramp_start is None:      # still taking up slack
+            return self.initial_tension + self.force_offset
+        s = (t - self.ramp_start) / self.loop.ramp_time if self.loop.ramp_time > 0 else 1.0
         p, _, _ = min_jerk(s)
         return self.initial_tension + p * (self.force - self.initial_tension) + self.force_offset
 
@@ -321,10 +339,17 @@ class CooperativeController:
         commands[m] = ArmCommand("position", q=q_m, dq=dq_m)
 
         if self.follow_measured_master:
-            shift = tips[m] - xd[m]
+            # The master's lag behind its plan, in position and velocity (from its joint
+            # filter): slaves add it to their own plan, so that their impedance does not
+            # resist the motion the object imposes (the damping along the object is hundreds
+            # of N s/m: a lag changing by a millimetre per second is a newton). The lag's
+            # acceleration is left out: differentiated twice, the measurement is noise.
+            Jm = K.tip_jacobian_rcm(qf[m])
+            shift, v_shift = tips[m] - xd[m], self.R[m] @ (Jm @ dqf[m]) - vd[m]
         for s in self.slaves:
             if self.follow_measured_master:
                 xd[s] = xd[s] + shift
+                vd[s] = vd[s] + v_shift
             # Which elements this slave holds, and its outward direction.
             mine = [k for k, e in enumerate(self.elements) if s in e]
             tracked = [k for k in mine if m in self.elements[k]]
@@ -335,7 +360,16 @@ class CooperativeController:
             if self.mode == "position":
                 commands[s] = self._position_slave(s, t, error, xd[s] + 0.0, vd[s], u)
                 continue
-            if abs(error) > self.loop.deadband:
+            if self.slack[s]:
+                if h_e >= self.loop.contact:
+                    self.slack[s] = False
+                    if not any(self.slack.values()):
+                        self.ramp_start = t
+                        self.initial_tension = float(np.mean([self._tracked_tension(a, self.tension)
+                                                              for a in self.slaves]))
+                v_out = float(self.R[s] @ (K.tip_jacobian_rcm(qf[s]) @ dqf[s]) @ u - vd[s] @ u)
+                rate = self.loop.take_up_gain * (self.loop.take_up_speed - v_out)
+            elif abs(error) > self.loop.deadband:
                 rate = self.k_i[s] * (error - np.sign(error) * self.loop.deadband) - self.loop.k_damp * h_rate
             else:
                 rate = -self.loop.k_damp * h_rate
@@ -347,11 +381,22 @@ class CooperativeController:
                                         + (self.kp_along - self.kp_across) * np.outer(u_r, u_r))
             kp_mean = self.kp_along
             for k in mine:
-                if k not in tracked:  # the slave-slave element: feed its pull forward
+                if k not in tracked:
+                    # The slave-slave element: its pull is fed forward (the impedance does not
+                    # yield to it), and its tension error is integrated into a second offset
+                    # along it, half by each of its two slaves.
                     a, b = self.elements[k]
                     other = b if a == s else a
                     d = tips[s] - tips[other]
-                    x_t = x_t + self.tension[k] * d / max(np.linalg.norm(d), 1e-9) / kp_mean
+                    w = d / max(np.linalg.norm(d), 1e-9)
+                    if not any(self.slack.values()):
+                        e_k = self.force_setpoint - float(self.tension[k])
+                        g = 0.5 * self.k_i[s] * (e_k - np.sign(e_k) * self.loop.deadband) \
+                            if abs(e_k) > self.loop.deadband else 0.0
+                        r_k = g - 0.5 * self.loop.k_damp * float(self.tension_rate[k])
+                        self.x_g[(s, k)] = float(np.clip(self.x_g.get((s, k), 0.0) + self.dt * r_k,
+                                                         -self.x_f_limit, self.x_f_limit))
+                    x_t = x_t + w * (self.tension[k] / kp_mean + self.x_g.get((s, k), 0.0))
             # The force the tip exerts on the object: each element's tension, pointing from
             # the neighbour to this tip (outward).
             h_world = np.zeros(3)

@@ -23,6 +23,22 @@ arm's tilt on its set-up joints is unknown: ``--gravity auto`` (the default with
 estimates the direction (calibration.model_selection: least-squares scan of the sphere,
 then the sign from the physically consistent SDP fit) and stores it in the model file.
 
+Parallel filtering (default; ``--no-parallel-filter`` to turn it off). The measured torques
+are low-passed (3.5 Hz), so the friction step at a velocity reversal, which the Coulomb term
+makes in a few milliseconds, shows as a ramp over a few hundred. The regressor columns get
+the same zero-phase filter (over the same untrimmed samples), in the fit and in the
+validation: tau = W pi holds for the filtered pair, not for the filtered torque against
+the model of the filtered motion. The model file's parameters are the same kind as
+without it (efforts for a motion); only the comparison is like for like.
+
+Validation figures (per joint, norm(tau_meas - tau_pred) / norm(tau_meas) on the validation
+data): ``validation`` on all samples; ``validation_moving`` on the samples where the joint
+moves faster than the 7.5.1 deadband -- the figure held against the issue's 5 % target,
+since a stuck joint's effort is anywhere within its static friction band and no model of
+the motion predicts it; ``validation_moving_unfiltered`` the same with the model's efforts
+not low-passed (the definition before parallel filtering); on the simulated rig
+``truth.sdp_vs_true_relative_error``, the SDP model's efforts against the true parameters'.
+
 Friction slope. ``--friction-slope auto`` (default) chooses the slope a of the smooth
 Coulomb sign tanh(a dq / 2) on a grid by the training fit; a number fixes it (400 s/rad
 is the thesis' controller value).
@@ -553,6 +569,9 @@ def report_text(result: dict) -> str:
         mv = result.get("validation_moving", {}).get("sdp")
         if mv:
             lines.append(f"  SDP on moving samples only (|dq| above the 7.5.1 deadband): {_fmt3(mv)}")
+        mu = result.get("validation_moving_unfiltered", {}).get("sdp")
+        if mu and result.get("parallel_filter"):
+            lines.append(f"  the same with the model's efforts not low-passed like the torques: {_fmt3(mu)}")
         if result.get("source") == "csv":
             lines.append(f"  published 7-DOF (SDP, unseen trajectory): {_fmt3(PUBLISHED_7DOF, 3)} "
                          "(not like for like: other trajectory, other model)")

@@ -173,10 +173,15 @@ def test_live_simulated_short(tmp_path):
 
 @pytest.mark.slow
 def test_live_simulated_full_target(tmp_path):
-    """The issue's target with the default 30 s trajectories (the design takes ~1 min)."""
+    """The issue's target with the default 30 s trajectories (the design takes ~1 min): SDP
+    within 5 % of the true parameters' efforts and of the measured efforts where the joints
+    move (predictions low-passed like the measurements), every joint."""
     r = _live(tmp_path, {})
     truth = np.array(r["truth"]["sdp_vs_true_relative_error"])
     assert np.all(truth <= 0.05), truth
     moving = np.array(r["validation_moving"]["sdp"])
-    assert np.all(moving[:2] <= 0.05), moving
+    assert np.all(moving <= 0.05), moving
+    # Joint 3's stick-slip steps are what parallel filtering brings into the comparison.
+    unfiltered = np.array(r["validation_moving_unfiltered"]["sdp"])
+    assert unfiltered[2] > moving[2], (unfiltered, moving)
     assert r["table_5_1"]["optimisation_condition"] < 300

@@ -250,12 +250,17 @@ def _choose_stribeck_velocity(Wb, tau, X_of, mask) -> tuple[float, dict]:
     rows = np.ones(Wb.shape[0], bool) if mask is None else mask.reshape(-1)
     y = np.asarray(tau, float).reshape(-1)[rows]
     j3 = (np.arange(Wb.shape[0]) % 3 == STRIBECK_JOINT)[rows]
+    A = Wb[rows]
+    n = np.linalg.norm(A, axis=0)
+    # One QR of the base regressor; each candidate column then only adds one direction.
+    Q, _ = np.linalg.qr(A / np.where(n > 0, n, 1.0))
+    y_r = y - Q @ (Q.T @ y)
     scores = {}
     for vs in STRIBECK_VELOCITIES:
-        A = np.hstack([Wb, X_of(vs)])[rows]
-        n = np.linalg.norm(A, axis=0)
-        x = np.linalg.lstsq(A / np.where(n > 0, n, 1.0), y, rcond=None)[0]
-        r = y - (A / np.where(n > 0, n, 1.0)) @ x
+        x = X_of(vs)[rows, 0]
+        x_r = x - Q @ (Q.T @ x)
+        xx = float(x_r @ x_r)
+        r = y_r - x_r * (float(x_r @ y_r) / xx) if xx > 0 else y_r
         scores[vs] = float(np.linalg.norm(r[j3]) / np.linalg.norm(y[j3]))
     return min(scores, key=scores.get), scores
 

@@ -15,10 +15,16 @@ from rig.params import resolve
 REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "wpi-psm" / "one_results.csv"
 
 
+ROOT = Path(__file__).resolve().parents[2]
+
+
 def rig_cli(*args, cwd):
-    """Run `rig ...` in a subprocess; returns (exit code, stdout, stderr)."""
+    """Run `rig ...` in a subprocess; returns (exit code, stdout, stderr). The subprocess
+    imports this checkout's packages (not an installed copy elsewhere): it runs in ``cwd``."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
     p = subprocess.run([sys.executable, "-m", "rig.cli", *args], cwd=cwd, capture_output=True, text=True,
-                       env=dict(os.environ), timeout=120)
+                       env=env, timeout=120)
     return p.returncode, p.stdout, p.stderr
 
 

@@ -41,12 +41,41 @@ class ConstantSignalError(DataError):
     """A joint whose position or torque never changes: it cannot be identified."""
 
 
+@dataclass(frozen=True)
+class FilterContext:
+    """The untrimmed filtered motion a processed block was cut from, and its filter.
+
+    Parallel filtering (:func:`calibration.signals.lowpass_stacked`) of a regressor must run
+    over the same samples as the torque filter did, so that its end transients fall where
+    the torques' did (in the trimmed ends), not inside the block. ``start`` is the block's
+    first sample in these arrays; q, dq, ddq (N, nj) SI; rate, cutoff in Hz.
+    """
+
+    q: np.ndarray
+    dq: np.ndarray
+    ddq: np.ndarray
+    rate: float
+    cutoff: float
+    order: int
+    start: int
+
+    def rows(self, fn, n: int) -> np.ndarray:
+        """``fn(q, dq, ddq) -> (N * nj, p)`` stacked sample-major on the untrimmed motion,
+        low-passed like the torques, and cut to the block's ``n`` samples."""
+        from calibration.signals import lowpass_stacked
+
+        nj = self.q.shape[1]
+        X = lowpass_stacked(fn(self.q, self.dq, self.ddq), nj, self.rate, self.cutoff, self.order)
+        return X[nj * self.start:nj * (self.start + n)]
+
+
 @dataclass
 class JointData:
     """Joint samples: t (n,) in s; q, dq, tau (n, nj) SI; ddq (n, nj) once processed.
 
     ``rate`` is the nominal sampling rate in Hz; ``source`` a description of where the data
     came from (a file path and the rows kept) for error messages and provenance.
+    ``context``: once processed, the untrimmed filtered motion (see :class:`FilterContext`).
     """
 
     t: np.ndarray
@@ -56,6 +85,7 @@ class JointData:
     rate: float
     source: str = "<memory>"
     ddq: np.ndarray | None = None
+    context: FilterContext | None = None
 
     @property
     def n_samples(self) -> int:
@@ -67,8 +97,12 @@ class JointData:
 
     def rows(self, sl: slice, note: str = "") -> "JointData":
         """The samples in ``sl`` (a contiguous block)."""
+        start, _, step = sl.indices(self.n_samples)
+        if step != 1:
+            raise ValueError(f"rows() takes a contiguous block, got a slice with step {step}")
+        ctx = None if self.context is None else replace(self.context, start=self.context.start + start)
         return replace(self, t=self.t[sl], q=self.q[sl], dq=self.dq[sl], tau=self.tau[sl],
-                       ddq=None if self.ddq is None else self.ddq[sl],
+                       ddq=None if self.ddq is None else self.ddq[sl], context=ctx,
                        source=self.source + (f" [{note}]" if note else ""))
 
     @classmethod
@@ -226,8 +260,9 @@ def processed(data: JointData, cutoff: float = 3.5, order: int = 8, trim: int | 
     """Filtered copy with accelerations (thesis 5.5), ends trimmed; see ``calibration.signals.process``."""
     from calibration.signals import process
 
-    p = process(data.q, data.dq, data.tau, data.rate, cutoff, order, trim, diff_method)
+    p = process(data.q, data.dq, data.tau, data.rate, cutoff, order, trim, diff_method, keep_full=True)
     k = p.kept
-    return replace(data, t=data.t[k], q=p.q, dq=p.dq, tau=p.tau, ddq=p.ddq,
+    ctx = FilterContext(p.full[0], p.full[1], p.full[2], data.rate, cutoff, order, k.start)
+    return replace(data, t=data.t[k], q=p.q, dq=p.dq, tau=p.tau, ddq=p.ddq, context=ctx,
                    source=f"{data.source} [filtered {order}th-order {cutoff} Hz, rows "
                           f"{k.start + 1}-{k.stop}]")

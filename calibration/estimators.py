@@ -69,6 +69,7 @@ class Fit:
     SDP, :func:`check_physical` of its pi; for LS, ``realizable`` (:meth:`Identification.
     realizable`), ``mass_matrix_pd`` and, for information, ``inverse_map`` (the checks of the
     inverse-mapped pi); each with ``all_pass``; info: solver status and timings.
+    extra: amplitudes of the extra columns (:class:`Identification`), extra_names their names.
     """
 
     method: str
@@ -82,10 +83,19 @@ class Fit:
     rms: np.ndarray
     checks: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)
+    extra: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    extra_names: list = field(default_factory=list)
 
-    def predict(self, Wb: np.ndarray, n_joints: int) -> np.ndarray:
-        """Predicted torques (n, nj) from a stacked base regressor."""
-        return (Wb @ self.beta).reshape(-1, n_joints)
+    def predict(self, Wb: np.ndarray, n_joints: int, extra_columns: np.ndarray | None = None) -> np.ndarray:
+        """Predicted torques (n, nj) from a stacked base regressor (and, when the fit has
+        extra columns, their stacked values for the same samples)."""
+        tau = Wb @ self.beta
+        if self.extra.size:
+            if extra_columns is None or np.shape(extra_columns) != (Wb.shape[0], self.extra.size):
+                raise ValueError(f"this fit has {self.extra.size} extra column(s) ({', '.join(self.extra_names)}): "
+                                 f"give their values ({Wb.shape[0]}, {self.extra.size})")
+            tau = tau + np.asarray(extra_columns, float) @ self.extra
+        return tau.reshape(-1, n_joints)
 
 
 def validation_errors(tau_meas: np.ndarray, tau_pred: np.ndarray) -> dict:
@@ -173,11 +183,16 @@ class Identification:
     regressor : callable, optional
         ``regressor(q, dq, ddq) -> (nj, P)``; with ``q_check`` (m, nj), every fit's M(q)
         is checked positive definite at those configurations.
+    extra : (n * nj, e), optional
+        Further columns outside the standard parameters (e.g. a Stribeck term), fitted
+        alongside the base parameters; their amplitudes are constrained >= 0 in the SDP (and
+        in the realizability test). ``extra_names`` name them in messages and results.
     """
 
     def __init__(self, Wb: np.ndarray, tau: np.ndarray, base: BaseParameters, layout,
                  nominal: np.ndarray | None = None, regressor: Callable | None = None,
-                 q_check: np.ndarray | None = None, max_condition: float = MAX_CONDITION):
+                 q_check: np.ndarray | None = None, max_condition: float = MAX_CONDITION,
+                 extra: np.ndarray | None = None, extra_names: list | None = None):
         self.layout = ParamLayout.of(layout)
         self.base = base
         self.tau = np.atleast_2d(np.asarray(tau, dtype=float))
@@ -190,7 +205,17 @@ class Identification:
         self.nominal = None if nominal is None else np.asarray(nominal, dtype=float)
         self.regressor = regressor
         self.q_check = q_check
-        self.col_norms = np.linalg.norm(self.Wb, axis=0)
+        self.r = base.n_base
+        rows = self.Wb.shape[0]
+        X = np.zeros((rows, 0)) if extra is None else np.asarray(extra, dtype=float).reshape(rows, -1)
+        self.n_extra = X.shape[1]
+        self.extra_names = (list(extra_names) if extra_names is not None
+                            else [f"extra{i + 1}" for i in range(self.n_extra)])
+        if len(self.extra_names) != self.n_extra:
+            raise ValueError(f"{self.n_extra} extra columns but {len(self.extra_names)} names")
+        # The design matrix actually solved: base regressor, then the extra columns.
+        self.Wx = np.hstack([self.Wb, X]) if self.n_extra else self.Wb
+        self.col_norms = np.linalg.norm(self.Wx, axis=0)
         self._check_excitation(max_condition)
         self._ols: Fit | None = None
 
@@ -211,7 +236,7 @@ class Identification:
 
     # -- excitation ---------------------------------------------------------------------------
     def _check_excitation(self, max_condition: float):
-        names = self.base.expressions(digits=3)
+        names = self.base.expressions(digits=3) + self.extra_names
         zero = np.flatnonzero(self.col_norms == 0)
         if zero.size:
             raise RankDeficientError(
@@ -219,7 +244,7 @@ class Identification:
                 + "; ".join(f"#{i + 1} [{names[i]}]" for i in zero)
                 + ": their regressor columns are zero (a joint that does not move, or never "
                   "reverses or accelerates): use an exciting trajectory")
-        Wn = self.Wb / self.col_norms
+        Wn = self.Wx / self.col_norms
         _, s, Vt = np.linalg.svd(Wn, full_matrices=False)
         self.condition_ls = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
         if not self.condition_ls < max_condition:
@@ -239,7 +264,8 @@ class Identification:
     def _weights(self, weighting) -> np.ndarray:
         if isinstance(weighting, str):
             if weighting == "residual_std":
-                r = (self.y - self.Wb @ self.ols().beta).reshape(-1, self.nj)
+                o = self.ols()
+                r = (self.y - self.Wx @ np.concatenate([o.beta, o.extra])).reshape(-1, self.nj)
                 sd = r.std(axis=0)
                 # A joint fitted to rounding level would get an infinite weight.
                 floor = 1e-9 * np.abs(self.tau).max(axis=0) + 1e-300
@@ -254,19 +280,25 @@ class Identification:
             raise ValueError(f"weights must be {self.nj} positive numbers, got {a}")
         return a
 
-    def _fit(self, method, beta, a, cond, pi=None, info=None) -> Fit:
-        pred = self.Wb @ beta
+    def _fit(self, method, theta, a, cond, pi=None, info=None) -> Fit:
+        theta = np.asarray(theta, dtype=float)
+        beta, extra = theta[:self.r], theta[self.r:]
+        pred = self.Wx @ theta
         r = self.y - pred
         if pi is None:
             pi = self.base.standard_from_base(beta, self.nominal)
         ve = validation_errors(self.tau, pred.reshape(-1, self.nj))
         fit = Fit(method, beta, pi, a, cond, float(np.linalg.norm(r)),
                   float(np.linalg.norm(r * self._row_weights(a))), ve["relative_error"], ve["rms"],
-                  info=info or {})
+                  info=info or {}, extra=extra, extra_names=list(self.extra_names))
         mm = None
         if self.regressor is not None and self.q_check is not None:
             mm = lambda q: mass_matrix_from_regressor(self.regressor, q, pi)  # noqa: E731
         physical = check_physical(pi, self.layout, mm, self.q_check)
+        if self.n_extra:
+            physical["extra_nonnegative"] = {"pass": bool(np.all(extra >= -1e-9)),
+                                             "values": dict(zip(self.extra_names, extra.tolist()))}
+            physical["all_pass"] = all(v["pass"] for v in physical.values() if isinstance(v, dict))
         if method == "sdp":
             fit.checks = physical
             return fit
@@ -274,7 +306,8 @@ class Identification:
         # what decides is whether *some* consistent pi gives the same torques (realizable),
         # and M(q), which depends on beta alone. The inverse-mapped pi's own checks are
         # reported for information.
-        checks = {"realizable": self.realizable(beta)}
+        checks = {"realizable": self.realizable(beta, extra=extra)}
+        physical.pop("extra_nonnegative", None)  # LS extras are judged by realizability
         if "mass_matrix_pd" in physical:
             checks["mass_matrix_pd"] = physical.pop("mass_matrix_pd")
         physical.pop("all_pass")
@@ -288,7 +321,7 @@ class Identification:
         """Ordinary least squares on the column-normalised base regressor (eq. 5.24, 5.26)."""
         if self._ols is None:
             t0 = time.perf_counter()
-            x, *_ = np.linalg.lstsq(self.Wb / self.col_norms, self.y, rcond=None)
+            x, *_ = np.linalg.lstsq(self.Wx / self.col_norms, self.y, rcond=None)
             beta = x / self.col_norms
             self._ols = self._fit("ols", beta, np.ones(self.nj), self.condition_ls,
                                   info={"seconds": time.perf_counter() - t0})
@@ -300,7 +333,7 @@ class Identification:
         t0 = time.perf_counter()
         a = self._weights(weighting)
         w = self._row_weights(a)
-        Aw = self.Wb * w[:, None]
+        Aw = self.Wx * w[:, None]
         n = np.linalg.norm(Aw, axis=0)
         x, *_ = np.linalg.lstsq(Aw / n, self.y * w, rcond=None)
         beta = x / n
@@ -312,7 +345,7 @@ class Identification:
     def _compressed(self, a):
         """R1, p1 and the norm of p2 of eq. 5.39-5.43 for weights a."""
         w = self._row_weights(a)
-        Q1, R1 = np.linalg.qr(self.Wb * w[:, None])
+        Q1, R1 = np.linalg.qr(self.Wx * w[:, None])
         wy = self.y * w
         p1 = Q1.T @ wy
         p2sq = max(float(wy @ wy - p1 @ p1), 0.0)
@@ -366,12 +399,18 @@ class Identification:
         s = 1.0 / max(np.linalg.norm(p1), 1e-300)
         mu = null_pull / max(np.linalg.norm(pi0), 1.0)
         pi = cp.Variable(P)
-        resid = (s * (R1 @ K)) @ pi - s * p1
+        resid = (s * (R1[:, :self.r] @ K)) @ pi - s * p1
+        ex = None
+        if self.n_extra:
+            ex = cp.Variable(self.n_extra)
+            resid = resid + (s * R1[:, self.r:]) @ ex
         terms = [resid]
         if N.shape[1]:
             terms.append(mu * (N.T @ pi - N.T @ pi0))
         objective = cp.Minimize(cp.norm(cp.hstack(terms), 2))
         cons = self._constraints(cp, pi, min_mass, mass_bounds, total_mass)
+        if ex is not None:
+            cons.append(ex >= 0)
         prob = cp.Problem(objective, cons)
         t1 = time.perf_counter()
         prob.solve(solver=cp.CLARABEL, tol_gap_abs=tol, tol_gap_rel=tol, tol_feas=tol,
@@ -381,17 +420,19 @@ class Identification:
             raise RuntimeError(f"SDP identification failed: solver status {prob.status!r}; check "
                                "that the bounds (min_mass, mass_bounds, total_mass) are compatible")
         piv = np.asarray(pi.value, dtype=float)
-        beta = K @ piv
-        cond = normalised_condition(self.Wb * self._row_weights(a)[:, None])
+        theta = K @ piv
+        if ex is not None:
+            theta = np.concatenate([theta, np.maximum(np.asarray(ex.value, dtype=float), 0.0)])
+        cond = normalised_condition(self.Wx * self._row_weights(a)[:, None])
         info = {"status": prob.status, "solver": "CLARABEL", "iterations": prob.solver_stats.num_iters,
                 "compile_seconds": t1 - t0, "solve_seconds": t2 - t1,
                 "seconds": time.perf_counter() - t0, "null_pull": null_pull, "min_mass": min_mass,
                 "compressed_rows": int(R1.shape[0]), "residual_p2": p2n,
                 "weighting": weighting if isinstance(weighting, str) else "given"}
-        return self._fit("sdp", beta, a, cond, pi=piv, info=info)
+        return self._fit("sdp", theta, a, cond, pi=piv, info=info)
 
     def realizable(self, beta: np.ndarray, weighting="none", min_mass: float = 0.0,
-                   rel_tol: float = 1e-6) -> dict:
+                   rel_tol: float = 1e-6, extra: np.ndarray | None = None) -> dict:
         """Is there a physically consistent pi (pseudo-inertias PSD, masses >= ``min_mass``,
         Fc, Fv, Ia >= 0) with the torques of ``beta`` on these data?
 
@@ -405,12 +446,18 @@ class Identification:
         a = self._weights(weighting)
         R1, _, _ = self._compressed(a)
         K = self.base.K
-        beta = np.asarray(beta, dtype=float)
-        target = R1 @ beta
+        theta = np.concatenate([np.asarray(beta, dtype=float),
+                                np.zeros(self.n_extra) if extra is None else np.asarray(extra, dtype=float)])
+        target = R1 @ theta
         s = 1.0 / max(np.linalg.norm(target), 1e-300)
         pi = cp.Variable(K.shape[1])
-        prob = cp.Problem(cp.Minimize(cp.norm((s * (R1 @ K)) @ pi - s * target, 2)),
-                          self._constraints(cp, pi, min_mass, None, None))
+        model = (s * (R1[:, :self.r] @ K)) @ pi
+        cons = self._constraints(cp, pi, min_mass, None, None)
+        if self.n_extra:
+            ex = cp.Variable(self.n_extra)
+            model = model + (s * R1[:, self.r:]) @ ex
+            cons.append(ex >= 0)
+        prob = cp.Problem(cp.Minimize(cp.norm(model - s * target, 2)), cons)
         with warnings.catch_warnings():
             # "optimal_inaccurate" near a zero optimum is expected here; the status is returned.
             warnings.simplefilter("ignore", UserWarning)

@@ -104,25 +104,30 @@ class GravitySlopeSearch:
     mask : (n, nj) bool, optional
         Joint samples to use; the others become zero equations (0 = 0), which leave the
         least-squares solution untouched (e.g. a stuck joint whose effort no model gives).
+    rows : callable, optional
+        ``rows(fn) -> (n * nj, p)``: how a function of the motion ``fn(q, dq, ddq)`` (stacked
+        sample-major) becomes equation rows, e.g. ``JointData.context.rows`` for parallel
+        filtering; by default ``fn`` of the given q, dq, ddq.
     """
 
-    def __init__(self, make_model: Callable, q, dq, ddq, tau, n_inertial: int, mask=None):
+    def __init__(self, make_model: Callable, q, dq, ddq, tau, n_inertial: int, mask=None, rows=None):
         self.q, self.dq, self.ddq = (np.asarray(x, float) for x in (q, dq, ddq))
+        self._rows = rows if rows is not None else (lambda fn: fn(self.q, self.dq, self.ddq))
         self.tau = np.asarray(tau, float)
         self.mask = None if mask is None else np.asarray(mask, bool)
         if self.mask is not None:
             self.tau = self.tau * self.mask
         self.nj = self.tau.shape[1]
         self.n_inertial = int(n_inertial)
-        zero = np.zeros_like(self.q)
         # Motion without gravity; the Coulomb columns are replaced per slope below.
-        W0 = make_model(np.zeros(3), 400.0).regressor_batch(self.q, self.dq, self.ddq)
+        W0 = self._rows(make_model(np.zeros(3), 400.0).regressor_batch)
         self.P = W0.shape[1]
         blocks = [W0]
         for k in range(3):
             g = np.zeros(3)
             g[k] = 1.0
-            Wk = make_model(g, 400.0).regressor_batch(self.q, zero, zero)
+            model_k = make_model(g, 400.0)
+            Wk = self._rows(lambda q, dq, ddq: model_k.regressor_batch(q, np.zeros_like(dq), np.zeros_like(ddq)))
             Wk[:, self.n_inertial:] = 0.0  # the offset column (1) belongs to W0 only
             blocks.append(Wk)
         if self.mask is not None:
@@ -141,8 +146,9 @@ class GravitySlopeSearch:
         """Per-joint Gram matrices of [W0 | Wx | Wy | Wz | tau] (weighted by 1/||tau_j||)."""
         if slope not in self._slope_grams:
             W0 = self._blocks[0].copy()
+            sigmoid = self._rows(lambda q, dq, ddq: np.tanh(0.5 * slope * dq).reshape(-1, 1))[:, 0]
             for j in range(self.nj):
-                W0[j::self.nj, self._fc_cols[j]] = np.tanh(0.5 * slope * self.dq[:, j]) * (
+                W0[j::self.nj, self._fc_cols[j]] = sigmoid[j::self.nj] * (
                     1.0 if self.mask is None else self.mask[:, j])
             grams = []
             for j in range(self.nj):

@@ -100,19 +100,41 @@ def settling_samples(rate: float, cutoff: float = DEFAULT_CUTOFF_HZ, order: int 
     return int(np.argmax(tail < fraction * tail[0]))
 
 
+def lowpass_stacked(X: np.ndarray, n_joints: int, rate: float, cutoff: float = DEFAULT_CUTOFF_HZ,
+                    order: int = DEFAULT_ORDER) -> np.ndarray:
+    """:func:`lowpass` of every column of a stacked sample-major matrix (rows nj*k .. nj*k+nj-1
+    are sample k, e.g. a regressor W (n*nj, p) or a torque vector), along time and per joint.
+
+    This is *parallel filtering*: the torques are filtered before the fit, so the regressor
+    columns get the same filter. For columns that are smooth functions of the (filtered)
+    motion it changes nothing below the cut-off; for the sign-like Coulomb columns it turns
+    the step at a velocity reversal into the same smeared step the filtered torque shows.
+    tau = W pi survives any linear filter applied to both sides, not the filtered tau
+    against W of the filtered motion.
+    """
+    X = np.asarray(X, dtype=float)
+    if X.shape[0] % n_joints:
+        raise SignalError(f"{X.shape[0]} rows are not a whole number of samples of {n_joints} joints")
+    shape = X.shape
+    Y = lowpass(X.reshape(shape[0] // n_joints, n_joints, -1), rate, cutoff, order, axis=0)
+    return Y.reshape(shape)
+
+
 @dataclass
 class Processed:
-    """Filtered q, dq, ddq, tau (n, nj) and the slice of the input samples they cover."""
+    """Filtered q, dq, ddq, tau (n, nj) and the slice of the input samples they cover;
+    ``full``: the untrimmed filtered (q, dq, ddq) when asked for (keep_full)."""
 
     q: np.ndarray
     dq: np.ndarray
     ddq: np.ndarray
     tau: np.ndarray
     kept: slice
+    full: tuple | None = None
 
 
 def process(q, dq, tau, rate: float, cutoff: float = DEFAULT_CUTOFF_HZ, order: int = DEFAULT_ORDER,
-            trim: int | None = None, diff_method: str = "central") -> Processed:
+            trim: int | None = None, diff_method: str = "central", keep_full: bool = False) -> Processed:
     """Thesis 5.5 pipeline: zero-phase filter q, dq, tau; ddq = d/dt filtered dq; trim ends.
 
     Positions are filtered too, with the same filter, so that every quantity has the same
@@ -130,4 +152,5 @@ def process(q, dq, tau, rate: float, cutoff: float = DEFAULT_CUTOFF_HZ, order: i
     tauf = lowpass(tau, rate, cutoff, order)
     ddqf = differentiate(dqf, rate, diff_method)
     kept = slice(trim, n - trim)
-    return Processed(qf[kept], dqf[kept], ddqf[kept], tauf[kept], kept)
+    return Processed(qf[kept], dqf[kept], ddqf[kept], tauf[kept], kept,
+                     (qf, dqf, ddqf) if keep_full else None)

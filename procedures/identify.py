@@ -23,6 +23,28 @@ arm's tilt on its set-up joints is unknown: ``--gravity auto`` (the default with
 estimates the direction (calibration.model_selection: least-squares scan of the sphere,
 then the sign from the physically consistent SDP fit) and stores it in the model file.
 
+Parallel filtering (default; ``--no-parallel-filter`` to turn it off). The measured torques
+are low-passed (3.5 Hz), so the friction step at a velocity reversal, which the Coulomb term
+makes in a few milliseconds, shows as a ramp over a few hundred. The regressor columns get
+the same zero-phase filter (over the same untrimmed samples), in the fit and in the
+validation: tau = W pi holds for the filtered pair, not for the filtered torque against
+the model of the filtered motion. The model file's parameters are the same kind as
+without it (efforts for a motion); only the comparison is like for like.
+
+Validation figures (per joint, norm(tau_meas - tau_pred) / norm(tau_meas) on the validation
+data): ``validation`` on all samples; ``validation_moving`` on the samples where the joint
+moves faster than the 7.5.1 deadband -- the figure held against the issue's 5 % target,
+since a stuck joint's effort is anywhere within its static friction band and no model of
+the motion predicts it; ``validation_moving_unfiltered`` the same with the model's efforts
+not low-passed (the definition before parallel filtering); on the simulated rig
+``truth.sdp_vs_true_relative_error``, the SDP model's efforts against the true parameters'.
+
+Stribeck term (default; ``--no-stribeck`` to leave it out). Joint 3's friction near zero
+velocity exceeds the Coulomb level (thesis 5.6; stiction in the simulator): the fit adds
+Fst exp(-(dq3/vs)^2) tanh(a dq3/2) as a column outside the standard parameters, Fst >= 0
+in the SDP, vs the value of STRIBECK_VELOCITIES with the smallest joint-3 least-squares
+residual on the training data. The model file carries it (``friction.stribeck``).
+
 Friction slope. ``--friction-slope auto`` (default) chooses the slope a of the smooth
 Coulomb sign tanh(a dq / 2) on a grid by the training fit; a number fixes it (400 s/rad
 is the thesis' controller value).
@@ -95,6 +117,11 @@ PARAMETERS = [
               minimum=20.0, maximum=2000.0),
     Parameter("cutoff", 3.5, "Hz", "Butterworth cut-off of the zero-phase filter", minimum=0.2, maximum=50.0),
     Parameter("filter_order", 8, "", "Butterworth order", minimum=1, maximum=12, type=int),
+    Parameter("parallel_filter", True, "", "Filter the regressor columns with the torques' Butterworth before "
+              "fitting and predicting (parallel filtering): the filtered torque's friction step at a velocity "
+              "reversal is smeared, and so must be the model's", type=bool),
+    Parameter("stribeck", True, "", "Identify a Stribeck excess on joint 3 (thesis 5.6): Fst exp(-(dq3/vs)^2) "
+              "tanh(a dq3/2) with Fst >= 0 and vs chosen on a grid by the training fit", type=bool),
     Parameter("fit_deadband", True, "", "Leave joint samples slower than the 7.5.1 velocity deadband (0.01 rad/s, "
               "0.01 rad/s, 0.005 m/s) out of the fit: a stuck joint's effort is not a function of the motion",
               type=bool),
@@ -159,6 +186,23 @@ class FitOutcome:
     slope: float
     selection: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
+    parallel: bool = True
+    stribeck_vs: float | None = None  # m/s; None: no Stribeck term identified
+
+    def extra_rows(self, data, parallel: bool | None = None) -> np.ndarray | None:
+        """The Stribeck column(s) of processed ``data``, or None without the term."""
+        if self.stribeck_vs is None:
+            return None
+        return stribeck_rows(self.model, data, self.stribeck_vs, self.parallel if parallel is None else parallel)
+
+    def stribeck(self) -> dict | None:
+        """{"Fst": (3,), "vs": (3,)} of the SDP fit (zero on the joints without the term)."""
+        if self.stribeck_vs is None:
+            return None
+        Fst = np.zeros(3)
+        Fst[STRIBECK_JOINT] = float(self.fits["sdp"].extra[0])
+        vs = np.full(3, self.stribeck_vs)
+        return {"Fst": Fst, "vs": vs}
 
 
 #: Velocity deadband of thesis 7.5.1 (rad/s, rad/s, m/s): slower than this a joint may be
@@ -172,23 +216,83 @@ def moving_mask(dq: np.ndarray, deadband=DEADBAND) -> np.ndarray:
     return np.abs(np.asarray(dq, float)) >= np.asarray(deadband, float)
 
 
-def _masked_identification(model, data, base, mask):
-    """Identification with the joint samples outside ``mask`` turned into 0 = 0 equations."""
+def equation_rows(data, parallel: bool):
+    """``rows(fn)``: a function of the motion ``fn(q, dq, ddq) -> (n*3, p)`` (a regressor)
+    as the equation rows of processed ``data``.
+
+    With ``parallel`` the rows are low-passed like the torques were (parallel filtering,
+    calibration.signals.lowpass_stacked), over the untrimmed motion the data were cut from;
+    otherwise ``fn`` of the filtered motion itself.
+    """
+    if not parallel:
+        return lambda fn: fn(data.q, data.dq, data.ddq)
+    if data.context is None:
+        raise ValueError(f"{data.source}: parallel filtering needs data processed by "
+                         "calibration.datasets.processed (the untrimmed filtered motion is missing)")
+    return lambda fn: data.context.rows(fn, data.n_samples)
+
+
+#: The joint with the Stribeck term (the insertion joint, thesis 5.6) and the grid of
+#: Stribeck velocities (m/s) the training fit chooses from.
+STRIBECK_JOINT = 2
+STRIBECK_VELOCITIES = (0.0025, 0.005, 0.01, 0.02, 0.04)
+
+
+def stribeck_rows(model, data, vs: float, parallel: bool) -> np.ndarray:
+    """(n*3, 1) stacked Stribeck column of joint 3 for ``data`` (see PSMDynamics.stribeck_columns)."""
+    return equation_rows(data, parallel)(lambda q, dq, ddq: model.stribeck_columns(dq, vs)[:, [STRIBECK_JOINT]])
+
+
+def _choose_stribeck_velocity(Wb, tau, X_of, mask) -> tuple[float, dict]:
+    """The Stribeck velocity of STRIBECK_VELOCITIES whose column ``X_of(vs)`` (n*3, 1), added
+    to the base regressor ``Wb``, leaves the smallest joint-3 least-squares residual on the
+    (masked) training rows; returns it and every velocity's relative residual."""
+    rows = np.ones(Wb.shape[0], bool) if mask is None else mask.reshape(-1)
+    y = np.asarray(tau, float).reshape(-1)[rows]
+    j3 = (np.arange(Wb.shape[0]) % 3 == STRIBECK_JOINT)[rows]
+    A = Wb[rows]
+    n = np.linalg.norm(A, axis=0)
+    # One QR of the base regressor; each candidate column then only adds one direction.
+    Q, _ = np.linalg.qr(A / np.where(n > 0, n, 1.0))
+    y_r = y - Q @ (Q.T @ y)
+    scores = {}
+    for vs in STRIBECK_VELOCITIES:
+        x = X_of(vs)[rows, 0]
+        x_r = x - Q @ (Q.T @ x)
+        xx = float(x_r @ x_r)
+        r = y_r - x_r * (float(x_r @ y_r) / xx) if xx > 0 else y_r
+        scores[vs] = float(np.linalg.norm(r[j3]) / np.linalg.norm(y[j3]))
+    return min(scores, key=scores.get), scores
+
+
+def _masked_identification(model, data, base, mask, parallel: bool, stribeck: bool = False):
+    """Identification with the joint samples outside ``mask`` turned into 0 = 0 equations.
+
+    With ``stribeck`` joint 3's Stribeck column is added, its velocity chosen by
+    :func:`_choose_stribeck_velocity`. Returns (Identification, vs or None, scores)."""
     from calibration.estimators import Identification, model_nominal
     from calibration.layout import ParamLayout
 
-    W = model.regressor_batch(data.q, data.dq, data.ddq)
+    Wb = base.regressor(equation_rows(data, parallel)(model.regressor_batch))
+    vs, scores, extra = None, {}, None
+    if stribeck:
+        vs, scores = _choose_stribeck_velocity(Wb, data.tau, lambda v: stribeck_rows(model, data, v, parallel), mask)
+        extra = stribeck_rows(model, data, vs, parallel)
     tau = data.tau
     if mask is not None:
-        W = W * mask.reshape(-1)[:, None]
+        rows = mask.reshape(-1)[:, None]
+        Wb = Wb * rows
         tau = tau * mask
+        extra = None if extra is None else extra * rows
     idx = np.linspace(0, data.n_samples - 1, min(50, data.n_samples)).astype(int)
-    return Identification(base.regressor(W), tau, base, ParamLayout.of(model), nominal=model_nominal(model),
-                          regressor=model.regressor, q_check=data.q[idx])
+    ident = Identification(Wb, tau, base, ParamLayout.of(model), nominal=model_nominal(model),
+                           regressor=model.regressor, q_check=data.q[idx], extra=extra,
+                           extra_names=None if extra is None else [f"joint{STRIBECK_JOINT + 1}.Fst"])
+    return ident, vs, scores
 
 
 def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None, progress=None,
-                       deadband=None) -> FitOutcome:
+                       deadband=None, parallel: bool = True, stribeck: bool = True) -> FitOutcome:
     """Base parameters, OLS, WLS and SDP on processed ``train`` data (JointData with ddq).
 
     ``gravity_mode``: 'auto', or a gravity vector (m/s^2, frame 0); ``configured_gravity``
@@ -196,6 +300,9 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
     With 'auto' gravity the two hemispheres' best directions are both fitted by the SDP and
     the better physically consistent fit decides the sign. ``deadband`` (3,): joint samples
     slower than it are left out of the fit (see DEADBAND); None uses every sample.
+    ``parallel``: filter the regressor like the torques (see :func:`equation_rows`).
+    ``stribeck``: add joint 3's Stribeck excess as a column (amplitude >= 0 in the SDP) with
+    the Stribeck velocity of STRIBECK_VELOCITIES that fits the training data best (OLS).
     """
     from calibration.base_params import RankDeficientError, base_parameters_of
     from calibration.model_selection import DEFAULT_SLOPES, STANDARD_GRAVITY, GravitySlopeSearch
@@ -204,7 +311,8 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
     say = progress or (lambda s: None)
     t0 = time.perf_counter()
     ref = np.array([0.0, 0.0, -1.0]) if configured_gravity is None else np.asarray(configured_gravity, float)
-    selection: dict = {"deadband": None if deadband is None else np.asarray(deadband, float).tolist()}
+    selection: dict = {"deadband": None if deadband is None else np.asarray(deadband, float).tolist(),
+                       "parallel_filter": bool(parallel)}
     slopes = DEFAULT_SLOPES if slope_mode == "auto" else (float(slope_mode),)
     if deadband is not None:
         moving = moving_mask(train.dq, deadband).mean(axis=0)
@@ -217,7 +325,8 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
     candidates = []
     if need_search:
         mask = None if deadband is None else moving_mask(train.dq, deadband)
-        search = GravitySlopeSearch(make_model, train.q, train.dq, train.ddq, train.tau, n_inertial=70, mask=mask)
+        search = GravitySlopeSearch(make_model, train.q, train.dq, train.ddq, train.tau, n_inertial=70, mask=mask,
+                                    rows=equation_rows(train, parallel))
         if isinstance(gravity_mode, str):
             res = search.search(slopes, magnitude=float(np.linalg.norm(ref)) if configured_gravity is not None
                                 else STANDARD_GRAVITY, nominal_direction=ref)
@@ -239,9 +348,15 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
     for k, g in enumerate(candidates):
         model = make_model(g, slope)
         base = base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
+        mask = None if deadband is None else moving_mask(train.dq, deadband)
         try:
-            ident = _masked_identification(model, train, base,
-                                           None if deadband is None else moving_mask(train.dq, deadband))
+            ident, vs, vs_scores = _masked_identification(model, train, base, mask, parallel, stribeck)
+            if stribeck:
+                selection.setdefault("stribeck", []).append(
+                    {"joint": STRIBECK_JOINT + 1, "vs": vs, "gravity_candidate": k + 1,
+                     "ls_relative_residual_joint3": {f"{v:g}": sc for v, sc in vs_scores.items()}})
+                say(f"Stribeck velocity {vs:g} m/s (joint 3 LS residual "
+                    + ", ".join(f"{v:g}: {sc:.4g}" for v, sc in vs_scores.items()) + ")")
         except RankDeficientError as exc:
             raise RankDeficientError(f"{train.source}: {exc}") from None
         with warnings.catch_warnings():
@@ -254,8 +369,8 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
             say(f"gravity candidate {k + 1}: {np.round(g, 3).tolist()} m/s^2, SDP training relative error "
                 f"{np.round(sdp.relative_error, 4).tolist()}")
         if best is None or score < best[0]:
-            best = (score, g, model, base, ident, sdp)
-    _, g, model, base, ident, sdp = best
+            best = (score, g, model, base, ident, sdp, vs)
+    _, g, model, base, ident, sdp, vs = best
     fits = {"ols": ident.ols(), "wls": ident.wls(), "sdp": sdp}
     fits["wls_tau_max"] = ident.wls("tau_max")
     t2 = time.perf_counter()
@@ -264,29 +379,49 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
         tilt = float(np.degrees(np.arccos(np.clip(g @ ref / (np.linalg.norm(g) * np.linalg.norm(ref)), -1, 1))))
         selection["gravity_tilt_deg"] = tilt
     return FitOutcome(model, base, ident, fits, np.asarray(g, float), source, float(slope), selection,
-                      {"selection": t1 - t0, "fit": t2 - t1})
+                      {"selection": t1 - t0, "fit": t2 - t1}, bool(parallel), vs)
 
 
-def predict(outcome: FitOutcome, data, method: str) -> np.ndarray:
-    W = outcome.model.regressor_batch(data.q, data.dq, data.ddq)
-    return outcome.fits[method].predict(outcome.base.regressor(W), 3)
+def predict(outcome: FitOutcome, data, method: str, parallel: bool | None = None) -> np.ndarray:
+    """Predicted efforts (n, 3) on processed ``data``; ``parallel`` (default: as fitted)
+    low-passes them like the measured torques (the like-for-like comparison); without it they
+    are the model's efforts for the filtered motion (what a controller would compute)."""
+    par = outcome.parallel if parallel is None else parallel
+    W = equation_rows(data, par)(outcome.model.regressor_batch)
+    return outcome.fits[method].predict(outcome.base.regressor(W), 3, outcome.extra_rows(data, par))
+
+
+def _relative_moving(tau, pred, mask) -> list[float]:
+    return [float(np.linalg.norm((tau - pred)[mask[:, j], j]) / np.linalg.norm(tau[mask[:, j], j]))
+            if mask[:, j].any() else float("nan") for j in range(3)]
 
 
 def validation_table(outcome: FitOutcome, data) -> dict:
-    """{method: {"relative_error": [3], "rms": [3], "moving_relative_error": [3]}} on processed
-    ``data``; the moving figure counts only joint samples faster than DEADBAND."""
+    """Per method on processed ``data`` (the measured torques are the filtered ones):
+
+    * ``relative_error``, ``rms``: all samples, predictions filtered like the torques when
+      the fit used parallel filtering (:func:`predict`);
+    * ``moving_relative_error``: the same on the joint samples faster than DEADBAND (a stuck
+      joint's effort is anywhere inside its static friction band: no model of the motion
+      gives it) -- the figure held against the issue's 5 % target;
+    * ``moving_relative_error_unfiltered``: the model's efforts for the filtered motion, not
+      low-passed, on the moving samples (the definition before parallel filtering; it also
+      counts the filter's smearing of the friction steps as model error).
+    """
     from calibration.estimators import validation_errors
 
     out = {}
-    W = outcome.base.regressor(outcome.model.regressor_batch(data.q, data.dq, data.ddq))
     mask = moving_mask(data.dq)
+    Wp = outcome.base.regressor(equation_rows(data, outcome.parallel)(outcome.model.regressor_batch))
+    Wu = outcome.base.regressor(equation_rows(data, False)(outcome.model.regressor_batch))
+    Xp, Xu = outcome.extra_rows(data), outcome.extra_rows(data, False)
     for m in ("ols", "wls", "sdp"):
-        pred = outcome.fits[m].predict(W, 3)
+        pred = outcome.fits[m].predict(Wp, 3, Xp)
         e = validation_errors(data.tau, pred)
-        moving = [float(np.linalg.norm((data.tau - pred)[mask[:, j], j]) / np.linalg.norm(data.tau[mask[:, j], j]))
-                  if mask[:, j].any() else float("nan") for j in range(3)]
         out[m] = {"relative_error": e["relative_error"].tolist(), "rms": e["rms"].tolist(),
-                  "moving_relative_error": moving}
+                  "moving_relative_error": _relative_moving(data.tau, pred, mask),
+                  "moving_relative_error_unfiltered": _relative_moving(data.tau, outcome.fits[m].predict(Wu, 3, Xu),
+                                                                       mask)}
     return out
 
 
@@ -512,6 +647,9 @@ def report_text(result: dict) -> str:
         mv = result.get("validation_moving", {}).get("sdp")
         if mv:
             lines.append(f"  SDP on moving samples only (|dq| above the 7.5.1 deadband): {_fmt3(mv)}")
+        mu = result.get("validation_moving_unfiltered", {}).get("sdp")
+        if mu and result.get("parallel_filter"):
+            lines.append(f"  the same with the model's efforts not low-passed like the torques: {_fmt3(mu)}")
         if result.get("source") == "csv":
             lines.append(f"  published 7-DOF (SDP, unseen trajectory): {_fmt3(PUBLISHED_7DOF, 3)} "
                          "(not like for like: other trajectory, other model)")
@@ -522,6 +660,10 @@ def report_text(result: dict) -> str:
                      + ")")
     if "friction_slope" in result:
         lines.append(f"Coulomb sigmoid slope: {result['friction_slope']:g} s/rad")
+    st = result.get("stribeck")
+    if st:
+        lines.append(f"joint 3 Stribeck excess: Fst {st['Fst'][2]:.3f} N, vs {st['vs'][2] * 1e3:g} mm/s "
+                     f"(Fs = Fc + Fst at rest)")
     t = result.get("table_5_1")
     if t:
         oc = t.get("optimisation_condition")
@@ -564,12 +706,15 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
                        reference=np.asarray(reference_gravity, float).tolist())
     validation_doc = {"source": val_source, "relative_error": {m: table[m]["relative_error"] for m in table},
                       "moving_relative_error": {m: table[m]["moving_relative_error"] for m in table},
+                      "moving_relative_error_unfiltered": {m: table[m]["moving_relative_error_unfiltered"]
+                                                           for m in table},
+                      "parallel_filter": outcome.parallel,
                       "rms": {m: table[m]["rms"] for m in table},
                       "training_relative_error": {m: train_table[m]["relative_error"] for m in train_table}}
     checks = {m: f.checks for m, f in outcome.fits.items() if m in ("ols", "wls", "sdp")}
     path = model_file.save_model(
         run.dir / model_file.MODEL_FILENAME, standard=sdp.pi, names=list(outcome.model.param_names()),
-        slope=outcome.slope, gravity=outcome.gravity, base_values=sdp.beta,
+        slope=outcome.slope, gravity=outcome.gravity, base_values=sdp.beta, stribeck=outcome.stribeck(),
         base_expressions=outcome.base.expressions(), base_independent=outcome.base.independent,
         gravity_source=outcome.gravity_source, validation=validation_doc, checks=checks["sdp"],
         provenance_info=model_file.provenance(data_source, run.dir, {"procedure": PROCEDURE,
@@ -581,6 +726,9 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
         "validation": {m: table[m]["relative_error"] for m in table},
         "validation_rms": {m: table[m]["rms"] for m in table},
         "validation_moving": {m: table[m]["moving_relative_error"] for m in table},
+        "validation_moving_unfiltered": {m: table[m]["moving_relative_error_unfiltered"] for m in table},
+        "parallel_filter": outcome.parallel,
+        "stribeck": None if outcome.stribeck() is None else {k: v.tolist() for k, v in outcome.stribeck().items()},
         "validation_source": val_source,
         "fit_deadband": outcome.selection.get("deadband"),
         "training": {m: train_table[m]["relative_error"] for m in train_table},
@@ -699,7 +847,8 @@ def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
                               f"({val.n_samples} samples, guard {guard})")
         with run.step(STEPS_CSV[2]):
             outcome = fit_identification(train, gmode, smode, progress=say,
-                                         deadband=DEADBAND if parameters["fit_deadband"] else None)
+                                         deadband=DEADBAND if parameters["fit_deadband"] else None,
+                                         parallel=parameters["parallel_filter"], stribeck=parameters["stribeck"])
         with run.step(STEPS_CSV[3]):
             result = _finish_fit(run, outcome, train, val, val_source, "csv", str(parameters["csv"]), parameters,
                                  None, np.array([0.0, 0.0, -9.81]))
@@ -757,7 +906,8 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
                                 parameters["cutoff"], parameters["filter_order"])
             with run.step(STEPS_LIVE[5]):
                 outcome = fit_identification(train, gmode, smode, configured_gravity=g_config, progress=say,
-                                             deadband=DEADBAND if parameters["fit_deadband"] else None)
+                                             deadband=DEADBAND if parameters["fit_deadband"] else None,
+                                             parallel=parameters["parallel_filter"], stribeck=parameters["stribeck"])
             with run.step(STEPS_LIVE[6]):
                 extra = {"arm": arm_name, "excitation": {"cached": exc["cached"], "cache_file": exc["path"],
                                                          "trajectory": traj.to_dict(), **{k: v for k, v in exc["figures"].items() if k != "starts"}},
@@ -781,19 +931,41 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
 
 
 def simulated_truth(world, arm_name: str, outcome: FitOutcome, val) -> dict:
-    """On the simulated rig: the SDP model's torques against the true parameters' (rigid body
-    + the nominal friction law, without the hidden effects) on the validation data."""
+    """On the simulated rig: the SDP model's efforts against the true parameters' for the
+    same (filtered) validation motion, neither low-passed again.
+
+    The truth is the rigid body with the simulator's sliding friction: eq. 4.16 plus the
+    Stribeck excess (stiction - Fc) exp(-(dq/vs)^2) of the configured stiction, with the
+    sigmoid of the nominal slope in place of the simulator's exact sign
+    (``sdp_vs_true_relative_error``); ``sdp_vs_nominal_law_relative_error`` leaves the
+    excess out (the reference before the Stribeck term was identified). The other hidden
+    effects are not in either.
+    """
+    from dataclasses import replace
+
     from calibration.estimators import validation_errors
     from rig.psm_dynamics import PSMDynamics
 
     a = world.arms[arm_name]
-    true = PSMDynamics(a.params, gravity=outcome.gravity)
-    tau_true = np.array([true.inverse_dynamics(q, dq, ddq) for q, dq, ddq in zip(val.q, val.dq, val.ddq)])
-    pred = predict(outcome, val, "sdp")
-    e = validation_errors(tau_true, pred)
     eff = a.spec.effects
-    return {"sdp_vs_true_relative_error": e["relative_error"].tolist(), "sdp_vs_true_rms": e["rms"].tolist(),
-            "hidden_effects": {"stiction": np.asarray(eff.stiction).tolist()}}
+    excess = np.maximum(np.asarray(eff.stiction, float) - a.params.drive.Fc, 0.0)
+    sliding = replace(a.params, drive=replace(a.params.drive, Fst=excess,
+                                              vs=np.asarray(eff.stribeck_velocity, float)))
+    pred = predict(outcome, val, "sdp", parallel=False)
+    out = {}
+    for key, params in (("sdp_vs_true", sliding), ("sdp_vs_nominal_law", a.params)):
+        true = PSMDynamics(params, gravity=outcome.gravity)
+        tau_true = np.array([true.inverse_dynamics(q, dq, ddq) for q, dq, ddq in zip(val.q, val.dq, val.ddq)])
+        e = validation_errors(tau_true, pred)
+        out[f"{key}_relative_error"] = e["relative_error"].tolist()
+        out[f"{key}_rms"] = e["rms"].tolist()
+    out["hidden_effects"] = {"stiction": np.asarray(eff.stiction).tolist(),
+                             "stribeck_velocity": np.asarray(eff.stribeck_velocity).tolist()}
+    st = outcome.stribeck()
+    if st is not None:
+        out["stribeck"] = {"identified_Fst": st["Fst"].tolist(), "identified_vs": st["vs"].tolist(),
+                           "true_Fst": excess.tolist()}
+    return out
 
 
 def load_config(ctx):

@@ -9,7 +9,9 @@ One JSON document (``model.json`` in the identify run's folder) holding:
   3 joints x [Fc, Fv, Fo, Ia]) with their names;
 * ``base_parameters``: values and their expressions in standard parameters (eq. 5.22);
 * ``friction``: per joint Fc (N m or N), Fv (N m s/rad or N s/m), Fo (N m or N), Ia
-  (kg m^2 or kg) and the sigmoid slope a (s/rad) of tanh(a dq / 2);
+  (kg m^2 or kg) and the sigmoid slope a (s/rad) of tanh(a dq / 2); optionally
+  ``friction.stribeck`` {"Fst": [3], "vs": [3]}: the Stribeck excess Fst exp(-(dq/vs)^2)
+  tanh(a dq / 2) identified with the model (absent in older files: no excess);
 * ``stick_slip`` (after `rig friction-ramp`): breakaway forces Fs_pos, Fs_neg (N) of
   joint 3 and the viscous/Coulomb/Stribeck fits, for the compensation of thesis 7.5.1;
 * ``gravity``: the gravity vector in frame 0 (m/s^2) the parameters belong to, and how it
@@ -120,13 +122,34 @@ class IdentifiedModel:
         return self.document.get("kind", "identified")
 
     def dynamics(self):
-        """A `rig.psm_dynamics.PSMDynamics` with the identified standard parameters and gravity."""
+        """A `rig.psm_dynamics.PSMDynamics` with the identified standard parameters, gravity
+        and, when the file has one, the Stribeck excess."""
+        from dataclasses import replace
+
         from rig.psm_dynamics import PSMDynamics, PSMParameters
 
         if self.standard is None:
             raise ModelFileError(f"{self.path}: a friction-only model file has no dynamic parameters: "
                                  "run `rig identify` first")
-        return PSMDynamics(PSMParameters.from_standard_vector(self.standard, self.slope), gravity=self.gravity)
+        params = PSMParameters.from_standard_vector(self.standard, self.slope)
+        st = self.stribeck
+        if st is not None:
+            params = replace(params, drive=replace(params.drive, Fst=st["Fst"], vs=st["vs"]))
+        return PSMDynamics(params, gravity=self.gravity)
+
+    @property
+    def stribeck(self) -> dict | None:
+        """{"Fst": (3,), "vs": (3,)} arrays of the identified Stribeck excess, or None."""
+        st = self.friction.get("stribeck")
+        if not st:
+            return None
+        try:
+            Fst, vs = np.asarray(st["Fst"], float), np.asarray(st["vs"], float)
+            if Fst.shape != (3,) or vs.shape != (3,) or not np.all(np.isfinite(Fst)) or np.any(~(vs > 0)):
+                raise ValueError("Fst and vs must be 3 finite numbers each, vs > 0")
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ModelFileError(f"{self.path}: malformed friction.stribeck ({exc})") from None
+        return {"Fst": Fst, "vs": vs}
 
     def stick_slip(self) -> StickSlip | None:
         """The stick-slip compensation terms of joint 3, or None before `rig friction-ramp`."""
@@ -166,7 +189,8 @@ def provenance(data_source: str, run_dir: str | Path | None, extra: dict | None 
 def save_model(path, *, standard, names, slope: float, gravity, base_values=None, base_expressions=None,
                base_independent=None, gravity_source: str = "configured", validation: dict | None = None,
                provenance_info: dict | None = None, stick_slip: StickSlip | None = None,
-               checks: dict | None = None, kind: str = "identified", extra: dict | None = None) -> Path:
+               checks: dict | None = None, kind: str = "identified", extra: dict | None = None,
+               stribeck: dict | None = None) -> Path:
     """Write a model file atomically; returns its path. Units in the module docstring."""
     path = Path(path)
     doc: dict[str, Any] = {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "kind": kind}
@@ -182,6 +206,13 @@ def save_model(path, *, standard, names, slope: float, gravity, base_values=None
         doc["friction"] = {"slope": float(slope), "model": "Fc tanh(slope dq / 2) + Fv dq + Fo + Ia ddq",
                            "joints": [{"joint": j + 1, "Fc": fr[j, 0], "Fv": fr[j, 1], "Fo": fr[j, 2],
                                        "Ia": fr[j, 3]} for j in range(3)]}
+        if stribeck is not None:
+            Fst = _finite_list(stribeck["Fst"], "Stribeck excess")
+            vs = _finite_list(stribeck["vs"], "Stribeck velocities")
+            if len(Fst) != 3 or len(vs) != 3 or min(vs) <= 0:
+                raise ModelFileError(f"{path}: the Stribeck term needs 3 excesses and 3 velocities > 0")
+            doc["friction"]["model"] += " + Fst exp(-(dq/vs)^2) tanh(slope dq / 2)"
+            doc["friction"]["stribeck"] = {"Fst": Fst, "vs": vs, "units": "N m|N; rad/s|m/s"}
     else:
         doc["friction"] = {"slope": float(slope)}
     if base_values is not None:

@@ -27,7 +27,9 @@ Standard parameters: per body Pinocchio's `[m, m cx, m cy, m cz, Ixx, Ixy, Iyy, 
 Izz]` in the body's joint frame (origin at DH frame i-1, turning with joint i: the
 thesis' convention for r_i, 4.2), inertia about that origin; then per joint the drive
 `[Fc, Fv, Fo, Ia]` of eq. 4.16: Fc tanh(a dq / 2) + Fv dq + Fo, plus reflected rotor
-inertia Ia ddq.
+inertia Ia ddq. Optionally (outside the 82 standard parameters, zero by default) a
+Stribeck excess Fst exp(-(dq/vs)^2) tanh(a dq / 2) (thesis 5.6): friction above the
+Coulomb level near zero velocity, Fs = Fc + Fst at breakaway.
 
 Nominal values. Friction is the thesis' PSM1 identification (7.5.1 code; its logistic
 c/(1+exp(-400 x)) is rewritten as c/2 tanh(200 x) + c/2). Masses and inertias are
@@ -120,6 +122,10 @@ class DriveParameters:
     Fo: np.ndarray = field(default_factory=lambda: np.array([0.3296, 0.2753, 0.1500]))
     Ia: np.ndarray = field(default_factory=lambda: np.array([0.06, 0.07, 0.15]))
     slope: float = FRICTION_SLOPE
+    #: Stribeck excess over Coulomb at rest (N m, N m, N) and Stribeck velocity (rad/s, m/s);
+    #: not among the standard parameters (see the module docstring).
+    Fst: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    vs: np.ndarray = field(default_factory=lambda: np.full(3, 0.01))
 
     def vector(self) -> np.ndarray:
         return np.column_stack([self.Fc, self.Fv, self.Fo, self.Ia]).ravel()
@@ -222,6 +228,9 @@ class PSMDynamics:
         self.GT = self.G.T.copy()
         d = self.params.drive
         self.Fc, self.Fv, self.Fo, self.Ia = d.Fc.copy(), d.Fv.copy(), d.Fo.copy(), d.Ia.copy()
+        self.Fst, self.vs = np.asarray(d.Fst, float).copy(), np.asarray(d.vs, float).copy()
+        if np.any(self.vs <= 0):
+            raise ValueError(f"Stribeck velocities must be > 0, got {self.vs}")
         self.slope = d.slope
         self.n_params = 10 * len(BODY_NAMES) + 4 * 3
         self._lower = np.tril_indices(self.model.nv, -1)
@@ -259,8 +268,22 @@ class PSMDynamics:
         return self.GT @ pin.nonLinearEffects(self.model, self.data, self.G @ q, self.G @ dq)
 
     def friction(self, dq: np.ndarray) -> np.ndarray:
-        """Eq. 4.16 with the sigmoid of 4.14: Fc tanh(a dq / 2) + Fv dq + Fo."""
-        return self.Fc * np.tanh(0.5 * self.slope * dq) + self.Fv * dq + self.Fo
+        """Eq. 4.16 with the sigmoid of 4.14: Fc tanh(a dq / 2) + Fv dq + Fo, plus the
+        Stribeck excess Fst exp(-(dq/vs)^2) tanh(a dq / 2) (zero unless identified)."""
+        return ((self.Fc + self.Fst * np.exp(-(dq / self.vs) ** 2)) * np.tanh(0.5 * self.slope * dq)
+                + self.Fv * dq + self.Fo)
+
+    def stribeck_columns(self, DQ: np.ndarray, vs) -> np.ndarray:
+        """Stacked (3N, 3) columns of the Stribeck excess: row 3k+j, column j is
+        exp(-(dq_kj/vs_j)^2) tanh(a dq_kj / 2), so that their product with Fst (3,) is the
+        term of :meth:`friction` (``vs`` (3,) in rad/s, rad/s, m/s)."""
+        DQ = np.atleast_2d(np.asarray(DQ, float))
+        vs = np.broadcast_to(np.asarray(vs, float), (3,))
+        S = np.exp(-(DQ / vs) ** 2) * np.tanh(0.5 * self.slope * DQ)
+        out = np.zeros((DQ.shape[0], 3, 3))
+        for j in range(3):
+            out[:, j, j] = S[:, j]
+        return out.reshape(-1, 3)
 
     def inverse_dynamics(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, friction: bool = True) -> np.ndarray:
         """Joint efforts for a motion: rigid body + rotor inertia (+ friction), N m and N."""

@@ -168,3 +168,31 @@ def test_validation_errors():
     e = validation_errors(meas, pred)
     np.testing.assert_allclose(e["relative_error"], [np.sqrt(0.02) / np.sqrt(2), 1 / np.sqrt(8)])
     np.testing.assert_allclose(e["rms"], [0.1, np.sqrt(0.5)])
+
+
+@pytest.mark.parametrize("amplitude", [0.4, -0.3])
+def test_extra_column_fitted_with_its_sign_constraint(arm, base, trajectory, amplitude):
+    """An extra column outside the standard parameters (a Stribeck-like bump on joint 3) is
+    fitted with the base parameters: LS recovers its amplitude whatever its sign; the SDP
+    recovers a positive one and holds a negative one at zero (amplitudes >= 0), and checks it."""
+    t, q, dq, ddq, W = trajectory
+    bump = np.zeros_like(dq)
+    bump[:, 2] = np.exp(-(dq[:, 2] / 0.05) ** 2) * np.tanh(100 * dq[:, 2])
+    X = bump.reshape(-1, 1)
+    tau = (W @ arm.true_params()).reshape(-1, 3) + amplitude * bump
+    ident = identification(arm, base, q, dq, ddq, W, tau, extra=X, extra_names=["joint3.Fst"])
+    for fit in (ident.ols(), ident.wls()):
+        assert fit.extra == pytest.approx([amplitude], abs=1e-6)
+        assert np.allclose(fit.predict(base.regressor(W), 3, X), tau, atol=1e-6)
+        with pytest.raises(ValueError, match="extra column"):
+            fit.predict(base.regressor(W), 3)
+    sdp = ident.sdp()
+    assert sdp.extra_names == ["joint3.Fst"]
+    assert sdp.checks["extra_nonnegative"]["pass"] and sdp.checks["all_pass"]
+    if amplitude > 0:
+        assert sdp.extra == pytest.approx([amplitude], abs=1e-4)
+        assert ident.ols().checks["realizable"]["pass"]
+    else:
+        assert sdp.extra == pytest.approx([0.0], abs=1e-6)
+        # The LS solution needs a negative amplitude: no consistent model gives its torques.
+        assert not ident.ols().checks["realizable"]["pass"]

@@ -79,3 +79,58 @@ def test_errors():
 def test_settling_grows_with_order_and_rate():
     assert settling_samples(RATE, order=4) < settling_samples(RATE, order=8)
     assert settling_samples(1000.0) > settling_samples(RATE)
+
+
+def _friction_data(n=4000, seed=0):
+    """One joint reversing at 0.3 Hz with Coulomb + viscous friction (exact, noise-free)."""
+    from calibration.datasets import JointData
+
+    t = np.arange(n) / RATE
+    q = 0.2 * np.sin(2 * np.pi * 0.3 * t)
+    dq = 0.2 * 2 * np.pi * 0.3 * np.cos(2 * np.pi * 0.3 * t)
+    tau = 0.5 * np.sign(dq) + 0.8 * dq
+    return JointData.from_arrays(q[:, None], dq[:, None], tau[:, None], rate=RATE), (0.5, 0.8)
+
+
+def test_parallel_filtering_matches_the_filtered_friction_step():
+    """The filtered torque's friction step is smeared: the model of the filtered motion misses
+    it at every reversal; the same model low-passed like the torques (parallel filtering,
+    over the untrimmed samples) reproduces it."""
+    from calibration.datasets import processed
+
+    data, (fc, fv) = _friction_data()
+    p = processed(data)
+
+    def friction(q, dq, ddq):
+        return (fc * np.sign(dq) + fv * dq).reshape(-1, 1)
+
+    plain = friction(p.q, p.dq, p.ddq)[:, 0]
+    parallel = p.context.rows(friction, p.n_samples)[:, 0]
+    tau = p.tau[:, 0]
+    e_plain = np.linalg.norm(tau - plain) / np.linalg.norm(tau)
+    e_parallel = np.linalg.norm(tau - parallel) / np.linalg.norm(tau)
+    assert e_plain > 0.05
+    assert e_parallel < 0.1 * e_plain
+
+
+def test_filter_context_follows_row_blocks():
+    """A block cut from processed data keeps its place in the untrimmed motion: its parallel-
+    filtered rows are the whole record's rows at that place (no new end transients)."""
+    from calibration.datasets import processed, split_blocks
+    from calibration.signals import lowpass_stacked
+
+    data, _ = _friction_data()
+    p = processed(data)
+
+    def fn(q, dq, ddq):
+        return np.column_stack([np.sign(dq).reshape(-1), dq.reshape(-1)])
+
+    whole = p.context.rows(fn, p.n_samples)
+    train, held = split_blocks(p, 0.25)
+    inner = train.rows(slice(30, train.n_samples - 30))
+    assert np.array_equal(held.context.rows(fn, held.n_samples), whole[-held.n_samples:])
+    assert np.array_equal(inner.context.rows(fn, inner.n_samples), whole[30:train.n_samples - 30])
+    with pytest.raises(ValueError, match="contiguous"):
+        p.rows(slice(0, 100, 2))
+    with pytest.raises(SignalError, match="whole number of samples"):
+        lowpass_stacked(np.zeros((7, 2)), 3, RATE)

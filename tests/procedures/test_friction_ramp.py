@@ -150,3 +150,32 @@ def test_model_file_round_trip_and_errors(tmp_path):
     with pytest.raises(ModelFileError, match="expected 82"):
         load_model(tmp_path / "short.json")
     assert latest_model() is None  # no identify run in this test's logs
+
+
+def test_model_file_stribeck_term(tmp_path):
+    """The identified Stribeck excess travels through the model file into the dynamics; a
+    file without it (the earlier format) still loads, with no excess; a malformed one is a
+    clear error."""
+    from rig.model_file import ModelFileError, load_model, save_model
+    from rig.psm_dynamics import PSMDynamics, standard_parameter_names
+
+    pi = PSMDynamics().standard_params()
+    common = dict(standard=pi, names=standard_parameter_names(), slope=400.0, gravity=[0.0, 0.0, -9.81])
+    plain = load_model(save_model(tmp_path / "plain.json", **common))
+    assert plain.stribeck is None and np.all(plain.dynamics().Fst == 0)
+    st = {"Fst": [0.0, 0.0, 0.45], "vs": [0.01, 0.01, 0.008]}
+    m = load_model(save_model(tmp_path / "stribeck.json", stribeck=st, **common))
+    dyn, ref = m.dynamics(), plain.dynamics()
+    for v in (0.002, 0.008, -0.004, 0.05):
+        dq = np.array([0.0, 0.0, v])
+        excess = 0.45 * np.exp(-(v / 0.008) ** 2) * np.tanh(200.0 * v)
+        assert dyn.friction(dq)[2] - ref.friction(dq)[2] == pytest.approx(excess, abs=1e-12)
+        assert (dyn.stribeck_columns(dq[None], st["vs"]) @ np.array(st["Fst"]))[2] == pytest.approx(excess, abs=1e-12)
+    assert np.allclose(dyn.inverse_dynamics(np.array([0.1, 0.2, 0.1]), np.array([0.0, 0.0, 0.005]), np.zeros(3))
+                       - ref.inverse_dynamics(np.array([0.1, 0.2, 0.1]), np.array([0.0, 0.0, 0.005]), np.zeros(3)),
+                       [0.0, 0.0, 0.45 * np.exp(-(0.005 / 0.008) ** 2) * np.tanh(1.0)])
+    doc = json.loads((tmp_path / "stribeck.json").read_text())
+    doc["friction"]["stribeck"]["vs"] = [0.01, 0.0, 0.01]
+    (tmp_path / "bad.json").write_text(json.dumps(doc))
+    with pytest.raises(ModelFileError, match="bad.json: malformed friction.stribeck"):
+        load_model(tmp_path / "bad.json").dynamics()

@@ -15,10 +15,16 @@ from rig.params import resolve
 REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "wpi-psm" / "one_results.csv"
 
 
+ROOT = Path(__file__).resolve().parents[2]
+
+
 def rig_cli(*args, cwd):
-    """Run `rig ...` in a subprocess; returns (exit code, stdout, stderr)."""
+    """Run `rig ...` in a subprocess; returns (exit code, stdout, stderr). The subprocess
+    imports this checkout's packages (not an installed copy elsewhere): it runs in ``cwd``."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
     p = subprocess.run([sys.executable, "-m", "rig.cli", *args], cwd=cwd, capture_output=True, text=True,
-                       env=dict(os.environ), timeout=120)
+                       env=env, timeout=120)
     return p.returncode, p.stdout, p.stderr
 
 
@@ -48,7 +54,11 @@ def test_offline_real_csv_json(tmp_path):
     W = dyn.regressor_batch(data.q[k], data.dq[k], data.ddq[k])
     beta = np.array(model.document["base_parameters"]["values"])
     cols = np.array(model.document["base_parameters"]["independent"])
-    assert np.allclose(pred, (W[:, cols] @ beta).reshape(-1, 3), rtol=1e-6, atol=1e-6)
+    fit = W[:, cols] @ beta
+    st = model.stribeck  # joint 3's identified Stribeck excess (>= 0), part of the SDP fit
+    assert st is not None and st["Fst"][2] >= 0 and np.all(st["Fst"][:2] == 0)
+    fit = fit + dyn.stribeck_columns(data.dq[k], st["vs"]) @ st["Fst"]
+    assert np.allclose(pred, fit.reshape(-1, 3), rtol=1e-6, atol=1e-6)
     assert len(list(Path(doc["run_dir"]).glob("figure_5_*.png"))) == 2
 
 
@@ -150,7 +160,8 @@ def _live(tmp_path, values):
 
 def test_live_simulated_short(tmp_path):
     """A 10 s excitation on the simulated rig with sensor noise and joint-3 stiction:
-    the SDP model must predict the true parameters' torques within 5 % per joint."""
+    the SDP model must predict the true parameters' torques within 5 % per joint, and the
+    measured ones where the joints move."""
     from rig.model_file import latest_model
     from rig.psm_dynamics import PSMDynamics
 
@@ -160,6 +171,13 @@ def test_live_simulated_short(tmp_path):
     assert np.all(truth <= 0.05), truth
     assert r["checks"]["sdp"] is True
     assert np.all(np.array(r["validation"]["sdp"][:2]) < 0.05)
+    assert np.all(np.array(r["validation_moving"]["sdp"]) <= 0.05), r["validation_moving"]
+    # Joint 3's identified Stribeck excess is the simulator's stiction above Coulomb (within
+    # the bias of the smooth sign tanh(a dq/2) against the simulator's exact one), and with it
+    # the model is closer to the simulator's sliding friction than the plain eq. 4.16 law.
+    st = r["truth"]["stribeck"]
+    assert 0.5 * st["true_Fst"][2] < st["identified_Fst"][2] < 1.5 * st["true_Fst"][2], st
+    assert r["truth"]["sdp_vs_true_relative_error"][2] < r["truth"]["sdp_vs_nominal_law_relative_error"][2]
     # The model file: found, and its dynamics close to the simulator's true parameters.
     model = latest_model()
     dyn, true = model.dynamics(), PSMDynamics()
@@ -173,10 +191,15 @@ def test_live_simulated_short(tmp_path):
 
 @pytest.mark.slow
 def test_live_simulated_full_target(tmp_path):
-    """The issue's target with the default 30 s trajectories (the design takes ~1 min)."""
+    """The issue's target with the default 30 s trajectories (the design takes ~1 min): SDP
+    within 5 % of the true parameters' efforts and of the measured efforts where the joints
+    move (predictions low-passed like the measurements), every joint."""
     r = _live(tmp_path, {})
     truth = np.array(r["truth"]["sdp_vs_true_relative_error"])
     assert np.all(truth <= 0.05), truth
     moving = np.array(r["validation_moving"]["sdp"])
-    assert np.all(moving[:2] <= 0.05), moving
+    assert np.all(moving <= 0.05), moving
+    # Joint 3's stick-slip steps are what parallel filtering brings into the comparison.
+    unfiltered = np.array(r["validation_moving_unfiltered"]["sdp"])
+    assert unfiltered[2] > moving[2], (unfiltered, moving)
     assert r["table_5_1"]["optimisation_condition"] < 300

@@ -144,7 +144,7 @@ class StickSlipCompensation:
     velocity_deadband: np.ndarray = field(default_factory=lambda: np.array([0.01, 0.01, 0.005]))
     position_deadband: float = 0.0003
     scale: float = 1.0   # fraction of the model friction to compensate (robustness margin)
-    reference_deadband: float = 0.2   # fraction of the velocity deadband a reference must exceed
+    reference_deadband: float = 0.01   # fraction of the velocity deadband a reference must exceed
     _held: int = field(default=0, repr=False)   # sign of the breakaway force being applied
     _moving: np.ndarray = field(default_factory=lambda: np.zeros(3, bool), repr=False)
 
@@ -238,7 +238,10 @@ class Impedance:
         return self.Kp @ e if np.ndim(self.Kp) == 2 else self.Kp * e
 
     def __call__(self, q: np.ndarray, dq: np.ndarray, x_d: np.ndarray, xd_d: np.ndarray,
-                 xdd_d: np.ndarray, h_e: np.ndarray) -> np.ndarray:
+                 xdd_d: np.ndarray, h_e: np.ndarray, f_extra: np.ndarray | None = None) -> np.ndarray:
+        """Joint efforts for the target (x_d, its velocity and acceleration; RCM frame) and the
+        measured force h_e the tip exerts. `f_extra` (N, RCM frame): a force the caller adds
+        to the spring and damper (an outer force loop's term)."""
         # J, and J-dot q-dot by a directional difference of the closed-form Jacobian (exact
         # to O(eps^2)), in one vectorised evaluation.
         eps = 1e-6
@@ -259,6 +262,8 @@ class Impedance:
             spring = self._stiffness(x_d - x) + D @ (xd_d - xd)
         else:
             spring = self._stiffness(x_d - x) + self.Kd * (xd_d - xd)
+        if f_extra is not None:
+            spring = spring + f_extra
         # Stiction (7.5.1) acts on the error to where the impedance would come to rest, the
         # target displaced by the measured force (x_d - Kp^-1 h_e): in contact the target
         # itself is never reached, and its error would hold the breakaway force on for good

@@ -79,6 +79,11 @@ class ImpedanceGains:
     Kp_across: float | None = None
     Kd: np.ndarray = field(default_factory=lambda: np.array([20.0, 20.0, 20.0]))  # N s/m (with Md)
     damping_ratio: float | None = 0.7   # with Md None: ratio against Kp + the object's stiffness
+    # With Md None: proportional tension feedback k_fp (F_d - F) along the object, added to
+    # the impedance force. It divides a force disturbance on the slave (friction, model
+    # error) by 1 + k_fp below the arm-object mode, which it stiffens by as much (the
+    # damping is designed against Kp + (1 + k_fp) K_obj).
+    force_feedback: float = 0.0
 
 
 @dataclass
@@ -102,17 +107,22 @@ def preset(kind: str) -> tuple[ImpedanceGains, bool]:
 
     A compliant spring (~2.5 kN/m) tolerates feeding the measured force back with a light
     desired inertia (0.5 kg), which gives the tension loop bandwidth. A string (>= 20 kN/m)
-    does not: the sampled, filtered force arrives too late for an arm-object mode above
-    200 rad/s, so the slave keeps its own inertia (no force feedback inside the impedance)
-    and follows the master's planned motion rather than the measured one, whose noise the
-    stiff string would turn straight into tension.
+    does not: a desired inertia of 0.35 kg limit-cycled (the sampled, filtered force arrives
+    too late for an arm-object mode above 200 rad/s). There the slave keeps its own inertia
+    and gets a moderate proportional tension feedback on the raw samples instead (k_fp 10,
+    which divides the friction and model disturbances by 11), and follows the master's
+    planned motion rather than the measured one: its damping along the string is hundreds
+    of N s/m, which would turn the noise of a measured velocity into tension.
     """
     if kind == "spring":
         return ImpedanceGains(Md=np.full(3, 0.5), Kp=np.full(3, 400.0), damping_ratio=0.7), True
     if kind == "string":
         # Kp 200 N/m: of 50-800 N/m this gave the smallest error while moving (a softer
         # slave lags the master, a stiffer one passes the master's lag into the string)
-        return ImpedanceGains(Md=None, Kp=np.full(3, 200.0), damping_ratio=0.7, Kp_across=None), False
+        # k_fp 10: of 0-20 tried (15 % model error, stiction), 4 gave 0.28 N while moving, 10-20
+        # about 0.23 N; 10 keeps a factor 2 from the largest tried
+        return ImpedanceGains(Md=None, Kp=np.full(3, 200.0), damping_ratio=0.7, Kp_across=None,
+                              force_feedback=10.0), False
     raise ValueError(f"object kind must be 'spring' or 'string', got {kind!r}")
 
 
@@ -170,10 +180,12 @@ class CooperativeController:
         self.loop = loop or ForceLoop()
         g = gains or ImpedanceGains()
         self.kp_along = float(np.mean(g.Kp))
+        # proportional tension feedback (dimensionless), with the arm's own inertia only
+        self.k_fp = float(g.force_feedback) if g.Md is None else 0.0
         self.kp_across = g.Kp_across
         self.impedance = {s: Impedance(models[s], friction[s], None if g.Md is None else g.Md.copy(),
                                        g.Kp.copy(), g.Kd.copy(), g.damping_ratio,
-                                       float(np.max(g.Kp)) + object_stiffness)
+                                       float(np.max(g.Kp)) + object_stiffness * (1.0 + self.k_fp))
                           for s in self.slaves}
         # Joint-state filter: quantised position plus the noisy velocity the dVRK reports.
         self.joint_filter = {a: KalmanDifferentiator(3, dt, [6e-6, 6e-6, 1e-6], [20.0, 20.0, 5.0],
@@ -210,6 +222,7 @@ class CooperativeController:
         self.centroid0 = np.mean([self.x0[a] for a in self.arms], axis=0)
         self.initial_tension = float(np.mean(tension)) if len(tension) else 0.0
         self.initial_element_tension = np.asarray(tension, float).copy()
+        self.raw_tension = self.initial_element_tension.copy()
         # the set-point ramp starts once every slave holds its object taut
         self.slack = {s: (self.mode == "impedance" and self.force > self.loop.contact
                           and self._tracked_tension(s, tension) < self.loop.contact) for s in self.slaves}
@@ -272,11 +285,12 @@ class CooperativeController:
         # the object's stiffness along u: each element contributes K (u . its direction)^2
         dirs = self._neighbour_directions(slave, {**self.x0, slave: self.tip_world(slave, q)})
         k_obj = self.object_stiffness * sum(float(u_world @ d) ** 2 for d in dirs)
-        stiffness = kp + k_obj
-        omega = np.sqrt(stiffness / float(u @ Lam @ u))
-        # d(tension of the tracked element)/d(x_f) with the impedance in series
-        series = self.object_stiffness * kp / stiffness
-        return float(min(self.loop.k_i, omega / (self.loop.bandwidth_ratio * series)))
+        # the tension feedback stiffens the arm-object mode by (1 + k_fp) ...
+        omega = np.sqrt((kp + k_obj * (1.0 + self.k_fp)) / float(u @ Lam @ u))
+        # ... and divides d(tension of the tracked element)/d(x_f), the impedance in series
+        # with the object, by as much: the integral gain grows with it, under the same cap
+        series = self.object_stiffness * kp / (kp + k_obj * (1.0 + self.k_fp))
+        return float(min(self.loop.k_i * (1.0 + self.k_fp), omega / (self.loop.bandwidth_ratio * series)))
 
     def desired(self, t: float) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
         """World-frame desired tip positions, velocities and accelerations (eq. 6.2-6.3)."""
@@ -322,6 +336,7 @@ class CooperativeController:
         for a in self.arms:
             qf[a], dqf[a] = self.joint_filter[a].update(q[a], dq[a])
         if tension is not None:
+            self.raw_tension = np.asarray(tension, float).copy()
             self.tension, self.tension_rate = self.force_filter.update(np.asarray(tension, float))
         else:
             self.tension, self.tension_rate = self.force_filter.update(self.force_filter.x[:, 0])
@@ -406,6 +421,13 @@ class CooperativeController:
                 d = tips[s] - tips[other]
                 h_world += self.tension[k] * d / max(np.linalg.norm(d), 1e-9)
             R = self.R[s]
-            tau = self.impedance[s](qf[s], dqf[s], R.T @ (x_t - self.p[s]), R.T @ vd[s], R.T @ ad[s], R.T @ h_world)
+            f_extra = None
+            if self.k_fp and tracked and not self.slack[s]:
+                # on the newest raw sample: the Kalman filter's lag, not the sensor noise
+                # (0.02 N times k_fp, filtered by the arm's inertia), limits this gain
+                error_fb = self.force_setpoint - float(np.mean(self.raw_tension[tracked]))
+                f_extra = R.T @ (self.k_fp * error_fb * u)
+            tau = self.impedance[s](qf[s], dqf[s], R.T @ (x_t - self.p[s]), R.T @ vd[s], R.T @ ad[s], R.T @ h_world,
+                                    f_extra)
             commands[s] = ArmCommand("effort", effort=tau)
         return commands

@@ -224,5 +224,6 @@ def test_string_is_taken_up_without_overshoot(tmp_path):
                          "--hold-after", "1"])
     assert res.exit_code == 0, res.output
     assert data["overshoot"] < 0.5
-    assert data["rms_error"] < 0.25
+    assert data["max_error_during_motion"] < 0.25
+    assert data["rms_error"] < 0.1
     assert not data["limit_cycle"]

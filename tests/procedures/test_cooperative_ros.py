@@ -52,13 +52,17 @@ class _Procedure:
 
     def __init__(self, tmp_path: Path, settle: float, hold_after: float):
         self.proc = _start(tmp_path, settle, hold_after)
+        self.out_lines: list[str] = []
         self.err_lines: list[str] = []
-        self.reader = threading.Thread(target=self._read, daemon=True)
-        self.reader.start()
+        self.readers = [threading.Thread(target=self._read, args=(stream, lines), daemon=True)
+                        for stream, lines in ((self.proc.stdout, self.out_lines), (self.proc.stderr, self.err_lines))]
+        for r in self.readers:
+            r.start()
 
-    def _read(self) -> None:
-        for line in self.proc.stderr:
-            self.err_lines.append(line)
+    @staticmethod
+    def _read(stream, lines: list[str]) -> None:
+        for line in stream:
+            lines.append(line)
 
     @property
     def stderr(self) -> str:
@@ -79,13 +83,13 @@ class _Procedure:
 
     def finish(self, timeout: float) -> tuple[dict, str]:
         try:
-            out = self.proc.communicate(timeout=timeout)[0]
+            self.proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.communicate()
+            self.kill()
             pytest.fail(f"rig cooperative did not finish in {timeout} s: {self.stderr[-2000:]}")
-        self.reader.join(timeout=5.0)
-        docs = [line for line in out.splitlines() if line.startswith("{")]
+        for r in self.readers:
+            r.join(timeout=5.0)
+        docs = [line for line in self.out_lines if line.startswith("{")]
         assert docs, f"no JSON result (exit {self.proc.returncode}): {self.stderr[-3000:]}"
         return json.loads(docs[-1]), self.stderr
 
@@ -222,3 +226,53 @@ def test_published_increments_move_the_object_and_raise_the_tension(tmp_path, te
         # = 0.4 mm along the object and the master's PID gives way by about as much.
         others = moved - moved[1] * np.array([0.0, 1.0, 0.0])
         assert np.linalg.norm(others) < 1e-3, (n, moved)
+
+
+def test_bad_increments_are_refused_and_the_object_stays_held(tmp_path, teleop):
+    # DESIGN.md, "Bad input": a NaN, or an increment that would take a target out of the
+    # workspace box or the tension set-point above the ceiling, is refused before anything
+    # moves, counted and reported; the run keeps holding and completes.
+    settle, hold_after = 1.5, 2.0
+    proc = _Procedure(tmp_path, settle, hold_after)
+    try:
+        proc.wait_for_loop_time(1.5, rate=1000.0, timeout=40.0)
+        teleop.wait_for_subscriber(timeout=10.0)
+        teleop.twist(linear=(float("nan"), 0.0, 0.0))
+        teleop.twist(linear=(0.0, 0.5, 0.0))        # y = 0.5 m: outside the box (|y| <= 0.35 m)
+        teleop.tension(20.0)                        # 25 N: above the 15 N ceiling
+        result, err = proc.finish(timeout=60.0)
+    finally:
+        proc.kill()
+    assert proc.proc.returncode == 0 and result["status"] == "completed", err[-3000:]
+    live = result["live_commands"]
+    assert live["received"]["/psm/cmd_vel"] == 2 and live["received"]["/psm/cmd_force"] == 1, live
+    assert live["applied"]["/psm/cmd_vel"] == 0 and live["applied"]["/psm/cmd_force"] == 0, live
+    reasons = {r["source"]: [] for r in live["rejected"]}
+    for r in live["rejected"]:
+        reasons[r["source"]].append(r["reason"])
+    assert len(reasons["/psm/cmd_vel"]) == 2 and len(reasons["/psm/cmd_force"]) == 1, live["rejected"]
+    assert "not a finite number" in reasons["/psm/cmd_vel"][0]
+    assert "workspace box" in reasons["/psm/cmd_vel"][1] or "cannot reach" in reasons["/psm/cmd_vel"][1]
+    assert "25.00 N" in reasons["/psm/cmd_force"][0]
+    assert err.count("refused") == 3
+    assert live["offset_translation"] == [0.0, 0.0, 0.0] and live["force_offset"] == 0.0
+
+    rec = read_recording(Path(result["run_dir"]) / "run.mcap")
+    assert rec.finalised and rec.stop["status"] == "completed"
+    vel = [m for _, m in rec.messages["/psm/cmd_vel"]]      # refused messages are recorded too
+    assert np.isnan(vel[0].linear.x) and vel[1].linear.y == 0.5
+    t_cmd = rec.messages["/psm/cmd_force"][0][0] * 1e-9
+    setpoints = rec.messages["/cooperative/force_setpoint"]
+    t_end = setpoints[-1][0] * 1e-9
+    assert all(v.data == pytest.approx(5.0) for ts, v in setpoints if ts * 1e-9 >= t_cmd)
+    loadcell = rec.messages["/loadcell/force"]
+    tf = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for _, m in loadcell])
+    F = np.array([m.wrench.force.x for _, m in loadcell])
+    assert np.abs(F[tf >= t_cmd] - 5.0).max() < 0.25
+    tips = _tips(rec, config.load(tmp_path / "rig.toml"))
+    for n in ARMS:
+        t, x = tips[n]
+        moved = _mean_over(t, x, t_end - 0.5, t_end + 1.0) - _mean_over(t, x, t_cmd - 0.2, t_cmd)
+        # held where they were: within 1 mm (the master's PID still gives way by ~0.5 mm
+        # as the tension settles; the refused translation was 0.5 m)
+        assert np.linalg.norm(moved) < 1e-3, (n, moved)

@@ -75,7 +75,8 @@ def _vector(text: str | None, what: str) -> np.ndarray:
                    "linear = Cartesian increment of the object in m (world frame), angular = object Euler-angle "
                    "(x-y-z) increment in rad; /psm/cmd_force std_msgs/Float64 = tension increment in N. One message "
                    "is one increment (not a velocity). A message with a NaN, or one that would take a target out "
-                   "of the limits or the tension set-point out of 0-12 N or to the ceiling, is refused and reported.")
+                   f"of the limits or the tension set-point out of 0-{_parameter('force').maximum:g} N or to the "
+                   "ceiling, is refused and reported.")
 @click.option("--interactive", is_flag=True, help="Steer from the keyboard (a small terminal UI).")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
 @json_option

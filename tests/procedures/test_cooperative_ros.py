@@ -164,6 +164,18 @@ def _mean_over(t, values, t0, t1):
     return values[sel].mean(axis=0)
 
 
+def test_help_gives_the_topics_and_their_units():
+    from click.testing import CliRunner
+
+    from rig.cli import main
+
+    text = " ".join(CliRunner().invoke(main, ["cooperative", "--help"]).output.split())
+    for words in ("/psm/cmd_vel geometry_msgs/Twist", "linear = Cartesian increment of the object in m (world frame)",
+                  "angular = object Euler-angle (x-y-z) increment in rad",
+                  "/psm/cmd_force std_msgs/Float64 = tension increment in N"):
+        assert words in text
+
+
 def test_published_increments_move_the_object_and_raise_the_tension(tmp_path, teleop):
     settle, hold_after = 2.0, 4.5
     proc = _Procedure(tmp_path, settle, hold_after)

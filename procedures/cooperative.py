@@ -472,6 +472,10 @@ def format_report(result: dict) -> str:
                   f"  controller step: median {result['loop_time_us']['median']:.0f} us, "
                   f"p99 {result['loop_time_us']['p99']:.0f} us",
                   f"  plot: {result.get('plot')}"]
+    live = result.get("live_commands")
+    if live:
+        lines.append(f"  live commands: {sum(live['received'].values())} received, "
+                     f"{sum(live['applied'].values())} applied, {len(live['rejected'])} refused")
     if result.get("run_dir"):
         lines.append(f"  run folder: {result['run_dir']}")
     return "\n".join(lines)

@@ -266,7 +266,8 @@ def test_bad_increments_are_refused_and_the_object_stays_held(tmp_path, teleop):
     assert "not a finite number" in reasons["/psm/cmd_vel"][0]
     assert "workspace box" in reasons["/psm/cmd_vel"][1] or "cannot reach" in reasons["/psm/cmd_vel"][1]
     assert "25.00 N" in reasons["/psm/cmd_force"][0]
-    assert err.count("refused") == 3
+    assert err.count("refused") == 4       # three lines as they come, and the report
+    assert "live commands: 3 received, 0 applied, 3 refused" in err
     assert live["offset_translation"] == [0.0, 0.0, 0.0] and live["force_offset"] == 0.0
 
     rec = read_recording(Path(result["run_dir"]) / "run.mcap")

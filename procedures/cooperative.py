@@ -37,6 +37,10 @@ PARAMETERS = [
 ]
 
 
+def _parameter(name: str) -> Parameter:
+    return next(p for p in PARAMETERS if p.name == name)
+
+
 def _vector(text: str | None, what: str) -> np.ndarray:
     if text is None or text == "":
         return np.zeros(3)
@@ -67,7 +71,12 @@ def _vector(text: str | None, what: str) -> np.ndarray:
 @click.option("--seed", type=int, default=None, help="Seed of the simulated rig.")
 @click.option("--dry-run", is_flag=True, help="Check the plan against every limit, print it, move nothing.")
 @click.option("--ros-commands", is_flag=True,
-              help="Also take live increments from /psm/cmd_vel (Twist) and /psm/cmd_force (Float64).")
+              help="Also take live increments over ROS 2 while holding: /psm/cmd_vel geometry_msgs/Twist, "
+                   "linear = Cartesian increment of the object in m (world frame), angular = object Euler-angle "
+                   "(x-y-z) increment in rad; /psm/cmd_force std_msgs/Float64 = tension increment in N. One message "
+                   "is one increment (not a velocity). A message with a NaN, or one that would take a target out "
+                   f"of the limits or the tension set-point out of 0-{_parameter('force').maximum:g} N or to the "
+                   "ceiling, is refused and reported.")
 @click.option("--interactive", is_flag=True, help="Steer from the keyboard (a small terminal UI).")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
 @json_option
@@ -251,16 +260,19 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             return result
         for n in names:
             run.claim(rig.arms[n])
-        live = _LiveCommands(controller, ros_commands, interactive, rig)
+        live = _LiveCommands(controller, ros_commands, interactive, rec, names, limits,
+                             maximum_force=_parameter("force").maximum, say=run._write)
         n_ticks = int(round(total * clock.rate))
         log = {"t": np.empty(n_ticks), "tension": np.empty((n_ticks, len(elements))), "setpoint": np.empty(n_ticks),
-               "loop_us": np.empty(n_ticks), "x_f": np.empty((n_ticks, len(controller.slaves)))}
+               "loop_us": np.empty(n_ticks), "x_f": np.empty((n_ticks, len(controller.slaves))),
+               "force_offset": np.empty(n_ticks)}
         for n in names:
             log[f"{n}.x"] = np.empty((n_ticks, 3))
             log[f"{n}.xd"] = np.empty((n_ticks, 3))
         last_force_t = min(s.t for s in first)
         t_start = clock.now()
-        with run.step(STEPS[3], total=n_ticks) as step:
+        # the ROS 2 context and the keyboard are released however the loop ends
+        with live, run.step(STEPS[3], total=n_ticks) as step:
             for k in range(n_ticks):
                 clock.tick()
                 t = clock.now()
@@ -279,7 +291,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                     fresh = tension
                 elif t - last_force_t > cfg.loadcell["stale_timeout"]:
                     raise AbortRun(f"load cell stale: no sample for {1000 * (t - last_force_t):.0f} ms")
-                live.poll()
+                live.poll(t)
                 c0 = time.perf_counter()
                 q = {n: js[n].position[:3] for n in names}
                 dq = {n: js[n].velocity[:3] for n in names}
@@ -306,6 +318,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                 log["t"][k] = t - t_start
                 log["tension"][k] = tension
                 log["setpoint"][k] = controller.force_setpoint
+                log["force_offset"][k] = controller.force_offset
                 log["loop_us"][k] = loop_us
                 log["x_f"][k] = [controller.x_f[s] for s in controller.slaves]
                 rec.scalar("/cooperative/x_f", t, float(log["x_f"][k][0]))
@@ -313,9 +326,11 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                     step.update(k)
                     live.show(t - t_start, float(tension.mean()), {n: log[f"{n}.x"][k] for n in names})
             step.update(n_ticks)
-        live.close()
         with run.step(STEPS[4]):
-            result = _figures(log, params, names, master, mode, kind, controller)
+            result = _figures(log, params, names, master, mode, kind, controller,
+                              last_live=None if live.last_applied is None else live.last_applied - t_start)
+            if ros_commands or interactive:
+                result["live_commands"] = live.summary(t_start)
             result.update({"model": model_note, "registration": registration_note, "arms": names,
                            "master": master, "mode": mode, "object": kind,
                            "filter_delay": _filter_delays(controller)})
@@ -348,10 +363,14 @@ def _check_plan(controller, names, q0, total, limits) -> dict:
     return {"duration": total, "max_velocity_fraction": worst}
 
 
-def _figures(log, params, names, master, mode, kind, controller) -> dict:
+def _figures(log, params, names, master, mode, kind, controller, last_live: float | None = None) -> dict:
+    """Force-error figures. Errors are taken against the live set-point (--force plus the
+    increments received so far); `last_live` (s since the loop started) is when the last
+    live increment was applied: the hold figures (peak-to-peak, limit cycle) start `settle`
+    seconds after it, so a set-point step is not mistaken for a limit cycle."""
     t, F = log["t"], log["tension"]           # F: one column per object element
     force = params["force"]
-    e_all = F - force
+    e_all = F - (force + log["force_offset"])[:, None]
     # the element furthest from the set-point at each instant
     e = e_all[np.arange(len(t)), np.argmax(np.abs(e_all), axis=1)]
     m0 = params["settle"]
@@ -365,11 +384,13 @@ def _figures(log, params, names, master, mode, kind, controller) -> dict:
     settling_time = float(t[min(settle_idx, len(t) - 1)]) if len(outside) else 0.0
     rms_mask = t >= max(settling_time, m0 * 0.5)
     hold = t > m1
+    if last_live is not None and (hold & (t >= last_live + params["settle"])).any():
+        hold = hold & (t >= last_live + params["settle"])
     tail = e[hold] if hold.any() else e[-int(0.2 * len(e)):]
     summary = {
         "max_error_during_motion": float(np.max(np.abs(e[during]))) if during.any() else None,
         "rms_error": float(np.sqrt(np.mean(e[rms_mask] ** 2))) if rms_mask.any() else None,
-        "overshoot": float(max(0.0, np.max(F[startup]) - force)) if startup.any() else 0.0,
+        "overshoot": float(max(0.0, np.max(e_all[startup]))) if startup.any() else 0.0,
         "element_rms_error": [float(np.sqrt(np.mean(c[rms_mask] ** 2))) for c in e_all.T] if rms_mask.any() else None,
         "settling_time": settling_time,
         "hold_peak_to_peak": float(np.ptp(tail)) if len(tail) else None,
@@ -379,7 +400,7 @@ def _figures(log, params, names, master, mode, kind, controller) -> dict:
     }
     # A limit cycle: after the motion the force loop keeps hunting, its target reversing
     # again and again (position mode steps), or the tension keeps swinging beyond the band.
-    xf = log["x_f"][t > m1] if (t > m1).any() else log["x_f"][-int(0.2 * len(t)):]
+    xf = log["x_f"][hold] if hold.any() else log["x_f"][-int(0.2 * len(t)):]
     reversals = 0
     for col in xf.T:
         d = np.diff(col)
@@ -451,26 +472,63 @@ def format_report(result: dict) -> str:
                   f"  controller step: median {result['loop_time_us']['median']:.0f} us, "
                   f"p99 {result['loop_time_us']['p99']:.0f} us",
                   f"  plot: {result.get('plot')}"]
+    live = result.get("live_commands")
+    if live:
+        lines.append(f"  live commands: {sum(live['received'].values())} received, "
+                     f"{sum(live['applied'].values())} applied, {len(live['rejected'])} refused")
     if result.get("run_dir"):
         lines.append(f"  run folder: {result['run_dir']}")
     return "\n".join(lines)
 
 
 class _LiveCommands:
-    """Increments from the keyboard and from ROS 2 topics (thesis 6.3 teleop)."""
+    """Increments from the keyboard and from ROS 2 topics (thesis 6.3 teleop).
+
+    /psm/cmd_vel (geometry_msgs/Twist): linear = Cartesian increment of the object in the
+    world frame (m), angular = increment of its x-y-z Euler angles (rad); /psm/cmd_force
+    (std_msgs/Float64): tension increment (N). Messages arrive on the executor's thread and
+    are queued; the control loop applies them between two control cycles (`poll`), so a
+    cycle never sees half an increment. Every message received is recorded on its topic.
+    An increment with a NaN or one that would take a target out of the limits (workspace
+    box, joint limits, reach) or the set-point out of [0, maximum_force] N or to the tension
+    ceiling is refused: nothing moves, it is counted and reported, and the run goes on
+    holding (DESIGN.md, "Bad input").
+    """
 
     STEP_M = 0.002     # m per key press
     STEP_RAD = 0.05    # rad per key press
     STEP_N = 0.5       # N per key press
+    TOPICS = ("/psm/cmd_vel", "/psm/cmd_force")
 
-    def __init__(self, controller, ros: bool, keyboard: bool, rig):
+    def __init__(self, controller, ros: bool, keyboard: bool, recorder, names, limits, *,
+                 maximum_force: float, say=None):
+        from collections import deque
+
         self.c = controller
+        self.rec = recorder
+        self.names = list(names)
+        self.limits = limits
+        self.maximum_force = maximum_force
+        self.say = say or (lambda text: None)
         self.keyboard = None
         self.node = None
+        self.pending: deque = deque()
+        self.received = {"/psm/cmd_vel": 0, "/psm/cmd_force": 0, "keyboard": 0}
+        self.applied = {"/psm/cmd_vel": 0, "/psm/cmd_force": 0, "keyboard": 0}
+        self.rejected: list[dict] = []
+        self.last_applied: float | None = None
+        self._t = 0.0
         if keyboard:
             self.keyboard = _Keyboard()
         if ros:
             self._start_ros()
+
+    def __enter__(self) -> "_LiveCommands":
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        self.close()
+        return False
 
     def _start_ros(self) -> None:
         import threading
@@ -484,45 +542,112 @@ class _LiveCommands:
         self.context = Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node("rig_cooperative_teleop", context=self.context)
-        self.pending: list = []
-        self.node.create_subscription(Twist, "/psm/cmd_vel", lambda m: self.pending.append(("vel", m)), 10)
-        self.node.create_subscription(Float64, "/psm/cmd_force", lambda m: self.pending.append(("force", m)), 10)
+        # deque.append is atomic: the executor's thread only ever appends
+        self.node.create_subscription(Twist, "/psm/cmd_vel", lambda m: self.pending.append(("/psm/cmd_vel", m)), 10)
+        self.node.create_subscription(Float64, "/psm/cmd_force",
+                                      lambda m: self.pending.append(("/psm/cmd_force", m)), 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        threading.Thread(target=self._spin, daemon=True).start()
+        self.thread = threading.Thread(target=self._spin, name="cooperative-ros-commands", daemon=True)
+        self.thread.start()
 
     def _spin(self) -> None:
+        from rclpy.executors import ExternalShutdownException
+
         try:
             self.executor.spin()
-        except Exception:  # noqa: BLE001 - the context was shut down
+        except ExternalShutdownException:  # the context was shut down by close()
             pass
 
-    def poll(self) -> None:
-        if self.node is not None:
-            while self.pending:
-                what, m = self.pending.pop(0)
-                if what == "vel":
-                    self.c.offset_translation += [m.linear.x, m.linear.y, m.linear.z]
-                    self.c.offset_rotation += [m.angular.x, m.angular.y, m.angular.z]
-                else:
-                    self.c.force_offset += float(m.data)
+    def poll(self, t: float) -> None:
+        """Apply what arrived since the last cycle; `t` is the rig clock (s)."""
+        self._t = t
+        while self.pending:
+            topic, m = self.pending.popleft()
+            self.received[topic] += 1
+            if topic == "/psm/cmd_vel":
+                linear = [m.linear.x, m.linear.y, m.linear.z]
+                angular = [m.angular.x, m.angular.y, m.angular.z]
+                self.rec.twist(topic, t, linear, angular)
+                self._apply(topic, np.array(linear), np.array(angular), 0.0)
+            else:
+                self.rec.scalar(topic, t, m.data)
+                self._apply(topic, np.zeros(3), np.zeros(3), float(m.data))
         if self.keyboard is not None:
             for key in self.keyboard.keys():
                 self.apply_key(key)
 
+    def _apply(self, source: str, d_translation: np.ndarray, d_rotation: np.ndarray, d_force: float) -> bool:
+        c = self.c
+        problem = None
+        if not (np.all(np.isfinite(d_translation)) and np.all(np.isfinite(d_rotation)) and np.isfinite(d_force)):
+            problem = "not a finite number"
+        elif d_force:
+            goal = c.force + c.force_offset + d_force
+            if not 0.0 <= goal <= self.maximum_force or goal >= self.limits.tension_ceiling:
+                problem = (f"tension set-point {goal:.2f} N outside [0, {self.maximum_force:g}] N "
+                           f"or not below the ceiling {self.limits.tension_ceiling:g} N")
+        if problem is None and (d_translation.any() or d_rotation.any()):
+            saved = c.offset_translation.copy(), c.offset_rotation.copy()
+            c.offset_translation = c.offset_translation + d_translation
+            c.offset_rotation = c.offset_rotation + d_rotation
+            problem = self._targets_violation()
+            if problem is not None:
+                c.offset_translation, c.offset_rotation = saved
+        if problem is not None:
+            self.rejected.append({"source": source, "t": self._t, "reason": problem})
+            self.say(f"live command from {source} refused: {problem}\n")
+            return False
+        c.force_offset += d_force
+        self.applied[source] += 1
+        self.last_applied = self._t
+        return True
+
+    def _targets_violation(self) -> str | None:
+        """First limit a target of the rest of the plan breaks with the current offsets."""
+        from rig import psm_kinematics as K
+
+        c = self.c
+        end = c.t0 + c.motion.start + c.motion.duration
+        for t in np.unique(np.linspace(max(self._t, c.t0), max(end, self._t), 11)):
+            xd, _, _ = c.desired(t)
+            for n in self.names:
+                try:
+                    q = K.ik_rcm(c.to_rcm(n, xd[n]))
+                except K.IKError as exc:
+                    return f"{n} cannot reach its target: {exc}"
+                problem = self.limits.plan_violation(n, q[None], np.zeros((1, 3)), xd[n][None])
+                if problem:
+                    return problem
+        return None
+
     def apply_key(self, key: str) -> None:
         moves = {"d": (0, 1), "a": (0, -1), "w": (1, 1), "s": (1, -1), "r": (2, 1), "f": (2, -1)}
         turns = {"l": (2, 1), "j": (2, -1), "i": (1, 1), "k": (1, -1), "o": (0, 1), "u": (0, -1)}
+        d_x, d_r, d_f = np.zeros(3), np.zeros(3), 0.0
         if key in moves:
             axis, sign = moves[key]
-            self.c.offset_translation[axis] += sign * self.STEP_M
+            d_x[axis] = sign * self.STEP_M
         elif key in turns:
             axis, sign = turns[key]
-            self.c.offset_rotation[axis] += sign * self.STEP_RAD
+            d_r[axis] = sign * self.STEP_RAD
         elif key in "+=":
-            self.c.force_offset += self.STEP_N
+            d_f = self.STEP_N
         elif key in "-_":
-            self.c.force_offset -= self.STEP_N
+            d_f = -self.STEP_N
+        else:
+            return
+        self.received["keyboard"] += 1
+        self._apply("keyboard", d_x, d_r, d_f)
+
+    def summary(self, t_start: float) -> dict:
+        """For the result document: counts per source, refusals, the offsets in force at the end."""
+        return {"received": dict(self.received), "applied": dict(self.applied),
+                "rejected": [{**r, "t": r["t"] - t_start} for r in self.rejected],
+                "offset_translation": self.c.offset_translation.tolist(),
+                "offset_rotation": self.c.offset_rotation.tolist(),
+                "force_offset": float(self.c.force_offset),
+                "last_applied": None if self.last_applied is None else self.last_applied - t_start}
 
     def show(self, t: float, tension: float, tips: dict) -> None:
         if self.keyboard is not None:
@@ -534,6 +659,7 @@ class _LiveCommands:
     def close(self) -> None:
         if self.keyboard is not None:
             self.keyboard.close()
+            self.keyboard = None
             sys.stderr.write("\n")
         if self.node is not None:
             import rclpy
@@ -542,6 +668,8 @@ class _LiveCommands:
             self.node.destroy_node()
             if self.context.ok():
                 rclpy.shutdown(context=self.context)
+            self.thread.join(timeout=2.0)
+            self.node = None
 
 
 class _Keyboard:

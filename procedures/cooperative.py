@@ -318,7 +318,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                 log["t"][k] = t - t_start
                 log["tension"][k] = tension
                 log["setpoint"][k] = controller.force_setpoint
-                log["force_offset"][k] = controller.force_offset
+                log["force_offset"][k] = controller.applied_force_offset
                 log["loop_us"][k] = loop_us
                 log["x_f"][k] = [controller.x_f[s] for s in controller.slaves]
                 rec.scalar("/cooperative/x_f", t, float(log["x_f"][k][0]))
@@ -610,7 +610,7 @@ class _LiveCommands:
         c = self.c
         end = c.t0 + c.motion.start + c.motion.duration
         for t in np.unique(np.linspace(max(self._t, c.t0), max(end, self._t), 11)):
-            xd, _, _ = c.desired(t)
+            xd, _, _ = c.desired(t, targets=True)
             for n in self.names:
                 try:
                     q = K.ik_rcm(c.to_rcm(n, xd[n]))

@@ -160,12 +160,16 @@ class CooperativeController:
                  motion: Motion | None = None, loop: ForceLoop | None = None,
                  gains: ImpedanceGains | None = None, force_noise: float = 0.02,
                  object_stiffness: float = 2450.0, follow_measured_master: bool = True,
-                 mode: str = "impedance", position_loop: PositionForceLoop | None = None):
+                 mode: str = "impedance", position_loop: PositionForceLoop | None = None,
+                 slew_translation: float = 0.01, slew_rotation: float = 0.1, slew_force: float = 2.0):
         if master not in arms:
             raise ValueError(f"master {master!r} is not among the arms {arms}")
         if mode not in ("impedance", "position"):
             raise ValueError(f"mode must be 'impedance' or 'position', got {mode!r}")
         self.mode = mode
+        self.slew_translation = slew_translation   # m/s of the user's Cartesian increments
+        self.slew_rotation = slew_rotation         # rad/s of the object rotation increments
+        self.slew_force = slew_force               # N/s of the tension increments
         self.position_loop = position_loop or PositionForceLoop()
         self._next_position_step = 0.0
         self.arms = list(arms)
@@ -197,9 +201,16 @@ class CooperativeController:
         self.tension = np.zeros(len(self.elements))
         self.tension_rate = np.zeros(len(self.elements))
         self.force_setpoint = 0.0
-        self.force_offset = 0.0   # user increments (/psm/cmd_force, keyboard)
-        self.offset_translation = np.zeros(3)  # user Cartesian increments (/psm/cmd_vel)
-        self.offset_rotation = np.zeros(3)
+        # User increments (/psm/cmd_vel, /psm/cmd_force, keyboard): these are the targets;
+        # the controller moves its applied offsets toward them at the slew rates, so that an
+        # increment is a short ramp, not a step in one cycle.
+        self.force_offset = 0.0                 # N
+        self.offset_translation = np.zeros(3)   # m, world frame
+        self.offset_rotation = np.zeros(3)      # rad, Euler x-y-z of the object
+        self.applied_force_offset = 0.0
+        self.applied_translation = np.zeros(3)
+        self.applied_rotation = np.zeros(3)
+        self._offset_velocity = np.zeros(3)
         # Slaves follow the master's measured motion (its PID lags its command; following
         # the command would stretch the object by that lag) rather than its set-point.
         self.follow_measured_master = follow_measured_master
@@ -292,15 +303,18 @@ class CooperativeController:
         series = self.object_stiffness * kp / (kp + k_obj * (1.0 + self.k_fp))
         return float(min(self.loop.k_i * (1.0 + self.k_fp), omega / (self.loop.bandwidth_ratio * series)))
 
-    def desired(self, t: float) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
-        """World-frame desired tip positions, velocities and accelerations (eq. 6.2-6.3)."""
+    def desired(self, t: float, targets: bool = False
+                ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """World-frame desired tip positions, velocities and accelerations (eq. 6.2-6.3), with
+        the user offsets applied so far, or with their targets (`targets=True`: what a
+        limit check of the rest of the plan needs)."""
         m = self.motion
         s = (t - self.t0 - m.start) / m.duration if m.duration > 0 else 1.0
         p, v, a = min_jerk(s)
         inside = 0.0 <= s <= 1.0
         v, a = (v / m.duration, a / m.duration**2) if inside else (0.0, 0.0)
-        shift = p * m.translation + self.offset_translation
-        angles = p * m.rotation + self.offset_rotation
+        shift = p * m.translation + (self.offset_translation if targets else self.applied_translation)
+        angles = p * m.rotation + (self.offset_rotation if targets else self.applied_rotation)
         if angles.any():
             R = euler_xyz(angles)
             # rate of the object's rotation along the planned profile: a finite difference
@@ -312,7 +326,7 @@ class CooperativeController:
         for arm in self.arms:
             r0 = self.x0[arm] - self.centroid0
             xd[arm] = self.centroid0 + shift + R @ r0
-            vd[arm] = v * m.translation + dR @ r0
+            vd[arm] = v * m.translation + dR @ r0 + (0.0 if targets else self._offset_velocity)
             ad[arm] = a * m.translation
         return xd, vd, ad
 
@@ -322,10 +336,26 @@ class CooperativeController:
 
     def force_target(self, t: float) -> float:
         if self.ramp_start is None:      # still taking up slack
-            return self.initial_tension + self.force_offset
+            return self.initial_tension + self.applied_force_offset
         s = (t - self.ramp_start) / self.loop.ramp_time if self.loop.ramp_time > 0 else 1.0
         p, _, _ = min_jerk(s)
-        return self.initial_tension + p * (self.force - self.initial_tension) + self.force_offset
+        return self.initial_tension + p * (self.force - self.initial_tension) + self.applied_force_offset
+
+    def _slew_offsets(self) -> None:
+        """Move the applied user offsets toward their targets at the slew rates."""
+        def toward(applied, target, rate):
+            d = np.asarray(target, float) - applied
+            n = float(np.linalg.norm(d))
+            limit = rate * self.dt
+            return target if n <= limit else applied + d * (limit / n)
+
+        before = self.applied_translation.copy()
+        self.applied_translation = np.array(toward(self.applied_translation, self.offset_translation,
+                                                   self.slew_translation), float)
+        self._offset_velocity = (self.applied_translation - before) / self.dt
+        self.applied_rotation = np.array(toward(self.applied_rotation, self.offset_rotation, self.slew_rotation), float)
+        self.applied_force_offset = float(toward(np.array([self.applied_force_offset]),
+                                                 np.array([self.force_offset]), self.slew_force)[0])
 
     def step(self, t: float, q: dict[str, np.ndarray], dq: dict[str, np.ndarray],
              tension: np.ndarray | None) -> dict[str, ArmCommand]:
@@ -340,6 +370,7 @@ class CooperativeController:
             self.tension, self.tension_rate = self.force_filter.update(np.asarray(tension, float))
         else:
             self.tension, self.tension_rate = self.force_filter.update(self.force_filter.x[:, 0])
+        self._slew_offsets()
         xd, vd, ad = self.desired(t)
         self.force_setpoint = self.force_target(t)
         tips = {a: self.tip_world(a, qf[a]) for a in self.arms}

@@ -227,3 +227,35 @@ def test_string_is_taken_up_without_overshoot(tmp_path):
     assert data["max_error_during_motion"] < 0.25
     assert data["rms_error"] < 0.1
     assert not data["limit_cycle"]
+
+
+def test_user_increments_are_slewed_and_checked_against_their_targets():
+    """A live increment is a target: the controller ramps its applied offset toward it at the
+    slew rate (no step in one cycle), while a limit check of the plan sees the target."""
+    from procedures.cooperative import build_controller
+    from rig import psm_kinematics as K
+    from rig.psm_dynamics import PSMDynamics
+
+    cfg = config.load()
+    names = ["PSM1", "PSM2"]
+    frames = {n: cfg.base_matrix(n) @ K.RCM_FRAME for n in names}
+    params = {"force": 5.0, "duration": 1.0, "settle": 0.5, "deadband": 0.4}
+    c = build_controller(cfg, names, "PSM2", params, np.zeros(3), np.zeros(3), "impedance", PSMDynamics(), None,
+                         frames, "spring", 2450.0, [("PSM1", "PSM2")], 1e-3)
+    q = {n: np.array([0.0, 0.0, 0.12]) for n in names}   # the arms held still: only the offsets move
+    zero = {n: np.zeros(3) for n in names}
+    c.start(0.0, q, zero, np.array([5.0]))
+    start = c.desired(0.0)[0]["PSM1"].copy()
+    c.offset_translation = np.array([0.0, 0.01, 0.0])
+    c.force_offset = 1.0
+    assert c.desired(0.0, targets=True)[0]["PSM1"] == pytest.approx(start + [0, 0.01, 0])
+    steps = []
+    for k in range(1, 1201):
+        c.step(k * 1e-3, q, zero, np.array([5.0]))
+        steps.append(c.applied_translation[1])
+    d = np.diff(np.concatenate([[0.0], steps]))
+    assert d.max() == pytest.approx(c.slew_translation * 1e-3)     # 10 um per 1 ms cycle, no step
+    assert steps[499] == pytest.approx(0.005)                        # half way after 0.5 s
+    assert steps[-1] == pytest.approx(0.01)                          # there after 1 s
+    assert c.applied_force_offset == pytest.approx(1.0)              # 1 N at 2 N/s: after 0.5 s
+    assert c.desired(1.2)[0]["PSM1"] == pytest.approx(start + [0, 0.01, 0])

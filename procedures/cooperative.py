@@ -24,6 +24,10 @@ import numpy as np
 from rig.params import Parameter, with_parameters
 from rig.run import AbortRun, Run, emit_result, exit_on_abort, json_option
 
+#: Live increments: per key press, and the slew rates the controller ramps them in at
+KEY_STEP_M, KEY_STEP_RAD, KEY_STEP_N = 0.002, 0.05, 0.5      # m, rad, N
+SLEW_M, SLEW_RAD, SLEW_N = 0.01, 0.1, 2.0                    # m/s, rad/s, N/s
+
 STEPS = ["power and home the arms", "attach the object", "check the plan",
          "hold the tension while moving", "report"]
 
@@ -74,10 +78,13 @@ def _vector(text: str | None, what: str) -> np.ndarray:
               help="Also take live increments over ROS 2 while holding: /psm/cmd_vel geometry_msgs/Twist, "
                    "linear = Cartesian increment of the object in m (world frame), angular = object Euler-angle "
                    "(x-y-z) increment in rad; /psm/cmd_force std_msgs/Float64 = tension increment in N. One message "
-                   "is one increment (not a velocity). A message with a NaN, or one that would take a target out "
+                   f"is one increment (not a velocity), ramped in at {1000 * SLEW_M:g} mm/s, {SLEW_RAD:g} rad/s and "
+                   f"{SLEW_N:g} N/s. A message with a NaN, or one that would take a target out "
                    f"of the limits or the tension set-point out of 0-{_parameter('force').maximum:g} N or to the "
                    "ceiling, is refused and reported.")
-@click.option("--interactive", is_flag=True, help="Steer from the keyboard (a small terminal UI).")
+@click.option("--interactive", is_flag=True, help=f"Steer from the keyboard (a small terminal UI): wasdrf move {1000 * KEY_STEP_M:g} mm, ijkluo "
+                   f"rotate {KEY_STEP_RAD:g} rad, +/- change the tension by {KEY_STEP_N:g} N (ramped in like "
+                   "--ros-commands).")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
 @json_option
 @click.pass_context
@@ -180,7 +187,8 @@ def build_controller(cfg, names, master, params, translation, rotation, mode, dy
         names, master, rcm_frames, {n: FeedforwardModel(dyn) for n in names}, friction, elements,
         params["force"], dt=dt, motion=Motion(translation, rotation, params["duration"], params["settle"]),
         loop=ForceLoop(), gains=gains, object_stiffness=object_stiffness, follow_measured_master=follow,
-        mode=mode, position_loop=PositionForceLoop(deadband=params["deadband"]))
+        mode=mode, position_loop=PositionForceLoop(deadband=params["deadband"]),
+        slew_translation=SLEW_M, slew_rotation=SLEW_RAD, slew_force=SLEW_N)
 
 
 # ----------------------------------------------------------------------------- the run
@@ -495,9 +503,9 @@ class _LiveCommands:
     holding (DESIGN.md, "Bad input").
     """
 
-    STEP_M = 0.002     # m per key press
-    STEP_RAD = 0.05    # rad per key press
-    STEP_N = 0.5       # N per key press
+    STEP_M = KEY_STEP_M
+    STEP_RAD = KEY_STEP_RAD
+    STEP_N = KEY_STEP_N
     TOPICS = ("/psm/cmd_vel", "/psm/cmd_force")
 
     def __init__(self, controller, ros: bool, keyboard: bool, recorder, names, limits, *,

@@ -259,3 +259,28 @@ def test_user_increments_are_slewed_and_checked_against_their_targets():
     assert steps[-1] == pytest.approx(0.01)                          # there after 1 s
     assert c.applied_force_offset == pytest.approx(1.0)              # 1 N at 2 N/s: after 0.5 s
     assert c.desired(1.2)[0]["PSM1"] == pytest.approx(start + [0, 0.01, 0])
+
+
+def test_rotate_turns_the_object_about_its_centroid_and_holds_the_tension():
+    """--rotate (eq. 6.3): the tips turn about the object's centroid by the Euler angles
+    while the tension is held; read back from the recording's measured joint states."""
+    from rig import psm_kinematics as K
+
+    res, data = _invoke(["--move", "0,0,0", "--rotate", "0,0,0.3", "--duration", "3", "--settle", "2",
+                         "--hold-after", "1.5"])
+    assert res.exit_code == 0, res.output
+    assert data["max_error_during_motion"] < 0.25 and not data["limit_cycle"]
+    cfg = config.load()
+    rec = read_recording(os.path.join(data["run_dir"], "run.mcap"), topics=["/PSM1/measured_js", "/PSM2/measured_js"])
+    tips = {}
+    for n in ("PSM1", "PSM2"):
+        msgs = rec.messages[f"/{n}/measured_js"]
+        frame = cfg.base_matrix(n) @ K.RCM_FRAME
+        first, last = (np.array(msgs[i][1].position[:3]) for i in (len(msgs) // 8, -1))
+        tips[n] = [frame[:3, :3] @ K.tip_in_rcm(q) + frame[:3, 3] for q in (first, last)]
+    before = tips["PSM1"][0] - tips["PSM2"][0]
+    after = tips["PSM1"][1] - tips["PSM2"][1]
+    turned = np.angle(np.exp(1j * (np.arctan2(after[1], after[0]) - np.arctan2(before[1], before[0]))))
+    assert turned == pytest.approx(0.3, abs=0.01)
+    centroid = [(tips["PSM1"][i] + tips["PSM2"][i]) / 2 for i in (0, 1)]
+    assert np.linalg.norm(centroid[1] - centroid[0]) < 1e-3

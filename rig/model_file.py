@@ -20,11 +20,13 @@ One JSON document (``model.json`` in the identify run's folder) holding:
 * ``provenance``: data source, run folder, UTC date, package version, git revision.
 
 `latest_model()` finds the newest completed `identify` run's model and, when a newer
-`friction-ramp` run has results it does not carry yet, merges them in.
+`friction-ramp` run has results it does not carry yet, merges them in (in memory: a run's
+files are its record and are never rewritten by a later run).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -307,8 +309,8 @@ def latest_model(with_friction_ramp: bool = True) -> IdentifiedModel | None:
     """The newest completed `rig identify` run's model, or None when there is none.
 
     When a completed `rig friction-ramp` run is newer than the stick-slip terms the model
-    carries (or it carries none), its terms are merged in (and written to the file), so
-    the order in which the two procedures ran does not matter. With no identify run, the
+    carries (or it carries none), its terms are merged into the returned model (not into
+    the identify run's file), so the order in which the two procedures ran does not matter. With no identify run, the
     newest friction-ramp run's friction-only model is returned, if any.
     """
     from rig.paths import latest_result
@@ -334,5 +336,7 @@ def latest_model(with_friction_ramp: bool = True) -> IdentifiedModel | None:
                                             str(ramp[0] / STICK_SLIP_FILENAME))
             except json.JSONDecodeError as exc:
                 raise ModelFileError(f"{ramp[0] / STICK_SLIP_FILENAME}: corrupt ({exc.msg})") from None
-            model = update_stick_slip(path, stick)
+            doc = dict(model.document)
+            doc["stick_slip"] = stick.to_dict()
+            model = dataclasses.replace(model, document=doc, stick_slip_terms=stick)
     return model

@@ -179,3 +179,28 @@ def test_model_file_stribeck_term(tmp_path):
     (tmp_path / "bad.json").write_text(json.dumps(doc))
     with pytest.raises(ModelFileError, match="bad.json: malformed friction.stribeck"):
         load_model(tmp_path / "bad.json").dynamics()
+
+
+def test_latest_model_merges_a_newer_friction_ramp_without_rewriting_the_identify_run(tmp_path):
+    """The identify run's model.json is its record: a later friction-ramp result is merged
+    into the model latest_model() returns, and the earlier file stays byte for byte."""
+    from rig.model_file import STICK_SLIP_FILENAME, StickSlip, latest_model, save_model
+    from rig.paths import runs_root
+    from rig.psm_dynamics import PSMDynamics, standard_parameter_names
+
+    root = runs_root()
+    ident = root / "20261121T070000Z-identify"
+    ramp = root / "20261121T080000Z-friction-ramp"
+    for d in (ident, ramp):
+        d.mkdir(parents=True)
+        (d / "result.json").write_text(json.dumps({"status": "completed"}))
+    path = save_model(ident / "model.json", standard=PSMDynamics().standard_params(), names=standard_parameter_names(),
+                      slope=400.0, gravity=np.array([0.0, 0.0, -9.81]), provenance_info={"data_source": "test"})
+    before = path.read_bytes()
+    stick = StickSlip(3, 1.02, -0.98, {"viscous_coulomb": {"Fo": 0.1, "Fv": 0.7, "Fc": 0.5}},
+                      {"velocity": 0.005, "position": 0.0003}, {"run_dir": str(ramp)})
+    (ramp / STICK_SLIP_FILENAME).write_text(json.dumps(stick.to_dict()))
+    m = latest_model()
+    assert m.path == path
+    assert m.stick_slip().fs_pos == 1.02 and m.stick_slip().fs_neg == -0.98
+    assert path.read_bytes() == before

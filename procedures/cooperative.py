@@ -477,8 +477,9 @@ def format_report(result: dict) -> str:
                   f"(peak-to-peak while holding {result['hold_peak_to_peak']:.3f} N"
                   + (f", {result['hold_reversals']} reversals of the position steps)" if result.get("mode") == "position"
                      else ")"),
-                  f"  controller step: median {result['loop_time_us']['median']:.0f} us, "
-                  f"p99 {result['loop_time_us']['p99']:.0f} us",
+                  f"  controller step ({len(result.get('arms') or []) or '?'} arms): median "
+                  f"{result['loop_time_us']['median']:.0f} us, p99 {result['loop_time_us']['p99']:.0f} us "
+                  f"(budget 1000 us at 1 kHz)",
                   f"  plot: {result.get('plot')}"]
     live = result.get("live_commands")
     if live:

@@ -6,19 +6,25 @@ Method (after Ljung's residual analysis, Kaheman et al. 2019 "SINDy on the model
 discrepancy", and BIC selection):
 
 1. **Prepare.** Zero-phase Butterworth (order 4, 10 Hz by default: wider than the thesis'
-   3.5 Hz so that friction features at reversals survive) on q, dq, tau; ddq by central
-   differences; ends trimmed by the filter's settling length. The smooth-sign Coulomb
-   column and every effect column are computed on the raw samples and filtered with the
-   same filter as tau (parallel filtering). Train and held-out are contiguous blocks (the
-   held-out one at the end) with a guard of one settling length between them.
+   3.5 Hz so that friction features at reversals survive) on q, dq; ddq by central
+   differences; ends trimmed by the filter's settling length. A joint whose filtered
+   velocity is inside its deadband is stuck: its effort there is whatever the controller
+   left inside the static friction band. The effort, the regressor, the smooth-sign Coulomb
+   column and every effect column are computed on the raw samples, zeroed on the joint's
+   stuck samples and then filtered with the same filter (masked parallel filtering: the
+   equation holds on moving samples, is 0 = 0 on stuck ones, and a linear filter keeps it
+   exact; filtering first and dropping the stuck samples afterwards would leave their
+   effort smeared over ~20 moving samples on each side, a Stribeck- or delay-like pattern
+   on every null run). Train and held-out are contiguous blocks (the held-out one at the
+   end) with a guard of one settling length between them.
 2. **Baseline.** Without a given model: the thesis model (rigid body + Fc sigma(dq) + Fv dq +
    Fo + Ia ddq) in base parameters, weighted least squares on the training block (weights
    1 / residual std per joint). With a given model: its standard parameters as they are.
 3. **Detect**, per joint, on the held-out residual: (a) whiteness, a Ljung-Box Q on the
    residual decimated to the filter's band (rate / (2 cutoff) samples apart, 10 lags);
-   (b) predictability, the held-out share of residual variance a generic library of q, dq,
-   ddq of all joints, the model torque u and its lag explains when fitted on the training
-   residual. The thresholds are not textbook chi-square quantiles (filtering and the
+   (b) predictability, the held-out share of the residual's mean square (a constant part
+   counts) a generic library of q, dq, ddq of all joints, the model torque u and its lag
+   explains when fitted on the training residual. The thresholds are not textbook chi-square quantiles (filtering and the
    unavoidable friction-switching mismatch make the residual coloured even when nothing is
    missing): they are set on null simulations of the rig, residuals of simulated data
    without any hidden effect, stored in ``discrepancy_thresholds.json`` with how they were

@@ -82,6 +82,8 @@ TIE_BIC = 2.0
 #: is absorbed by the model (not separately identifiable).
 ABSORBED = 1e-3
 LJUNG_BOX_LAGS = 10
+#: Golden-section steps refining a grid effect's non-linear parameter between grid values.
+REFINE_STEPS = 8
 #: Slopes a (s/rad, s/m) of the Coulomb sign tanh(a dq / 2) tried for an identified baseline.
 SLOPES = (100.0, 400.0, 1000.0, 3000.0)
 #: Velocity deadband (rad/s, rad/s, m/s) on the filtered velocity: slower, a joint may be
@@ -502,6 +504,45 @@ class Discrepancy:
         return {"theta": th, "rss0": rss0, "rss1": rss1, "pred": pred, "coef": self.coef - dcoef,
                 "fixed_columns": np.flatnonzero(~free).tolist()}
 
+    def _profile(self, eff, joint: int):
+        """(grid value, score) minimising the residual over the effect's non-linear parameter:
+        the catalogue grid, then a golden-section search (in log) between the best grid
+        value's neighbours, inside the grid's range (a period or a Stribeck velocity between
+        two grid values fits much better at the right value, which the BIC should see)."""
+        grid = list(eff.grid(joint))
+        scored = [(g, self._score(self._columns(eff, joint, g))) for g in grid]
+        ok = [(i, g, s) for i, (g, s) in enumerate(scored) if s is not None]
+        if not ok:
+            return None
+        i, g, s = min(ok, key=lambda t: t[2]["rss1"])
+        if len(grid) < 3 or not all(isinstance(x, float) and x > 0 for x in grid):
+            return g, s
+        lo, hi = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, len(grid) - 1)])
+        best = (g, s)
+        cache = {}
+
+        def f(x):
+            if x not in cache:
+                gg = float(np.exp(x))
+                cache[x] = (gg, self._score(self._columns(eff, joint, gg)))
+            r = cache[x][1]
+            return np.inf if r is None else r["rss1"]
+
+        ratio = (np.sqrt(5.0) - 1.0) / 2.0
+        a, b = lo, hi
+        c, d = b - ratio * (b - a), a + ratio * (b - a)
+        for _ in range(REFINE_STEPS):
+            if f(c) < f(d):
+                b, d = d, c
+                c = b - ratio * (b - a)
+            else:
+                a, c = c, d
+                d = a + ratio * (b - a)
+        for gg, r in cache.values():
+            if r is not None and r["rss1"] < best[1]["rss1"]:
+                best = (gg, r)
+        return best
+
     def candidates(self, joints: list[int]) -> list[dict]:
         """Best grid value of every (effect, joint) on the given joints, with figures."""
         out = []
@@ -512,11 +553,7 @@ class Discrepancy:
             for joint in joints:
                 if (eff.id, joint) in have:
                     continue
-                best = None
-                for g in eff.grid(joint):
-                    s = self._score(self._columns(eff, joint, g))
-                    if s is not None and (best is None or s["rss1"] < best[1]["rss1"]):
-                        best = (g, s)
+                best = self._profile(eff, joint)
                 if best is None:
                     out.append({"effect": eff.id, "joint": joint, "absorbed": True})
                     continue

@@ -82,6 +82,9 @@ TIE_BIC = 2.0
 #: is absorbed by the model (not separately identifiable).
 ABSORBED = 1e-3
 LJUNG_BOX_LAGS = 10
+#: Travel scales (fractions of a joint's stroke) of the detection library's after-reversal
+#: features.
+TRAVEL_SCALES = (0.005, 0.02)
 #: Golden-section steps refining a grid effect's non-linear parameter between grid values.
 REFINE_STEPS = 8
 #: Slopes a (s/rad, s/m) of the Coulomb sign tanh(a dq / 2) tried for an identified baseline.
@@ -394,6 +397,11 @@ class Discrepancy:
             s = np.tanh(0.5 * self.slope * v)
             vs = np.std(v) * 0.05
             raw += [p.q[:, i], p.q[:, i] ** 2, s, v, v * np.abs(v), s * np.exp(-(v / vs) ** 2), s * p.q[:, i]]
+            # The regime just after a reversal (pre-sliding, play): the direction fading with
+            # the travel since the last reversal, over two scales of the joint's stroke.
+            travel = np.abs(p.qf_all[:, i] - _last_reversal_position(p.qf_all[:, i], p.dqf_all[:, i]))
+            stroke = np.subtract(*np.quantile(p.qf_all[:, i], [0.99, 0.01]))
+            raw += [np.sign(p.dqf_all[:, i]) * np.exp(-travel / (f * stroke)) for f in TRAVEL_SCALES]
         F = p.filt(np.column_stack(raw))
         extra = [p.ddqf]
         u = self.tau_model_raw

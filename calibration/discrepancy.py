@@ -6,19 +6,25 @@ Method (after Ljung's residual analysis, Kaheman et al. 2019 "SINDy on the model
 discrepancy", and BIC selection):
 
 1. **Prepare.** Zero-phase Butterworth (order 4, 10 Hz by default: wider than the thesis'
-   3.5 Hz so that friction features at reversals survive) on q, dq, tau; ddq by central
-   differences; ends trimmed by the filter's settling length. The smooth-sign Coulomb
-   column and every effect column are computed on the raw samples and filtered with the
-   same filter as tau (parallel filtering). Train and held-out are contiguous blocks (the
-   held-out one at the end) with a guard of one settling length between them.
+   3.5 Hz so that friction features at reversals survive) on q, dq; ddq by central
+   differences; ends trimmed by the filter's settling length. A joint whose filtered
+   velocity is inside its deadband is stuck: its effort there is whatever the controller
+   left inside the static friction band. The effort, the regressor, the smooth-sign Coulomb
+   column and every effect column are computed on the raw samples, zeroed on the joint's
+   stuck samples and then filtered with the same filter (masked parallel filtering: the
+   equation holds on moving samples, is 0 = 0 on stuck ones, and a linear filter keeps it
+   exact; filtering first and dropping the stuck samples afterwards would leave their
+   effort smeared over ~20 moving samples on each side, a Stribeck- or delay-like pattern
+   on every null run). Train and held-out are contiguous blocks (the held-out one at the
+   end) with a guard of one settling length between them.
 2. **Baseline.** Without a given model: the thesis model (rigid body + Fc sigma(dq) + Fv dq +
    Fo + Ia ddq) in base parameters, weighted least squares on the training block (weights
    1 / residual std per joint). With a given model: its standard parameters as they are.
 3. **Detect**, per joint, on the held-out residual: (a) whiteness, a Ljung-Box Q on the
    residual decimated to the filter's band (rate / (2 cutoff) samples apart, 10 lags);
-   (b) predictability, the held-out share of residual variance a generic library of q, dq,
-   ddq of all joints, the model torque u and its lag explains when fitted on the training
-   residual. The thresholds are not textbook chi-square quantiles (filtering and the
+   (b) predictability, the held-out share of the residual's mean square (a constant part
+   counts) a generic library of q, dq, ddq of all joints, the model torque u and its lag
+   explains when fitted on the training residual. The thresholds are not textbook chi-square quantiles (filtering and the
    unavoidable friction-switching mismatch make the residual coloured even when nothing is
    missing): they are set on null simulations of the rig, residuals of simulated data
    without any hidden effect, stored in ``discrepancy_thresholds.json`` with how they were
@@ -65,12 +71,22 @@ FALLBACK_THRESHOLDS = {
 }
 #: A candidate must remove at least this share of what the generic library explains.
 LIBRARY_SHARE = 0.5
+#: An effect column whose singular value, among the effect's own (normalised) columns outside
+#: the model's span, is below this share of the largest carries a parameter these data
+#: cannot separate from the effect's other parameters (a payload's mass from its first
+#: moments on a parallelogram link): it is fixed at 0.
+COLLINEAR = 1e-2
 #: Candidates within this BIC of the best are equivalent explanations.
 TIE_BIC = 2.0
 #: A column whose part outside the current model's span is below this fraction of its norm
 #: is absorbed by the model (not separately identifiable).
 ABSORBED = 1e-3
 LJUNG_BOX_LAGS = 10
+#: Travel scales (fractions of a joint's stroke) of the detection library's after-reversal
+#: features.
+TRAVEL_SCALES = (0.005, 0.02)
+#: Golden-section steps refining a grid effect's non-linear parameter between grid values.
+REFINE_STEPS = 8
 #: Slopes a (s/rad, s/m) of the Coulomb sign tanh(a dq / 2) tried for an identified baseline.
 SLOPES = (100.0, 400.0, 1000.0, 3000.0)
 #: Velocity deadband (rad/s, rad/s, m/s) on the filtered velocity: slower, a joint may be
@@ -115,20 +131,22 @@ def ljung_box(r: np.ndarray, lags: int = LJUNG_BOX_LAGS) -> float:
 
 
 def heldout_r2(F_tr, r_tr, F_ho, r_ho) -> float:
-    """Share of held-out variance of r explained by features F fitted on train (can be < 0)."""
+    """Share of the held-out mean square of r explained by features F (and a constant) fitted
+    on train (can be < 0). Mean squares, not variances: a constant part of the residual (an
+    offset, an asymmetric Coulomb level against a given model) is a discrepancy too."""
     mu = F_tr.mean(0)
     sd = F_tr.std(0)
     sd[sd == 0] = 1.0
     A = np.column_stack([(F_tr - mu) / sd, np.ones(len(F_tr))])
     coef, *_ = np.linalg.lstsq(A, r_tr, rcond=None)
     pred = np.column_stack([(F_ho - mu) / sd, np.ones(len(F_ho))]) @ coef
-    v = np.var(r_ho)
-    return float(1.0 - np.var(r_ho - pred) / v) if v > 0 else 0.0
+    v = np.mean(r_ho ** 2)
+    return float(1.0 - np.mean((r_ho - pred) ** 2) / v) if v > 0 else 0.0
 
 
 def binned_r2(x_tr, r_tr, x_ho, r_ho, bins: int = 16) -> tuple[float, tuple[float, float], float]:
-    """Held-out R^2 of the residual's conditional mean given x (quantile bins from train),
-    the bin range with the largest |mean| and that mean."""
+    """Held-out share of the residual's mean square explained by its conditional mean given x
+    (quantile bins from train), the bin range with the largest |mean| and that mean."""
     edges = np.unique(np.quantile(x_tr, np.linspace(0, 1, bins + 1)))
     if len(edges) < 3:
         return 0.0, (float(x_tr.min()), float(x_tr.max())), 0.0
@@ -137,9 +155,9 @@ def binned_r2(x_tr, r_tr, x_ho, r_ho, bins: int = 16) -> tuple[float, tuple[floa
     means = np.array([r_tr[i_tr == b].mean() if np.any(i_tr == b) else 0.0 for b in range(len(edges) - 1)])
     means -= r_tr.mean()
     pred = means[i_ho] + r_tr.mean()
-    v = np.var(r_ho)
+    v = np.mean(r_ho ** 2)
     k = int(np.argmax(np.abs(means)))
-    return (float(1 - np.var(r_ho - pred) / v) if v > 0 else 0.0, (float(edges[k]), float(edges[k + 1])),
+    return (float(1 - np.mean((r_ho - pred) ** 2) / v) if v > 0 else 0.0, (float(edges[k]), float(edges[k + 1])),
             float(means[k]))
 
 
@@ -162,12 +180,22 @@ class Prepared:
     heldout: slice
     cutoff: float
     order: int
+    moving_raw: np.ndarray      # (n, 3) 1.0 where the raw sample's joint moves, 0.0 where it is stuck
+    qf_all: np.ndarray          # (n, 3) filtered, untrimmed (for the regressor before masking)
+    dqf_all: np.ndarray
+    ddqf_all: np.ndarray
 
     def filt(self, x: np.ndarray) -> np.ndarray:
         """Parallel filter of raw columns (n, ...) -> kept (m, ...)."""
         n = x.shape[0]
         flat = x.reshape(n, -1)
         return lowpass(flat, self.rate, self.cutoff, self.order)[self.kept].reshape((-1,) + x.shape[1:])
+
+    def filt_rows(self, x: np.ndarray) -> np.ndarray:
+        """Masked parallel filter of per-joint rows (n, 3, ...) -> kept (m, 3, ...): each joint's
+        stuck raw samples are zeroed before filtering, as the measured effort is."""
+        mask = self.moving_raw.reshape(self.moving_raw.shape + (1,) * (x.ndim - 2))
+        return self.filt(x * mask)
 
 
 def prepare(q, dq, tau, rate: float, settings: Settings) -> Prepared:
@@ -182,15 +210,23 @@ def prepare(q, dq, tau, rate: float, settings: Settings) -> Prepared:
                                "a held-out block")
     qf = lowpass(q, rate, settings.cutoff, settings.order)
     dqf = lowpass(dq, rate, settings.cutoff, settings.order)
-    tauf = lowpass(tau, rate, settings.cutoff, settings.order)
     ddqf = np.gradient(dqf, 1.0 / rate, axis=0)
+    # A stuck joint's effort is whatever the controller left inside the static friction band,
+    # no function of (q, dq, ddq). Leaving the stuck samples out after filtering is not
+    # enough: the filter has already spread their effort over the moving samples around them
+    # (up to ~20 samples at 10 Hz and 200 Hz), where it looks like a Stribeck, Dahl or delay
+    # effect on every run. So the effort and every model column are masked (zeroed on the
+    # joint's stuck raw samples) before filtering: the equation tau = W theta holds on the
+    # moving samples, is 0 = 0 on the stuck ones, and survives the linear filter exactly.
+    moving_raw = (np.abs(dqf) >= DEADBAND).astype(float)
+    tauf = lowpass(tau * moving_raw, rate, settings.cutoff, settings.order)
     kept = slice(trim, n - trim)
     m = n - 2 * trim
     n_ho = int(round(m * settings.heldout))
     train = slice(0, m - n_ho - trim)
     heldout = slice(m - n_ho, m)
     return Prepared(rate, q, dq, tau, qf[kept], dqf[kept], ddqf[kept], tauf[kept], kept, train, heldout,
-                    settings.cutoff, settings.order)
+                    settings.cutoff, settings.order, moving_raw, qf, dqf, ddqf)
 
 
 # ----------------------------------------------------------------------------- the workflow
@@ -200,6 +236,7 @@ class Added:
     joint: int
     grid: object
     raw_cols: np.ndarray        # (m, 3, k) filtered (kept-domain) columns, unweighted
+    unfiltered: np.ndarray      # (n, 3, k) the same columns on the raw samples
     free: np.ndarray            # (k_all,) bool: which of the effect's columns are in raw_cols
     params: dict = field(default_factory=dict)
     evidence: dict = field(default_factory=dict)
@@ -230,7 +267,12 @@ class Discrepancy:
         self.p = prepare(q, dq, tau, rate, self.settings)
         p = self.p
         self.given = None if given is None else np.asarray(given, float)
-        W = model.regressor_batch(p.qf, p.dqf, p.ddqf)
+        n = p.q.shape[0]
+        # The regressor on every raw sample (unfiltered, unmasked; the model's torque there is
+        # what delay and backlash columns are built from) and masked-filtered (the fits).
+        self.W_raw = model.regressor_batch(p.qf_all, p.dqf_all, p.ddqf_all)
+        W = p.filt_rows(self.W_raw.reshape(n, 3, -1))
+        W = W.reshape(-1, W.shape[2])
         self.W = W
         self.y = p.tauf.reshape(-1)
         self.m = p.tauf.shape[0]
@@ -250,6 +292,7 @@ class Discrepancy:
                 best = (score, a)
         self._set_slope(best[1])
         self.fixed = np.zeros_like(self.y) if given is None else W @ self.given
+        self.fixed_raw = np.zeros(3 * n) if given is None else self.W_raw @ self.given
         self.rows_tr = self._rows(p.train)
         self.rows_ho = self._rows(p.heldout)
         self.mov_tr = [np.flatnonzero(self.moving[p.train, j]) + p.train.start for j in range(3)]
@@ -268,10 +311,13 @@ class Discrepancy:
         """The Coulomb columns as sigma(dq) = tanh(a dq / 2) of the raw velocities, filtered
         like tau (parallel filtering)."""
         self.slope = float(a)
-        sig = self.p.filt(np.tanh(0.5 * self.slope * self.p.dq))
+        raw = np.tanh(0.5 * self.slope * self.p.dq)
+        sig = self.p.filt_rows(raw)
         for j in range(3):
             self.W[j::3, 70 + 4 * j] = sig[:, j]
+            self.W_raw[j::3, 70 + 4 * j] = raw[:, j]
         self.Wb = self.base.regressor(self.W)
+        self.Wb_raw = self.base.regressor(self.W_raw)
         self.ctx_raw = EffectContext(self.p.q, self.p.dq, self.p.rate, self.slope)
         self._col_cache = {}
 
@@ -316,6 +362,10 @@ class Discrepancy:
         self.D = D
         self.r_w_tr = (self.y - pred)[tr] * self.rw[tr]
         self.tau_model = pred.reshape(-1, 3)   # filtered model torque (kept domain)
+        blocks = [] if self.mode == "given_model" else [self.Wb_raw]
+        blocks += [a.unfiltered.reshape(-1, a.unfiltered.shape[2]) for a in self.added]
+        raw = self.fixed_raw + (np.hstack(blocks) @ coef if blocks else 0.0)
+        self.tau_model_raw = raw.reshape(-1, 3)  # the same model on the raw samples
 
     def residual(self) -> np.ndarray:
         return (self.y - self.pred).reshape(-1, 3)
@@ -347,12 +397,17 @@ class Discrepancy:
             s = np.tanh(0.5 * self.slope * v)
             vs = np.std(v) * 0.05
             raw += [p.q[:, i], p.q[:, i] ** 2, s, v, v * np.abs(v), s * np.exp(-(v / vs) ** 2), s * p.q[:, i]]
+            # The regime just after a reversal (pre-sliding, play): the direction fading with
+            # the travel since the last reversal, over two scales of the joint's stroke.
+            travel = np.abs(p.qf_all[:, i] - _last_reversal_position(p.qf_all[:, i], p.dqf_all[:, i]))
+            stroke = np.subtract(*np.quantile(p.qf_all[:, i], [0.99, 0.01]))
+            raw += [np.sign(p.dqf_all[:, i]) * np.exp(-travel / (f * stroke)) for f in TRAVEL_SCALES]
         F = p.filt(np.column_stack(raw))
         extra = [p.ddqf]
-        u = self.tau_model
+        u = self.tau_model_raw
         lag = int(round(0.02 * p.rate))
-        u_lag = np.vstack([u[:1].repeat(lag, 0), u[:-lag]]) - u
-        return np.column_stack([F] + extra + [u, u_lag])
+        u_lag = p.filt_rows(np.vstack([u[:1].repeat(lag, 0), u[:-lag]]) - u)
+        return np.column_stack([F] + extra + [self.tau_model, u_lag])
 
     def detect(self) -> list[dict]:
         """Per joint: Ljung-Box Q and library R^2 of the held-out residual vs thresholds."""
@@ -402,16 +457,21 @@ class Discrepancy:
                 "max_cross_correlation": xc}
 
     # -- naming -----------------------------------------------------------------------------
-    def _columns(self, eff, joint: int, g) -> np.ndarray:
-        """Filtered, kept-domain columns (m, 3, k)."""
+    def _columns(self, eff, joint: int, g, unfiltered: bool = False) -> np.ndarray:
+        """Masked-filtered, kept-domain columns (m, 3, k); or (n, 3, k) on the raw samples."""
         key = (eff.id, joint, g)
-        if eff.prefiltered:
+        if eff.uses_model:
+            # Built from the current model's torque or regressor on the raw samples (they
+            # change with every added effect: not cached).
             p = self.p
-            ctx = EffectContext(p.q[p.kept], p.dq[p.kept], p.rate, self.slope, self.tau_model, self.W,
+            ctx = EffectContext(p.q, p.dq, p.rate, self.slope, self.tau_model_raw, self.W_raw,
                                 tuple(self.model.body_names))
-            return eff.columns(ctx, joint, g)
+            raw = eff.columns(ctx, joint, g)
+            return raw if unfiltered else p.filt_rows(raw)
+        if unfiltered:
+            return eff.columns(self.ctx_raw, joint, g)
         if key not in self._col_cache:
-            self._col_cache[key] = self.p.filt(eff.columns(self.ctx_raw, joint, g))
+            self._col_cache[key] = self.p.filt_rows(eff.columns(self.ctx_raw, joint, g))
         return self._col_cache[key]
 
     def _score(self, E: np.ndarray) -> dict | None:
@@ -420,14 +480,23 @@ class Discrepancy:
         Ef = E.reshape(3 * self.m, -1)
         Ew = Ef[tr] * self.rw[tr, None]
         enorm = np.linalg.norm(Ew, axis=0)
-        if np.any(enorm == 0):
+        nonzero = enorm > 0
+        if not nonzero.any():
             return None
+        enorm[~nonzero] = 1.0
         Ew = Ew / enorm
         proj = self.Q.T @ Ew if self.Q.shape[1] else np.zeros((0, Ew.shape[1]))
         Ep = Ew - self.Q @ proj if self.Q.shape[1] else Ew
         # Columns the current model spans carry a parameter these data cannot separate from
-        # the model's own (a spring's rest position from the offset Fo): fixed at 0.
-        free = np.linalg.norm(Ep, axis=0) >= ABSORBED
+        # the model's own (a spring's rest position from the offset Fo): fixed at 0. So are
+        # columns that are zero (a mass on the yaw axis) or collinear with the effect's others.
+        free = nonzero & (np.linalg.norm(Ep, axis=0) >= ABSORBED)
+        while free.sum() > 1:
+            u, sv, vt = np.linalg.svd(Ep[:, free] / np.linalg.norm(Ep[:, free], axis=0), full_matrices=False)
+            if sv[-1] >= COLLINEAR * sv[0]:
+                break
+            # The column that carries most of the near-null direction goes.
+            free[np.flatnonzero(free)[int(np.argmax(np.abs(vt[-1])))]] = False
         if not free.any():
             return None
         theta = np.zeros(Ew.shape[1])
@@ -443,6 +512,45 @@ class Discrepancy:
         return {"theta": th, "rss0": rss0, "rss1": rss1, "pred": pred, "coef": self.coef - dcoef,
                 "fixed_columns": np.flatnonzero(~free).tolist()}
 
+    def _profile(self, eff, joint: int):
+        """(grid value, score) minimising the residual over the effect's non-linear parameter:
+        the catalogue grid, then a golden-section search (in log) between the best grid
+        value's neighbours, inside the grid's range (a period or a Stribeck velocity between
+        two grid values fits much better at the right value, which the BIC should see)."""
+        grid = list(eff.grid(joint))
+        scored = [(g, self._score(self._columns(eff, joint, g))) for g in grid]
+        ok = [(i, g, s) for i, (g, s) in enumerate(scored) if s is not None]
+        if not ok:
+            return None
+        i, g, s = min(ok, key=lambda t: t[2]["rss1"])
+        if len(grid) < 3 or not all(isinstance(x, float) and x > 0 for x in grid):
+            return g, s
+        lo, hi = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, len(grid) - 1)])
+        best = (g, s)
+        cache = {}
+
+        def f(x):
+            if x not in cache:
+                gg = float(np.exp(x))
+                cache[x] = (gg, self._score(self._columns(eff, joint, gg)))
+            r = cache[x][1]
+            return np.inf if r is None else r["rss1"]
+
+        ratio = (np.sqrt(5.0) - 1.0) / 2.0
+        a, b = lo, hi
+        c, d = b - ratio * (b - a), a + ratio * (b - a)
+        for _ in range(REFINE_STEPS):
+            if f(c) < f(d):
+                b, d = d, c
+                c = b - ratio * (b - a)
+            else:
+                a, c = c, d
+                d = a + ratio * (b - a)
+        for gg, r in cache.values():
+            if r is not None and r["rss1"] < best[1]["rss1"]:
+                best = (gg, r)
+        return best
+
     def candidates(self, joints: list[int]) -> list[dict]:
         """Best grid value of every (effect, joint) on the given joints, with figures."""
         out = []
@@ -453,11 +561,7 @@ class Discrepancy:
             for joint in joints:
                 if (eff.id, joint) in have:
                     continue
-                best = None
-                for g in eff.grid(joint):
-                    s = self._score(self._columns(eff, joint, g))
-                    if s is not None and (best is None or s["rss1"] < best[1]["rss1"]):
-                        best = (g, s)
+                best = self._profile(eff, joint)
                 if best is None:
                     out.append({"effect": eff.id, "joint": joint, "absorbed": True})
                     continue
@@ -465,11 +569,10 @@ class Discrepancy:
                 k = eff.n_params - len(s["fixed_columns"])
                 dbic = n_eff * np.log(s["rss0"] / s["rss1"]) - k * np.log(n_eff)
                 after = self.heldout_rms(s["pred"])
-                if eff.all_joints:
-                    wb, wa = before * self.w, after * self.w
-                    gain = float(1 - np.sum(wa ** 2) / np.sum(wb ** 2))
-                else:
-                    gain = float(1 - (after[joint - 1] / before[joint - 1]) ** 2)
+                # On the joint it is attributed to (also for a payload, whose columns load
+                # other joints too: the weighted sum would be dominated by joints it leaves
+                # alone, their noise weighted up by the per-joint weights).
+                gain = float(1 - (after[joint - 1] / before[joint - 1]) ** 2)
                 params = eff.params(s["theta"], g, joint, self._baseline_terms(s["coef"], joint))
                 out.append({"effect": eff.id, "joint": joint, "absorbed": False, "grid": g, "delta_bic": float(dbic),
                             "heldout_gain": gain, "heldout_rms_after": after, "params": params,
@@ -554,6 +657,7 @@ class Discrepancy:
         free = np.ones(eff.n_linear, bool)
         free[c["score"]["fixed_columns"]] = False
         cols = self._columns(eff, c["joint"], c["grid"])[:, :, free]
+        unfiltered = self._columns(eff, c["joint"], c["grid"], unfiltered=True)[:, :, free]
         ties = [f"{o['effect']}@{o['joint']}" for o in eligible
                 if o is not c and o["joint"] == c["joint"] and c["delta_bic"] - o["delta_bic"] < TIE_BIC]
         ties += [f"{e}@{c['joint']} (identical while moving)" for e in eff.equivalent_to]
@@ -565,7 +669,7 @@ class Discrepancy:
                     "equivalent_explanations": ties}
         if not free.all():
             evidence["not_separable"] = [eff.linear_names[i] for i in np.flatnonzero(~free)]
-        self.added.append(Added(eff.id, c["joint"], c["grid"], cols, free, c["params"], evidence,
+        self.added.append(Added(eff.id, c["joint"], c["grid"], cols, unfiltered, free, c["params"], evidence,
                                 before.tolist(), []))
         self._fit_current()
         self.added[-1].rms_after = self.heldout_rms().tolist()

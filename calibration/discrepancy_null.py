@@ -89,7 +89,7 @@ def thresholds_from(stats: list[dict]) -> dict:
             "delta_bic": (a["delta_bic"].max(0) + 10.0).tolist()}
 
 
-def calibrate(n_seeds: int = 16, progress=print) -> dict:
+def calibrate(n_seeds: int = 40, progress=print) -> dict:
     model, base = sim_model_and_base()
     t0 = time.perf_counter()
     out = {"thresholds": {}, "null_runs": {}}
@@ -125,7 +125,7 @@ def rederive(path=THRESHOLDS_PATH) -> dict:
 
 
 if __name__ == "__main__":
-    n = int(sys.argv[1]) if len(sys.argv) > 1 else 16
+    n = int(sys.argv[1]) if len(sys.argv) > 1 else 40
     doc = calibrate(n)
     THRESHOLDS_PATH.write_text(json.dumps(doc, indent=1) + "\n")
     print(json.dumps(doc["thresholds"], indent=1))

@@ -14,10 +14,10 @@ Each :class:`Effect` is one physical component a rigid-body + viscous/Coulomb/of
 * the torque it adds, ``torque(params, q, dq, tau_model, rate)`` (n, 3), so the augmented
   model can be evaluated by controllers and by the simulated rig.
 
-Columns are computed on the raw samples (``EffectContext.q``, ``dq`` at ``rate``) and the
-workflow filters them with the same zero-phase low-pass as the measured torques (parallel
-filtering: a linear-in-parameters model stays exact through a linear filter), except those
-marked ``prefiltered`` (they are built from already filtered model torques or regressors).
+Columns are computed on the raw samples (``EffectContext.q``, ``dq`` at ``rate``; for those
+marked ``uses_model`` also the current model's torque and regressor on the raw samples) and
+the workflow filters them with the same masked zero-phase low-pass as the measured torques
+(parallel filtering: a linear-in-parameters model stays exact through a linear filter).
 
 Units: joints 1-2 rad, rad/s, N m; joint 3 m, m/s, N. ``sigma(dq)`` is the model's smooth
 sign tanh(a dq / 2) with the baseline slope a.
@@ -46,8 +46,8 @@ PAYLOAD_BODIES = ("yaw_link", "pitch_end", "tool")
 @dataclass
 class EffectContext:
     """What an effect's columns may use: raw samples (n, 3) at ``rate`` Hz, the smooth-sign
-    slope a (s/rad), the current model's filtered torque prediction (n, 3) and the
-    filtered standard regressor (3n, 82) for payload columns."""
+    slope a (s/rad), the current model's torque prediction (n, 3) and the standard
+    regressor (3n, 82) on the same samples (for payload columns)."""
 
     q: np.ndarray
     dq: np.ndarray
@@ -73,11 +73,11 @@ class Effect:
     units: Callable[[int], dict]        # joint (1-3) -> {param: unit}
     grid: Callable[[int], tuple]        # joint -> grid of the non-linear parameter (or (None,))
     grid_name: str | None
-    _columns: Callable                  # (ctx, joint, g) -> (n, 3, k) raw or prefiltered columns
+    _columns: Callable                  # (ctx, joint, g) -> (n, 3, k) columns on the raw samples
     _params: Callable                   # (theta, g, joint, baseline) -> dict
     _sanity: Callable                   # (params, joint) -> str | None (None: passes)
     _torque: Callable                   # (params, joint, q, dq, tau_model, rate, slope) -> (n,) on the joint
-    prefiltered: bool = False
+    uses_model: bool = False            # built from the current model's torque or regressor
     all_joints: bool = False            # payload: columns on every joint's rows
     in_rigid_body_model: bool = False   # absorbed by a model identified on the same data
     equivalent_to: tuple[str, ...] = ()
@@ -291,11 +291,19 @@ def _payload() -> Effect:
         return W.reshape(-1, 3, 4)
 
     def params(th, g, j, base):
+        # th[0] == 0 exactly: the mass column was not separable (zero on this joint's rows, as
+        # a mass on the yaw axis, or collinear with the first moments); then only the first
+        # moments m c are reported.
         m = float(th[0])
-        com = (th[1:4] / m).tolist() if m != 0 else [float("nan")] * 3
-        return {"mass": m, "com": com, "body": PAYLOAD_BODIES[j - 1]}
+        if m == 0.0:
+            return {"mass": None, "com": None, "first_moment": [float(x) for x in th[1:4]],
+                    "body": PAYLOAD_BODIES[j - 1]}
+        return {"mass": m, "com": (th[1:4] / m).tolist(), "first_moment": [float(x) for x in th[1:4]],
+                "body": PAYLOAD_BODIES[j - 1]}
 
     def sanity(p, j):
+        if p["mass"] is None:
+            return None
         if not p["mass"] > 0:
             return f"mass {p['mass']:.4g} kg is not positive"
         if not np.all(np.abs(p["com"]) < 0.6):
@@ -310,16 +318,20 @@ def _payload() -> Effect:
                   "its gravity and inertia", "q (gravity), ddq", "whole workspace", ("m", "mcx", "mcy", "mcz"),
                   lambda j: {"mass": "kg", "com": "m (body joint frame)", "body": ""},
                   lambda j: (None,), None, cols, params, sanity, torque,
-                  prefiltered=True, all_joints=True, in_rigid_body_model=True)
+                  uses_model=True, all_joints=True, in_rigid_body_model=True)
 
 
 def payload_standard_delta(params: dict, body_names) -> np.ndarray:
     """Change of the 82 standard parameters for a point-mass payload (its m and first
     moments; the point mass's own rotational inertia about the frame origin is included)."""
     b = list(body_names).index(params["body"])
+    d = np.zeros(10 * len(body_names) + 12)
+    if params.get("mass") is None:
+        # Only the first moments are known: they are what the gravity torque depends on.
+        d[10 * b + 1:10 * b + 4] = params["first_moment"]
+        return d
     m = params["mass"]
     c = np.asarray(params["com"], float)
-    d = np.zeros(10 * len(body_names) + 12)
     # Inertia about the origin of a point mass: m (|c|^2 I - c c^T).
     Io = m * (c @ c * np.eye(3) - np.outer(c, c))
     d[10 * b:10 * b + 10] = [m, m * c[0], m * c[1], m * c[2], Io[0, 0], Io[0, 1], Io[1, 1], Io[0, 2],
@@ -350,7 +362,7 @@ def _backlash() -> Effect:
                   "first b of travel after each reversal", ("unloaded_fraction",),
                   lambda j: {"width": _u(j, "rad", "m"), "unloaded_fraction": "1"},
                   lambda j: _geom(0.002, 0.04, 7) if j < 3 else _geom(0.0003, 0.006, 7), "width",
-                  cols, params, sanity, torque, prefiltered=True)
+                  cols, params, sanity, torque, uses_model=True)
 
 
 def _hysteresis() -> Effect:
@@ -378,6 +390,10 @@ def _hysteresis() -> Effect:
                   cols, params, sanity, torque)
 
 
+#: Delays (s) tried for ``time_delay``.
+DELAY_GRID = (0.005, 0.01, 0.015, 0.02, 0.03, 0.04, 0.06)
+
+
 def _time_delay() -> Effect:
     def cols(ctx, j, delay):
         x = ctx.tau_model[:, j - 1]
@@ -387,9 +403,12 @@ def _time_delay() -> Effect:
         return {"delay": float(delay * th[0]), "grid_delay": float(delay), "gain": float(th[0])}
 
     def sanity(p, j):
-        # The baseline refit takes up part of a delay (gain < 1 at a longer grid delay).
-        if not 0.3 <= p["gain"] <= 1.5:
-            return f"the delayed-torque gain {p['gain']:.3g} is far from 1 (not a pure delay)"
+        # To first order tau(t - d) - tau(t) = -d dtau/dt, so the gain and the grid delay trade
+        # off (and the baseline refit takes up part of a delay): what is physical is that the
+        # effort lags (d = gain x grid delay > 0) by no more than the catalogue's longest delay.
+        if not 0.0 < p["delay"] <= DELAY_GRID[-1]:
+            return (f"the implied delay {p['delay']:.3g} s is not a lag within (0, {DELAY_GRID[-1]:g}] s "
+                    f"(gain {p['gain']:.3g} at {p['grid_delay']:g} s)")
         return None
 
     def torque(p, j, q, dq, tm, rate, slope):
@@ -399,8 +418,8 @@ def _time_delay() -> Effect:
     return Effect("time_delay", "measured effort lagging the motion by d: tau(t - d)",
                   "lag of the model torque", "fast torque changes", ("gain",),
                   lambda j: {"delay": "s", "grid_delay": "s", "gain": "1"},
-                  lambda j: (0.005, 0.01, 0.015, 0.02, 0.03, 0.04, 0.06), "delay",
-                  cols, params, sanity, torque, prefiltered=True)
+                  lambda j: DELAY_GRID, "delay",
+                  cols, params, sanity, torque, uses_model=True)
 
 
 def _torque_offset() -> Effect:

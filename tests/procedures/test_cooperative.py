@@ -284,3 +284,22 @@ def test_rotate_turns_the_object_about_its_centroid_and_holds_the_tension():
     assert turned == pytest.approx(0.3, abs=0.01)
     centroid = [(tips["PSM1"][i] + tips["PSM2"][i]) / 2 for i in (0, 1)]
     assert np.linalg.norm(centroid[1] - centroid[0]) < 1e-3
+
+
+def test_uses_the_registration_run_and_the_model_file_and_says_which(tmp_path):
+    """After `rig register` the arms' RCM frames come from that run, and --model FILE is
+    the controllers' model; the result names both."""
+    from rig.model_file import save_model
+    from rig.psm_dynamics import PSMDynamics, standard_parameter_names
+
+    reg = CliRunner().invoke(main, ["register", "--json"])
+    assert reg.exit_code == 0, reg.output
+    reg_dir = json.loads([x for x in reg.stdout.splitlines() if x.startswith("{")][-1])["run_dir"]
+    path = save_model(tmp_path / "model.json", standard=PSMDynamics().standard_params() * 1.1,
+                      names=standard_parameter_names(), slope=400.0, gravity=np.array([0.0, 0.0, -9.81]),
+                      provenance_info={"data_source": "test: nominal parameters scaled by 1.1"})
+    res, data = _invoke(["--model", str(path), "--duration", "2", "--settle", "1.5", "--hold-after", "0.5"])
+    assert res.exit_code == 0, res.output
+    assert data["model"] == f"identified model {path}"
+    assert data["registration"] == f"registration {reg_dir}"
+    assert data["max_error_during_motion"] < 0.25

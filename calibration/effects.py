@@ -55,10 +55,10 @@ class EffectContext:
     slope: float
     tau_model: np.ndarray | None = None
     W_standard: np.ndarray | None = None
+    body_names: tuple[str, ...] = ()
     # The current model's inertia on each joint (M_jj at the data's median configuration:
     # N m s^2/rad, kg), for the backlash crossing.
     inertia: np.ndarray | None = None
-    body_names: tuple[str, ...] = ()
 
     def sign(self, v):
         return np.tanh(0.5 * self.slope * v)

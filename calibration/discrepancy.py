@@ -465,7 +465,7 @@ class Discrepancy:
             # change with every added effect: not cached).
             p = self.p
             ctx = EffectContext(p.q, p.dq, p.rate, self.slope, self.tau_model_raw, self.W_raw,
-                                tuple(self.model.body_names))
+                                tuple(self.model.body_names), self._inertia())
             raw = eff.columns(ctx, joint, g)
             return raw if unfiltered else p.filt_rows(raw)
         if unfiltered:
@@ -580,12 +580,32 @@ class Discrepancy:
         return out
 
     def _baseline_terms(self, coef: np.ndarray, joint: int) -> dict:
-        """The joint's Coulomb level Fc in the current fit (for Fs >= Fc checks)."""
+        """The joint's Coulomb level Fc in the current fit (for Fs >= Fc checks) and its
+        inertia (for the backlash crossing)."""
         idx = 70 + 4 * (joint - 1)
+        inertia = float(self._inertia(coef)[joint - 1])
         if self.mode == "given_model":
-            return {"Fc": float(self.given[idx])}
+            return {"Fc": float(self.given[idx]), "inertia": inertia}
         pos = np.flatnonzero(self.base.independent == idx)
-        return {"Fc": float(coef[pos[0]])} if pos.size else {}
+        return ({"Fc": float(coef[pos[0]])} if pos.size else {}) | {"inertia": inertia}
+
+    def _inertia(self, coef: np.ndarray | None = None) -> np.ndarray:
+        """Diagonal of the current model's mass matrix (3,) at the data's median configuration:
+        the regressor's change for a unit acceleration of each joint, times the parameters."""
+        coef = self.coef if coef is None else coef
+        qmed = np.median(self.p.qf_all, axis=0)[None]
+        z = np.zeros((1, 3))
+        Y0 = self.model.regressor_batch(qmed, z, z)
+        out = np.empty(3)
+        for j in range(3):
+            e = z.copy()
+            e[0, j] = 1.0
+            dY = self.model.regressor_batch(qmed, z, e) - Y0
+            if self.mode == "given_model":
+                out[j] = dY[j] @ self.given
+            else:
+                out[j] = self.base.regressor(dY)[j] @ coef[:self.Wb.shape[1]]
+        return out
 
     # -- the loop ---------------------------------------------------------------------------
     def run(self) -> dict:

@@ -56,6 +56,9 @@ class EffectContext:
     tau_model: np.ndarray | None = None
     W_standard: np.ndarray | None = None
     body_names: tuple[str, ...] = ()
+    # The current model's inertia on each joint (M_jj at the data's median configuration:
+    # N m s^2/rad, kg), for the backlash crossing.
+    inertia: np.ndarray | None = None
 
     def sign(self, v):
         return np.tanh(0.5 * self.slope * v)
@@ -151,17 +154,44 @@ def dahl_state(q: np.ndarray, travel: float) -> np.ndarray:
     return z
 
 
-def gap_window(q: np.ndarray, tau_model: np.ndarray, width: float) -> np.ndarray:
-    """1 while the motor has travelled less than ``width`` (rad or m) since the transmitted
-    torque last changed sign (where a backlash gap is crossed), else 0."""
-    s = np.sign(tau_model)
-    w = np.zeros_like(q, dtype=float)
-    start = None
-    for k in range(len(q)):
-        if k > 0 and s[k] != 0 and s[k] != s[k - 1]:
-            start = q[k]
-        if start is not None and abs(q[k] - start) < width:
-            w[k] = 1.0
+def gap_window(tau_model: np.ndarray, inertia: float, rate: float, width: float) -> np.ndarray:
+    """1 while a play of total width ``width`` (rad or m) is being crossed, else 0, on samples
+    at ``rate`` Hz: the lost motion at a reversal of the transmitted torque.
+
+    The encoder reads the motor side, which follows the measured path; the joint side is in
+    contact with one face of the play while the torque ``tau_model`` the path needs pushes
+    on it. When that torque changes sign the joint side is left to its own loads and the
+    motor crosses the play: relative to the joint it accelerates by tau_model / inertia (the
+    path's torque less the loads, over the joint's inertia), until it has travelled the
+    width and meets the other face. The relative position is kept between the faces, so a
+    reversal in the middle of a crossing turns back from where the motor is.
+    """
+    u = np.asarray(tau_model, float)
+    h = 1.0 / rate
+    half = 0.5 * width
+    w = np.zeros(len(u))
+    side = np.sign(u[0]) if len(u) else 0.0
+    x = side * half          # motor minus joint, relative to the middle of the play
+    v = 0.0
+    in_gap = False
+    for k in range(len(u)):
+        s = np.sign(u[k])
+        if not in_gap:
+            if s != 0 and side != 0 and s != side:
+                in_gap, v = True, 0.0
+            elif side == 0:
+                side = s
+                x = side * half
+        if in_gap:
+            v += h * u[k] / inertia
+            x += h * v
+            if abs(x) >= half:
+                x = np.sign(x) * half
+                side = np.sign(x)
+                in_gap, v = False, 0.0
+                if s != side:     # the torque turned back while crossing: cross again
+                    in_gap = True
+            w[k] = 1.0 if in_gap or abs(x) < half else 0.0
     return w
 
 
@@ -341,26 +371,33 @@ def payload_standard_delta(params: dict, body_names) -> np.ndarray:
 
 def _backlash() -> Effect:
     def cols(ctx, j, width):
-        w = gap_window(ctx.q[:, j - 1], ctx.tau_model[:, j - 1], width)
+        inertia = float(ctx.inertia[j - 1])
+        if not inertia > 0:
+            return _on(j, np.zeros(len(ctx.q)))
+        w = gap_window(ctx.tau_model[:, j - 1], inertia, ctx.rate, width)
         return _on(j, -w * ctx.tau_model[:, j - 1])
 
     def params(th, width, j, base):
-        return {"width": float(width), "unloaded_fraction": float(th[0])}
+        return {"width": float(width), "unloaded_fraction": float(th[0]), "inertia": float(base["inertia"])}
 
     def sanity(p, j):
         if not 0.2 <= p["unloaded_fraction"] <= 1.5:
             return (f"the load seen while crossing the gap drops by {p['unloaded_fraction']:.3g} of the "
                     "model torque (a gap unloads by about 1)")
+        if not p["inertia"] > 0:
+            return f"the model's inertia on the joint is {p['inertia']:.3g}: the crossing is undefined"
         return None
 
     def torque(p, j, q, dq, tm, rate, slope):
-        w = gap_window(q[:, j - 1], tm[:, j - 1], p["width"])
+        w = gap_window(tm[:, j - 1], p["inertia"], rate, p["width"])
         return -p["unloaded_fraction"] * w * tm[:, j - 1]
 
-    return Effect("backlash", "dead zone at torque reversal: the drive is unloaded while the motor "
-                  "crosses the play of width b", "q travel after a torque reversal",
-                  "first b of travel after each reversal", ("unloaded_fraction",),
-                  lambda j: {"width": _u(j, "rad", "m"), "unloaded_fraction": "1"},
+    return Effect("backlash", "dead zone at torque reversal: while the motor crosses the play of width b "
+                  "(driven relative to the unloaded joint by the model torque over the joint inertia) "
+                  "the drive transmits nothing", "motor travel across the play after a torque reversal",
+                  "crossing the play after each reversal of the transmitted torque", ("unloaded_fraction",),
+                  lambda j: {"width": _u(j, "rad", "m"), "unloaded_fraction": "1",
+                             "inertia": _u(j, "N m s^2/rad", "kg")},
                   lambda j: _geom(0.002, 0.04, 7) if j < 3 else _geom(0.0003, 0.006, 7), "width",
                   cols, params, sanity, torque, uses_model=True)
 

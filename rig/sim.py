@@ -235,8 +235,9 @@ class SimWorld:
         # With backlash half of the rotor inertia sits on the motor side of the play.
         self.Im = np.where(self.backlash > 0, 0.5 * self.Ia, 1.0)
         self.Ij = np.where(self.backlash > 0, 0.5 * self.Ia, self.Ia)
-        # Transmission stiffness outside the play (N m/rad, N/m) and its damping: stiff, yet
-        # sqrt(k / Im) h < 1 at 1 kHz so the explicit step stays stable.
+        # Transmission stiffness outside the play (N m/rad, N/m) and its damping. The kernel
+        # integrates this contact implicitly for the motor-joint pair (an explicit step was
+        # unstable in the damping: c h / Im = 1.33 on joint 3), so any values are stable.
         self.backlash_k = np.tile([1.0e4, 1.0e4, 5.0e4], len(arms))
         self.backlash_c = np.tile([20.0, 20.0, 100.0], len(arms))
         self.kp = np.concatenate([a.spec.pid.kp for a in arms])

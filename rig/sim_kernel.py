@@ -113,6 +113,9 @@ def step(h, Mt, nle, G, state, c, modes, edges, rest, obj, bases, r_offset, tens
     # Smooth joint-side loads and the drive torque through any backlash.
     rhs = np.empty(n3)
     coupling = np.zeros(n3)
+    stretch = np.zeros(n3)
+    contact = np.zeros(n3, dtype=np.bool_)
+    has_backlash = False
     for j in range(n3):
         smooth = (Fv[j] * dq[j] + Fo[j] + offset[j] + kspring[j] * (q[j] - qspring[j])
                   + visc2[j] * dq[j] * abs(dq[j]))
@@ -123,22 +126,49 @@ def step(h, Mt, nle, G, state, c, modes, edges, rest, obj, bases, r_offset, tens
             smooth += dahl[j]
         drive = tau[j]
         if backlash[j] > 0.0:
+            has_backlash = True
             gap = 0.5 * backlash[j]
             d = qm[j] - q[j]
-            stretch = 0.0
             if d > gap:
-                stretch = d - gap
+                stretch[j] = d - gap
+                contact[j] = True
             elif d < -gap:
-                stretch = d + gap
-            c = backlash_k[j] * stretch
-            if stretch != 0.0:
-                c += backlash_c[j] * (dqm[j] - dq[j])
-            coupling[j] = c
-            drive = c
+                stretch[j] = d + gap
+                contact[j] = True
+            drive = 0.0   # the transmitted torque is solved for below
         rhs[j] = drive + ext[j] - bias[j] - smooth
 
     Minv = np.linalg.inv(M)
     v = dq + h * (Minv @ rhs)
+    if has_backlash:
+        # The contact spring-damper between the motor side and the joint side of each play,
+        # linearly implicit in the new relative velocity w+ = dqm+ - dq+ (backward Euler on the
+        # pair: F = k stretch + (c + h k) w+). Explicit, c h / Im > 1 made the motor side
+        # chatter; implicit, the contact is dissipative for any stiffness and damping.
+        # w+ = w_free - h (Im^-1 + Minv) F, and F = F0 + D w+ on the joints in contact:
+        # (I + h D A) F = F0 + D w_free.
+        A = Minv.copy()
+        w_free = np.zeros(n3)
+        F0 = np.zeros(n3)
+        D = np.zeros(n3)
+        for j in range(n3):
+            if backlash[j] > 0.0:
+                A[j, j] += 1.0 / Im[j]
+                w_free[j] = dqm[j] + h * tau[j] / Im[j] - v[j]
+                if contact[j]:
+                    F0[j] = backlash_k[j] * stretch[j]
+                    D[j] = backlash_c[j] + h * backlash_k[j]
+        S = np.eye(n3)
+        b = np.zeros(n3)
+        for j in range(n3):
+            if D[j] > 0.0:
+                for i in range(n3):
+                    S[j, i] += h * D[j] * A[j, i]
+                b[j] = F0[j] + D[j] * w_free[j]
+        F = np.linalg.solve(S, b)
+        for j in range(n3):
+            coupling[j] = F[j]
+        v += h * (Minv @ F)
 
     # Dry friction: impulses bounded by the Coulomb/Stribeck level, projected Gauss-Seidel.
     up = np.empty(n3)

@@ -135,6 +135,44 @@ def test_backlash_separates_encoder_from_joint():
     assert 2e-4 < abs(diff) <= 0.0011
 
 
+def _backlash_stroke(joint: int, play: float, amp: float, seconds: float = 4.0):
+    """Joint ``joint`` (0-based) with a play driven through sin^2 strokes of ``amp``: the
+    motor-minus-joint offset and relative velocity at every 1 ms step."""
+    b = np.zeros(3)
+    b[joint] = play
+    w = SimWorld([ArmSpec("A", effects=HiddenEffects(backlash=b), noise=SensorNoise.off())])
+    w.advance(0.3)
+    q0 = w.qm[:3].copy()
+    d, rel = [], []
+    for k in range(int(round(seconds / w.dt))):
+        t = k * w.dt
+        target, rate = q0.copy(), np.zeros(3)
+        target[joint] += amp * np.sin(np.pi * t) ** 2
+        rate[joint] = amp * np.pi * np.sin(2 * np.pi * t)
+        w.servo_jp("A", target, rate)
+        w.step()
+        d.append(w.qm[joint] - w.q[joint])
+        rel.append(w.dqm[joint] - w.dq[joint])
+    return np.array(d), np.array(rel)
+
+
+def test_backlash_contact_does_not_chatter():
+    # Gravity keeps the insertion joint loaded on one side of its play: the contact must hold
+    # still (an explicit step of the contact damping, c h / Im > 1, made the sides bounce).
+    d, rel = _backlash_stroke(2, 0.002, 0.03)
+    assert np.all(np.abs(d) > 0.001)
+    assert np.sqrt(np.mean(rel ** 2)) < 2e-3
+
+
+def test_backlash_reversal_crosses_the_whole_play():
+    # The yaw joint's transmitted torque reverses: the motor side travels across the play
+    # (lost motion) and presses on the other side, with only the contact's small stretch beyond.
+    play = 0.01
+    d, _ = _backlash_stroke(0, play, 0.3)
+    assert d.min() < -0.5 * play and d.max() > 0.5 * play
+    assert play <= d.max() - d.min() <= 1.1 * play
+
+
 def test_effort_delay_shifts_the_measured_effort():
     effects = HiddenEffects(time_delay=0.02)
     w = SimWorld([ArmSpec("A", effects=effects, noise=SensorNoise.off())])

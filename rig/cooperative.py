@@ -10,12 +10,18 @@ the object vector to track the tension (eq. 7.10-7.12):
 
 The thesis' x_f update is a pure integrator (K_f = k_i dt); its 1-2 N start-up transient
 came from the missing damping, which here is the rate term k_damp dh_e/dt on the filtered
-tension, and the tension set-point is ramped up with a minimum-jerk profile.
+tension, and the tension set-point is ramped up with a minimum-jerk profile once the
+object is taut (a slack object is first taken up at a set tip speed).
+Slaves add the master's measured lag behind its plan (position and velocity) to their own
+plan. On a stiff string the slave also gets a proportional tension feedback k_fp (F_d - F)
+along the object (see `preset`).
 With three arms the object is a triangle. Each slave tracks the tension of its element
 with the master, moving away from the master; the pull of the element between the two
 slaves is measured too and fed forward into the slave's target (its tension divided by
-the impedance stiffness, along that element), so the impedance does not yield to it and
-the slave-slave element keeps the stretch of the other two.
+the impedance stiffness, along that element), so the impedance does not yield to it, and
+that element's tension error is integrated into a second offset along it, half by each
+of its slaves.
+User increments (keyboard, ROS) are targets the applied offsets slew toward.
 
 The controller sees only measurements (joint states, tension samples); it never reads
 the simulated world. It returns, per arm, a position command or an effort command.

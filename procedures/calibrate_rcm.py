@@ -34,11 +34,11 @@ from calibration.fit_error import FitError
 from calibration.pivot import PivotFit, fit_pivot
 from calibration.pivot_insertion import pivot_with_insertion
 from calibration.registration import pose_error
-from procedures.link_lengths import _joint_sign, load_config
+from procedures.link_lengths import _joint_sign
 from procedures.mocap_sweep import Capture, _Collector, body_points, concatenate, move_capture, open_devices, servo_capture
 from rig import psm_kinematics as K
 from rig.params import Parameter, with_parameters
-from rig.run import Run, emit_result, exit_on_abort, json_option
+from rig.run import Run, config_from_context, emit_result, exit_on_abort, json_option
 
 PROCEDURE = "calibrate-rcm"
 STEPS = (
@@ -361,7 +361,7 @@ def command(ctx, parameters, from_csv, body, list_steps: bool, as_json: bool) ->
         if from_csv:
             result = run_from_csv(from_csv, body, parameters)
         else:
-            result = run_calibrate_rcm(load_config(ctx), parameters)
+            result = run_calibrate_rcm(config_from_context(ctx), parameters)
     except FitError as exc:
         where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
         click.echo(f"rig {PROCEDURE}: refused: {exc}{where}", err=True)

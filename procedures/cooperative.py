@@ -22,7 +22,7 @@ import click
 import numpy as np
 
 from rig.params import Parameter, with_parameters
-from rig.run import AbortRun, Run, emit_result, exit_on_abort, json_option
+from rig.run import AbortRun, Run, config_from_context, emit_result, exit_on_abort, json_option
 
 #: Live increments: per key press, and the slew rates the controller ramps them in at
 KEY_STEP_M, KEY_STEP_RAD, KEY_STEP_N = 0.002, 0.05, 0.5      # m, rad, N
@@ -97,15 +97,10 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
     moves it by --move over --duration seconds. Figures: max |F - force| during the
     motion, RMS error after settling, start-up overshoot, settling time (N, s).
     """
-    from rig import config as config_mod
-
     if list_steps:
         click.echo("\n".join(f"{i + 1}. {name}" for i, name in enumerate(STEPS)))
         return
-    try:
-        cfg = config_mod.load((ctx.obj or {}).get("config_path"))
-    except config_mod.ConfigError as exc:
-        raise click.ClickException(str(exc)) from None
+    cfg = config_from_context(ctx)
     names = [a.strip() for a in arms.split(",")] if arms else list(cfg.object["arms"] or list(cfg.arms)[:2])
     if not 2 <= len(names) <= 3 or len(set(names)) != len(names):
         raise click.BadParameter(f"name two or three different arms, got {names}", param_hint="--arms")

@@ -31,7 +31,7 @@ import click
 import numpy as np
 
 from rig.params import Parameter, with_parameters
-from rig.run import AbortRun, Run, emit_result, exit_on_abort, json_option
+from rig.run import AbortRun, Run, config_from_context, emit_result, exit_on_abort, json_option
 
 PROCEDURE = "friction-ramp"
 JOINT = 2  # joint 3, 0-based
@@ -367,15 +367,6 @@ def simulated_truth(world, arm_name: str, dyn, ramps: dict) -> dict:
     return out
 
 
-def load_config(ctx):
-    from rig import config
-
-    try:
-        return config.load((ctx.obj or {}).get("config_path") if ctx.obj else None)
-    except config.ConfigError as exc:
-        raise click.ClickException(str(exc)) from None
-
-
 def report_text(r: dict) -> str:
     lines = [f"friction-ramp: {r.get('status', '')}",
              f"joint 3 breakaway beyond the compensation ({r['compensation']['model']}): "
@@ -419,7 +410,7 @@ def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
     from rig.model_file import ModelFileError
 
     try:
-        result = run_friction_ramp(load_config(ctx), parameters)
+        result = run_friction_ramp(config_from_context(ctx), parameters)
     except (FrictionFitError, ModelFileError) as exc:
         where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
         click.echo(f"rig {PROCEDURE}: {exc}{where}", err=True)

@@ -67,7 +67,7 @@ import click
 import numpy as np
 
 from rig.params import Parameter, with_parameters
-from rig.run import AbortRun, Run, emit_result, exit_on_abort, json_option
+from rig.run import AbortRun, Run, config_from_context, emit_result, exit_on_abort, json_option
 
 PROCEDURE = "identify"
 
@@ -968,15 +968,6 @@ def simulated_truth(world, arm_name: str, outcome: FitOutcome, val) -> dict:
     return out
 
 
-def load_config(ctx):
-    from rig import config
-
-    try:
-        return config.load((ctx.obj or {}).get("config_path") if ctx.obj else None)
-    except config.ConfigError as exc:
-        raise click.ClickException(str(exc)) from None
-
-
 def _data_errors():
     from calibration.base_params import RankDeficientError
     from calibration.datasets import DataError
@@ -1011,7 +1002,7 @@ def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
         if offline:
             result = run_offline(parameters, progress=True)
         else:
-            result = run_live(load_config(ctx), parameters)
+            result = run_live(config_from_context(ctx), parameters)
     except errors as exc:
         where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
         click.echo(f"rig {PROCEDURE}: {exc}{where}", err=True)

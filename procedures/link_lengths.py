@@ -67,7 +67,7 @@ from calibration.registration import invert, mean_pose
 from procedures.mocap_sweep import (Capture, _Collector, body_points, move_capture, open_devices, settle)
 from rig import psm_kinematics as K
 from rig.params import Parameter, with_parameters
-from rig.run import Run, emit_result, exit_on_abort, json_option
+from rig.run import Run, config_from_context, emit_result, exit_on_abort, json_option
 
 PROCEDURE = "link-lengths"
 STEPS = (
@@ -589,14 +589,6 @@ def _tracker_stats(tracker) -> dict:
     return {k: v for k, v in vars(st).items() if isinstance(v, (int, float, dict))}
 
 
-def load_config(ctx):
-    from rig import config
-    try:
-        return config.load((ctx.obj or {}).get("config_path") if ctx.obj else None)
-    except config.ConfigError as exc:
-        raise click.ClickException(str(exc)) from None
-
-
 @click.command(name=PROCEDURE)
 @with_parameters(PARAMETERS)
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
@@ -616,7 +608,7 @@ def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
         for i, s in enumerate(STEPS, 1):
             click.echo(f"{i}. {s}")
         return
-    cfg = load_config(ctx)
+    cfg = config_from_context(ctx)
     try:
         result = run_link_lengths(cfg, parameters)
     except FitError as exc:

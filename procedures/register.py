@@ -31,12 +31,11 @@ import numpy as np
 
 from calibration.fit_error import FitError
 from calibration.registration import invert, pose_error, register_from_touch_points
-from procedures.link_lengths import load_config
 from procedures.mocap_sweep import _Collector, open_devices, settle
 from rig import psm_kinematics as K
 from rig.params import Parameter, with_parameters
 from rig.paths import latest_result
-from rig.run import Run, emit_result, exit_on_abort, json_option
+from rig.run import Run, config_from_context, emit_result, exit_on_abort, json_option
 
 PROCEDURE = "register"
 STEPS = ("open the rig and take the object off", "measure", "fit the transforms", "save")
@@ -209,7 +208,7 @@ def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
             click.echo(f"{i}. {s}")
         return
     try:
-        result = run_register(load_config(ctx), parameters)
+        result = run_register(config_from_context(ctx), parameters)
     except FitError as exc:
         where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
         click.echo(f"rig {PROCEDURE}: refused: {exc}{where}", err=True)

@@ -26,14 +26,11 @@ TOLERANCE = np.array([1e-3, 1e-3, 5e-4])    # settled: every joint within this (
 @click.pass_context
 def command(ctx: click.Context, duration: float, seed: int | None, as_json: bool) -> None:
     """Short run of the simulated rig: PID step on every arm, object tension (SI units)."""
-    from rig import config
+    from rig.run import config_from_context
     from rig import psm_kinematics as K
     from rig.sim import world_from_config
 
-    try:
-        cfg = config.load((ctx.obj or {}).get("config_path"))
-    except config.ConfigError as exc:
-        raise click.ClickException(str(exc)) from None
+    cfg = config_from_context(ctx)
     if duration <= 0:
         raise click.BadParameter("must be > 0 s", param_hint="--duration")
     world = world_from_config(cfg, seed=seed)

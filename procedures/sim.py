@@ -40,7 +40,6 @@ import time
 from collections import deque
 
 import click
-import numpy as np
 
 STEPS = ("build the simulated world", "start the load cell on a pty", "create the ROS 2 node and topics",
          "serve until stopped")
@@ -307,10 +306,10 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, list_step
         for i, s in enumerate(STEPS, 1):
             _say(f"{i}. {s}")
         return
-    from rig import config as rig_config
+    from rig.run import config_from_context
     from rig.sim import world_from_config
 
-    cfg = rig_config.load((ctx.obj or {}).get("config_path"))
+    cfg = config_from_context(ctx)
     if rate <= 0 or cp_rate <= 0:
         raise click.BadParameter("rates must be > 0 Hz")
     cfg = dataclasses.replace(cfg, rig=dict(cfg.rig, rate=float(rate)))

@@ -431,6 +431,17 @@ def _short(value: Any) -> str:
     return str(value)
 
 
+def config_from_context(ctx: click.Context):
+    """The rig configuration of a command: `rig --config FILE`, else ./rig.toml, else the
+    built-in simulated rig; a bad file is a one-line click error naming the file and key."""
+    from rig import config
+
+    try:
+        return config.load((ctx.obj or {}).get("config_path") if ctx.obj else None)
+    except config.ConfigError as exc:
+        raise click.ClickException(str(exc)) from None
+
+
 def exit_on_abort(fn: Callable) -> Callable:
     """Decorator for a procedure's click command: an AbortRun or Ctrl-C becomes one line
     on stderr and a non-zero exit (3 aborted, 130 interrupted); other errors propagate."""

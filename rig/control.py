@@ -126,8 +126,10 @@ class StickSlipCompensation:
     """Friction compensation of thesis 7.5.1.
 
     Joints 1-2 (and joint 3 when moving): Fc tanh(a x / 2) + Fv x + Fo with x = 0 inside the
-    velocity deadband. Joint 3 at rest: +Fs_pos or Fs_neg when the position error leaves
-    the position deadband (the joint is about to be pushed out of stiction), else 0.
+    velocity deadband (with hysteresis: a moving joint stays moving down to half of it).
+    Joint 3 at rest: +Fs_pos or Fs_neg once the position error leaves the position deadband
+    (the joint is about to be pushed out of stiction), held until the error comes back
+    through zero, else 0. The object keeps this state: one per arm.
 
     `dq_ref` (optional): the velocity the controller is about to command (its reference).
     A joint at rest whose reference moves gets the friction of the reference velocity: the

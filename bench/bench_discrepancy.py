@@ -8,8 +8,9 @@ Every catalogue effect on each joint (1-3) is hidden in the simulated rig (seeds
 identified on the same data already contains (payload, torque offset, Coulomb asymmetry:
 see calibration.effects) are run against a model identified beforehand on another null run
 (--model); the others against the thesis model identified on the training block. The noise
-floor of a case is the same baseline's held-out RMS on its null twin (same seed, trajectory
-and sensor noise, no effect). Null seeds 100.. are disjoint from the threshold calibration's.
+floor of a case is the same baseline's held-out RMS on its twin (same seed, trajectory, sensor
+noise and plant set-up, the effect's size 0: `generate(..., twin=True)`). Null seeds 100.. are
+disjoint from the threshold calibration's.
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ def run_case(args):
     seconds = time.perf_counter() - t0
     floor = None
     if effects:
-        nrec, _ = generate(HiddenCase((), seed))
+        nrec, _ = generate(HiddenCase(tuple(effects), seed), twin=True)
         wn = Discrepancy(model, base, nrec.q, nrec.dq, nrec.tau, nrec.rate, given, Settings())
         floor = wn.heldout_rms().tolist()
     return {"effects": effects, "seed": seed, "mode": mode, "verdict": res["verdict"],

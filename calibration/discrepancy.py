@@ -276,7 +276,10 @@ class Discrepancy:
         self.W = W
         self.y = p.tauf.reshape(-1)
         self.m = p.tauf.shape[0]
-        self.moving = np.abs(p.dqf) >= DEADBAND
+        self.moving = p.moving_raw[p.kept] > 0
+        # Samples per joint by which the stuck mask is extended forward (an accepted effort
+        # delay: the measured effort then still carries the stuck interval's effort).
+        self.mask_lag = [0, 0, 0]
         # A given model keeps its slope; identified, the slope of the smooth Coulomb sign is
         # chosen on the training block like `rig identify --friction-slope auto` (a wider grid:
         # joint 3 moves in m/s, ten times slower than the rad/s joints).
@@ -320,6 +323,45 @@ class Discrepancy:
         self.Wb_raw = self.base.regressor(self.W_raw)
         self.ctx_raw = EffectContext(self.p.q, self.p.dq, self.p.rate, self.slope)
         self._col_cache = {}
+
+    def _remask(self, joint: int, lag: int) -> None:
+        """Extend joint's stuck mask ``lag`` samples forward and rebuild everything filtered
+        with the mask (effort, regressor, effect columns, sample sets), then refit.
+
+        With the effort lagging the motion by d, the effort recorded in the d after a stuck
+        interval is still the stuck interval's (whatever the controller left inside the static
+        friction band): the equation tau(t) = model(t - d) holds only where the joint moved
+        at t - d as well as at t."""
+        p = self.p
+        j = joint - 1
+        stuck = p.moving_raw[:, j] == 0
+        grown = stuck.copy()
+        for k in range(1, lag + 1):
+            grown[k:] |= stuck[:-k]
+        p.moving_raw[:, j] = (~grown).astype(float)
+        self.mask_lag[j] = lag
+        p.tauf = lowpass(p.tau * p.moving_raw, p.rate, p.cutoff, p.order)[p.kept]
+        n = p.q.shape[0]
+        W = p.filt_rows(self.W_raw.reshape(n, 3, -1))
+        self.W = W.reshape(-1, W.shape[2])
+        self.Wb = self.base.regressor(self.W)
+        self.y = p.tauf.reshape(-1)
+        self.moving = p.moving_raw[p.kept] > 0
+        self.fixed = np.zeros_like(self.y) if self.given is None else self.W @ self.given
+        self.rows_tr = self._rows(p.train)
+        self.rows_ho = self._rows(p.heldout)
+        self.mov_tr = [np.flatnonzero(self.moving[p.train, i]) + p.train.start for i in range(3)]
+        self.mov_ho = [np.flatnonzero(self.moving[p.heldout, i]) + p.heldout.start for i in range(3)]
+        self._col_cache = {}
+        for a in self.added:
+            a.raw_cols = p.filt_rows(a.unfiltered)
+        added, self.added = self.added, []
+        self._fit_current()
+        self.baseline_pred = self.pred.copy()
+        self.added = added
+        self._fit_current()
+        self.notes.append(f"joint {joint}: the stuck mask was extended {lag} samples forward for the effort "
+                          "delay; baseline and effects are compared on that sample set")
 
     def _rows(self, sl: slice) -> np.ndarray:
         """Stacked rows of the samples in ``sl`` where the joint of the row moves."""
@@ -517,6 +559,8 @@ class Discrepancy:
         the catalogue grid, then a golden-section search (in log) between the best grid
         value's neighbours, inside the grid's range (a period or a Stribeck velocity between
         two grid values fits much better at the right value, which the BIC should see)."""
+        if eff.point_mass:
+            return self._profile_point_mass(eff, joint)
         grid = list(eff.grid(joint))
         scored = [(g, self._score(self._columns(eff, joint, g))) for g in grid]
         ok = [(i, g, s) for i, (g, s) in enumerate(scored) if s is not None]
@@ -551,6 +595,63 @@ class Discrepancy:
                 best = (gg, r)
         return best
 
+    def _profile_point_mass(self, eff, joint: int):
+        """(centre, score) of a point mass on the joint's body by variable projection: the
+        body's ten standard columns are projected out of the current model once; for a centre
+        c the mass column is those columns times the unit point mass's parameters v(c) (first
+        moments and inertia about the origin, quadratic in c), so the residual after the best
+        mass is rss0 - (b.v)^2 / (v.G v) with G, b the projected columns' Gram matrix and
+        correlation with the residual: a 10 x 10 problem per centre. A coarse lattice of
+        centres, then Nelder-Mead from the best few, inside the arm's box; the mass must be
+        positive."""
+        from scipy.optimize import minimize
+
+        from calibration.effects import COM_BOX, point_mass_parameters
+
+        tr = self.rows_tr
+        E = self._columns(eff, joint, None).reshape(3 * self.m, -1)
+        Ew = E[tr] * self.rw[tr, None]
+        Ep = Ew - self.Q @ (self.Q.T @ Ew) if self.Q.shape[1] else Ew
+        scale = np.linalg.norm(Ew, axis=0)
+        scale[scale == 0] = 1.0
+        G = Ep.T @ Ep
+        b = Ep.T @ self.r_w_tr
+        rss0 = float(self.r_w_tr @ self.r_w_tr)
+        floor = 1e-12 * float(np.max(np.diag(G)) or 1.0)
+
+        def rss(c):
+            c = np.asarray(c, float)
+            if np.any(np.abs(c) >= COM_BOX):
+                return rss0 + float(np.sum(np.maximum(np.abs(c) - COM_BOX, 0.0))) * rss0
+            v = point_mass_parameters(c)
+            den = float(v @ G @ v)
+            num = float(b @ v)
+            if den <= floor or num <= 0.0:      # no mass, or a negative one
+                return rss0
+            return rss0 - num * num / den
+
+        axis = np.array([-0.4, -0.2, -0.05, 0.05, 0.2, 0.4])
+        lattice = np.array(np.meshgrid(axis, axis, axis, indexing="ij")).reshape(3, -1).T
+        values = np.array([rss(c) for c in lattice])
+        best_c, best_v = None, rss0
+        for i in np.argsort(values)[:4]:
+            r = minimize(rss, lattice[i], method="Nelder-Mead",
+                         options={"xatol": 1e-4, "fatol": 1e-9 * rss0, "maxiter": 600})
+            if r.fun < best_v:
+                best_c, best_v = r.x, float(r.fun)
+        if best_c is None:
+            return None
+        c = tuple(float(x) for x in best_c)
+        s = self._score(self._columns(eff, joint, c))
+        if s is None:
+            return None
+        # Which components of the centre the data determine: moving one by 2 cm must cost at
+        # least one unit of the information criterion.
+        n_eff = self.n_eff()
+        s["com_determined"] = [bool(min(rss(best_c + d * e), rss(best_c - d * e)) - best_v
+                                    > best_v / n_eff) for e in np.eye(3) for d in (0.02,)]
+        return c, s
+
     def candidates(self, joints: list[int]) -> list[dict]:
         """Best grid value of every (effect, joint) on the given joints, with figures."""
         out = []
@@ -574,6 +675,8 @@ class Discrepancy:
                 # alone, their noise weighted up by the per-joint weights).
                 gain = float(1 - (after[joint - 1] / before[joint - 1]) ** 2)
                 params = eff.params(s["theta"], g, joint, self._baseline_terms(s["coef"], joint))
+                if "com_determined" in s:
+                    params["com_determined"] = s["com_determined"]
                 out.append({"effect": eff.id, "joint": joint, "absorbed": False, "grid": g, "delta_bic": float(dbic),
                             "heldout_gain": gain, "heldout_rms_after": after, "params": params,
                             "sanity": eff.sanity(params, joint), "score": s})
@@ -609,8 +712,6 @@ class Discrepancy:
 
     # -- the loop ---------------------------------------------------------------------------
     def run(self) -> dict:
-        baseline_rms = self.heldout_rms()
-        baseline_rel = self.heldout_rel()
         unexplained_joints: set[int] = set()
         det = self.detect()
         first_detection = det
@@ -656,6 +757,9 @@ class Discrepancy:
         else:
             verdict = "explained"
         reid = self._reidentify()
+        # The baseline on the final sample set (an effort delay extends the stuck mask).
+        baseline_rms = self.heldout_rms(self.baseline_pred)
+        baseline_rel = self.heldout_rel(self.baseline_pred)
         return {"mode": self.mode, "baseline": {"heldout_rms": baseline_rms.tolist(),
                                                 "heldout_rel_error": baseline_rel.tolist()},
                 "final": {"heldout_rms": self.heldout_rms(reid["pred"]).tolist(),
@@ -673,6 +777,18 @@ class Discrepancy:
 
     def _accept(self, c: dict, eligible: list[dict], det: list[dict]) -> None:
         eff = CATALOGUE[c["effect"]]
+        for _ in range(3 if eff.id == "time_delay" else 0):
+            lag = int(np.ceil(c["params"]["delay"] * self.p.rate))
+            if lag > self.mask_lag[c["joint"] - 1]:
+                # Refit the delay on the samples where the equation holds (again if the refit
+                # delay is longer).
+                self._remask(c["joint"], lag)
+                best = self._profile(eff, c["joint"])
+                if best is not None:
+                    g, s = best
+                    c = c | {"grid": g, "score": s,
+                             "params": eff.params(s["theta"], g, c["joint"],
+                                                  self._baseline_terms(s["coef"], c["joint"]))}
         before = self.heldout_rms()
         free = np.ones(eff.n_linear, bool)
         free[c["score"]["fixed_columns"]] = False
@@ -692,9 +808,45 @@ class Discrepancy:
         self.added.append(Added(eff.id, c["joint"], c["grid"], cols, unfiltered, free, c["params"], evidence,
                                 before.tolist(), []))
         self._fit_current()
+        if self.mode == "identified":
+            self._reselect_slope()
         self.added[-1].rms_after = self.heldout_rms().tolist()
         # Parameters from the joint fit now holding every added effect.
         self._refresh_params()
+
+    def _reselect_slope(self) -> None:
+        """Choose the smooth-sign slope again with the added effects in the model (the same
+        grid and criterion as for the baseline: the training residual). An unmodelled effect
+        biases the first choice (a spring or a Dahl state near reversals looks like a soft
+        sign); the effects' columns that use the sign are rebuilt with it (those built from
+        the model's torque keep the columns they were chosen with)."""
+        saved = [(a.raw_cols, a.unfiltered) for a in self.added]
+
+        def rebuild():
+            for a in self.added:
+                eff = CATALOGUE[a.effect]
+                if not eff.uses_model:
+                    a.raw_cols = self._columns(eff, a.joint, a.grid)[:, :, a.free]
+                    a.unfiltered = self._columns(eff, a.joint, a.grid, unfiltered=True)[:, :, a.free]
+            self._fit_current()
+
+        first = self.slope
+        scores = {}
+        for a in SLOPES:
+            self._set_slope(a)
+            rebuild()
+            r = (self.y - self.pred)[self.rows_tr]
+            scores[a] = float(r @ r)
+        best = min(scores, key=scores.get)
+        self._set_slope(best)
+        if best == first:
+            for a, (cols, unf) in zip(self.added, saved):
+                a.raw_cols, a.unfiltered = cols, unf
+            self._fit_current()
+        else:
+            rebuild()
+            self.notes.append(f"smooth-sign slope re-chosen after adding {self.added[-1].effect}@"
+                              f"{self.added[-1].joint}: {first:g} -> {best:g} s/rad")
 
     def _refresh_params(self) -> None:
         k0 = 0 if self.mode == "given_model" else self.Wb.shape[1]
@@ -703,7 +855,9 @@ class Discrepancy:
             theta = np.zeros(len(a.free))
             theta[a.free] = self.coef[k0:k0 + k]
             k0 += k
-            a.params = CATALOGUE[a.effect].params(theta, a.grid, a.joint, self._baseline_terms(self.coef, a.joint))
+            extra = {k: a.params[k] for k in ("com_determined",) if k in a.params}
+            a.params = CATALOGUE[a.effect].params(theta, a.grid, a.joint,
+                                                  self._baseline_terms(self.coef, a.joint)) | extra
 
     def _reidentify(self) -> dict:
         """Identified mode: the loop's fits are already joint. Given model: re-identify the

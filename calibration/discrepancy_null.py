@@ -15,7 +15,7 @@ largest null value with a margin:
 
 Both baselines are calibrated: "identified" (the thesis model fitted on the training block)
 and "given_model" (a model identified beforehand on another null run of the same rig, its
-reference seed). Run ``python -m calibration.discrepancy_null [n_seeds]`` to regenerate
+reference seed). Run ``python -m calibration.discrepancy_null [n_seeds [workers]]`` to regenerate
 ``discrepancy_thresholds.json``; the file records the seeds, the per-seed statistics and the
 rule. Seeds used here (1000 + k) are disjoint from the test and bench seeds.
 """
@@ -89,20 +89,32 @@ def thresholds_from(stats: list[dict]) -> dict:
             "delta_bic": (a["delta_bic"].max(0) + 10.0).tolist()}
 
 
-def calibrate(n_seeds: int = 40, progress=print) -> dict:
+def _null_job(args) -> dict:
+    seed, mode = args
     model, base = sim_model_and_base()
+    model.slope = 400.0
+    return null_statistics(model, base, seed, mode)
+
+
+def calibrate(n_seeds: int = 40, progress=print, workers: int = 2) -> dict:
+    """Null statistics on ``n_seeds`` seeds for both baselines (``workers`` processes) and the
+    thresholds from them."""
+    from multiprocessing import Pool
+
     t0 = time.perf_counter()
     out = {"thresholds": {}, "null_runs": {}}
     seeds = [NULL_SEED_BASE + k for k in range(n_seeds)]
-    for mode in ("identified", "given_model"):
+    jobs = [(s, mode) for mode in ("identified", "given_model") for s in seeds]
+    with Pool(workers) as pool:
         stats = []
-        for s in seeds:
-            model.slope = 400.0
-            stats.append(null_statistics(model, base, s, mode))
-            progress(f"{mode} seed {s}: LB {np.round(stats[-1]['ljung_box'], 1).tolist()} "
-                     f"R2 {np.round(stats[-1]['library_r2'], 3).tolist()} gain {np.round(stats[-1]['gain'], 3).tolist()}")
-        out["thresholds"][mode] = thresholds_from(stats)
-        out["null_runs"][mode] = stats
+        for (s, mode), st in zip(jobs, pool.imap(_null_job, jobs)):
+            stats.append(st)
+            progress(f"{mode} seed {s}: LB {np.round(st['ljung_box'], 1).tolist()} "
+                     f"R2 {np.round(st['library_r2'], 3).tolist()} gain {np.round(st['gain'], 3).tolist()} "
+                     f"dBIC {np.round(st['delta_bic'], 1).tolist()} {st['best_candidate']}")
+    for i, mode in enumerate(("identified", "given_model")):
+        out["null_runs"][mode] = stats[i * n_seeds:(i + 1) * n_seeds]
+        out["thresholds"][mode] = thresholds_from(out["null_runs"][mode])
     from calibration.hidden_effects import GENERATOR_VERSION, N_SAMPLES, RATE
 
     out["method"] = {"summary": f"null simulations, {n_seeds} seeds x 2 baselines",
@@ -126,6 +138,6 @@ def rederive(path=THRESHOLDS_PATH) -> dict:
 
 if __name__ == "__main__":
     n = int(sys.argv[1]) if len(sys.argv) > 1 else 40
-    doc = calibrate(n)
+    doc = calibrate(n, workers=int(sys.argv[2]) if len(sys.argv) > 2 else 2)
     THRESHOLDS_PATH.write_text(json.dumps(doc, indent=1) + "\n")
     print(json.dumps(doc["thresholds"], indent=1))

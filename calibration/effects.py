@@ -84,6 +84,11 @@ class Effect:
     all_joints: bool = False            # payload: columns on every joint's rows
     in_rigid_body_model: bool = False   # absorbed by a model identified on the same data
     equivalent_to: tuple[str, ...] = ()
+    #: Dimension of the non-linear parameter (1 for a grid value; 3 for a payload's centre).
+    nonlinear_dim: int = 1
+    #: The non-linear parameter is a point mass's centre, found by variable projection over
+    #: the body's ten standard columns (``columns(ctx, j, None)``) instead of a grid.
+    point_mass: bool = False
 
     @property
     def n_linear(self) -> int:
@@ -92,7 +97,7 @@ class Effect:
     @property
     def n_params(self) -> int:
         """Free parameters for the information criterion (linear + the grid parameter)."""
-        return self.n_linear + (1 if self.grid_name else 0)
+        return self.n_linear + (self.nonlinear_dim if self.grid_name else 0)
 
     def columns(self, ctx: EffectContext, joint: int, g) -> np.ndarray:
         """(n, 3, k): torque on every joint per unit of each linear parameter."""
@@ -314,29 +319,33 @@ def _spring() -> Effect:
                   lambda j: (None,), None, cols, params, sanity, torque)
 
 
-def _payload() -> Effect:
-    def cols(ctx, j, g):
-        b = ctx.body_names.index(PAYLOAD_BODIES[j - 1])
-        W = ctx.W_standard[:, 10 * b:10 * b + 4]  # m, m cx, m cy, m cz of that body
-        return W.reshape(-1, 3, 4)
+def point_mass_parameters(com) -> np.ndarray:
+    """(10,) standard parameters of a unit point mass at ``com`` (m, body frame): mass 1, first
+    moments c and the inertia about the frame origin |c|^2 I - c c^T, in the regressor's order
+    (m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz)."""
+    c = np.asarray(com, float)
+    Io = (c @ c) * np.eye(3) - np.outer(c, c)
+    return np.array([1.0, c[0], c[1], c[2], Io[0, 0], Io[0, 1], Io[1, 1], Io[0, 2], Io[1, 2], Io[2, 2]])
 
-    def params(th, g, j, base):
-        # th[0] == 0 exactly: the mass column was not separable (zero on this joint's rows, as
-        # a mass on the yaw axis, or collinear with the first moments); then only the first
-        # moments m c are reported.
+
+def _payload() -> Effect:
+    def cols(ctx, j, com):
+        b = ctx.body_names.index(PAYLOAD_BODIES[j - 1])
+        W = ctx.W_standard[:, 10 * b:10 * b + 10].reshape(-1, 3, 10)  # the body's ten columns
+        if com is None:
+            return W
+        # A point mass at com: its gravity (first moments) and its inertia, per kg.
+        return (W @ point_mass_parameters(com))[:, :, None]
+
+    def params(th, com, j, base):
         m = float(th[0])
-        if m == 0.0:
-            return {"mass": None, "com": None, "first_moment": [float(x) for x in th[1:4]],
-                    "body": PAYLOAD_BODIES[j - 1]}
-        return {"mass": m, "com": (th[1:4] / m).tolist(), "first_moment": [float(x) for x in th[1:4]],
-                "body": PAYLOAD_BODIES[j - 1]}
+        c = [float(x) for x in com]
+        return {"mass": m, "com": c, "first_moment": [m * x for x in c], "body": PAYLOAD_BODIES[j - 1]}
 
     def sanity(p, j):
-        if p["mass"] is None:
-            return None
         if not p["mass"] > 0:
             return f"mass {p['mass']:.4g} kg is not positive"
-        if not np.all(np.abs(p["com"]) < 0.6):
+        if not np.all(np.abs(p["com"]) < COM_BOX):
             return f"centre of mass {np.round(p['com'], 3).tolist()} m lies outside the arm"
         return None
 
@@ -344,28 +353,24 @@ def _payload() -> Effect:
         # A payload is a change of the rigid-body parameters, not an added torque term.
         raise ValueError("a payload changes the rigid-body parameters: use payload_standard_delta")
 
-    return Effect("payload", "unmodelled point mass on the link of the joint (default the tool): "
-                  "its gravity and inertia", "q (gravity), ddq", "whole workspace", ("m", "mcx", "mcy", "mcz"),
-                  lambda j: {"mass": "kg", "com": "m (body joint frame)", "body": ""},
-                  lambda j: (None,), None, cols, params, sanity, torque,
-                  uses_model=True, all_joints=True, in_rigid_body_model=True)
+    return Effect("payload", "unmodelled point mass m at c on the link of the joint (default the tool): "
+                  "its gravity and its inertia m (|c|^2 I - c c^T)", "q (gravity), ddq", "whole workspace",
+                  ("m",), lambda j: {"mass": "kg", "com": "m (body joint frame)", "first_moment": "kg m",
+                                     "body": ""},
+                  lambda j: (None,), "com", cols, params, sanity, torque,
+                  uses_model=True, all_joints=True, in_rigid_body_model=True, nonlinear_dim=3, point_mass=True)
+
+
+#: A payload's centre must lie within this box (m, each axis of the body frame).
+COM_BOX = 0.6
 
 
 def payload_standard_delta(params: dict, body_names) -> np.ndarray:
-    """Change of the 82 standard parameters for a point-mass payload (its m and first
-    moments; the point mass's own rotational inertia about the frame origin is included)."""
+    """Change of the 82 standard parameters for a point-mass payload: its mass, first moments
+    and its own rotational inertia about the frame origin."""
     b = list(body_names).index(params["body"])
     d = np.zeros(10 * len(body_names) + 12)
-    if params.get("mass") is None:
-        # Only the first moments are known: they are what the gravity torque depends on.
-        d[10 * b + 1:10 * b + 4] = params["first_moment"]
-        return d
-    m = params["mass"]
-    c = np.asarray(params["com"], float)
-    # Inertia about the origin of a point mass: m (|c|^2 I - c c^T).
-    Io = m * (c @ c * np.eye(3) - np.outer(c, c))
-    d[10 * b:10 * b + 10] = [m, m * c[0], m * c[1], m * c[2], Io[0, 0], Io[0, 1], Io[1, 1], Io[0, 2],
-                             Io[1, 2], Io[2, 2]]
+    d[10 * b:10 * b + 10] = params["mass"] * point_mass_parameters(params["com"])
     return d
 
 

@@ -166,13 +166,14 @@ def _add_point_mass(params: PSMParameters, body: str, mass: float, com) -> PSMPa
     return replace(params, bodies=bodies)
 
 
-def _plant(case_params: list[dict]) -> tuple[PSMParameters, HiddenEffects, dict]:
-    """Plant parameters, the sim's hidden effects and the generator-side extras."""
+def _plant(case_params: list[dict], twin: bool = False) -> tuple[PSMParameters, HiddenEffects, dict]:
+    """Plant parameters, the sim's hidden effects and the generator-side extras. ``twin``:
+    the same plant set-up with every effect's size 0 (the case's noise-floor twin)."""
     params = PSMParameters()
     eff = HiddenEffects()
     extra = {"delay": np.zeros(3), "sinusoid": None, "coupling": None}
     for p in case_params:
-        name, j, size = p["effect"], p["joint"] - 1, p["size"]
+        name, j, size = p["effect"], p["joint"] - 1, (0.0 if twin else p["size"])
         if name == "stiction":
             Fc = params.drive.Fc
             eff.stiction[j] = Fc[j] + size
@@ -211,15 +212,19 @@ def _plant(case_params: list[dict]) -> tuple[PSMParameters, HiddenEffects, dict]
 
 
 def generate(case: HiddenCase, n_samples: int = N_SAMPLES, rate: float = RATE,
-             noise: SensorNoise | None = None, trajectory_seed: int | None = None) -> tuple[Recorded, Truth]:
+             noise: SensorNoise | None = None, trajectory_seed: int | None = None,
+             twin: bool = False) -> tuple[Recorded, Truth]:
     """Run the simulated rig on ``case`` and record measured q, dq, effort at ``rate`` Hz.
 
-    ``trajectory_seed`` defaults to the case seed: a case and its null twin (same seed, no
-    effects) follow the same trajectory with the same sensor-noise draws, which is how the
-    bench knows the noise floor of each case.
+    ``trajectory_seed`` defaults to the case seed: a case and its twin (``twin=True``: the
+    same seed and plant set-up, every effect's size 0) follow the same trajectory with the
+    same sensor-noise draws, which is how the bench knows the noise floor of each case. The
+    twin differs from the null case only where the set-up itself changes the plant: a
+    position-dependent friction case raises the joint's Coulomb level (see _POSFRIC_FC), and
+    its twin keeps that level without the ripple.
     """
     case_params = draw_case_parameters(case)
-    params, eff, extra = _plant(case_params)
+    params, eff, extra = _plant(case_params, twin)
     tseed = case.seed if trajectory_seed is None else trajectory_seed
     traj = trajectory(tseed, n_samples / rate + 1.0)
     q0, dq0, _ = traj(0.0)

@@ -40,7 +40,13 @@ discrepancy", and BIC selection):
    must remove at least the null-calibrated share of the joint's residual variance and at
    least half of what the generic library could explain. Effects whose columns the baseline
    already spans (absorbed) and near-ties (equivalent explanations) are reported, not picked.
-6. **Augment, re-identify, validate**, and repeat from 3 until nothing passes.
+   A payload is a point mass (its gravity and its inertia about the body's origin, quadratic
+   in its centre): found by variable projection over the centre, the mass linear.
+6. **Augment, re-identify, validate**, and repeat from 3 until nothing passes. An accepted
+   effort delay d extends the joint's stuck mask d forward (the effort recorded then is still
+   the stuck interval's) and is refit on those samples; with an identified baseline the
+   smooth-sign slope is chosen again with the effects in the model (an unmodelled spring or
+   Dahl state biases the first choice towards a soft sign).
 
 Verdict: "none" (no joint's held-out residual is structured), "explained" (effects were added
 and nothing structured is left), "unexplained" (structure remains that no catalogue effect

@@ -302,10 +302,7 @@ class Discrepancy:
         self._set_slope(best[1])
         self.fixed = np.zeros_like(self.y) if given is None else W @ self.given
         self.fixed_raw = np.zeros(3 * n) if given is None else self.W_raw @ self.given
-        self.rows_tr = self._rows(p.train)
-        self.rows_ho = self._rows(p.heldout)
-        self.mov_tr = [np.flatnonzero(self.moving[p.train, j]) + p.train.start for j in range(3)]
-        self.mov_ho = [np.flatnonzero(self.moving[p.heldout, j]) + p.heldout.start for j in range(3)]
+        self._index_samples()
         for j in range(3):
             if len(self.mov_tr[j]) < 0.2 * (p.train.stop - p.train.start) or len(self.mov_ho[j]) < 50:
                 raise DiscrepancyError(f"joint {j + 1} moves faster than its deadband ({DEADBAND[j]:g}) in too "
@@ -354,10 +351,7 @@ class Discrepancy:
         self.y = p.tauf.reshape(-1)
         self.moving = p.moving_raw[p.kept] > 0
         self.fixed = np.zeros_like(self.y) if self.given is None else self.W @ self.given
-        self.rows_tr = self._rows(p.train)
-        self.rows_ho = self._rows(p.heldout)
-        self.mov_tr = [np.flatnonzero(self.moving[p.train, i]) + p.train.start for i in range(3)]
-        self.mov_ho = [np.flatnonzero(self.moving[p.heldout, i]) + p.heldout.start for i in range(3)]
+        self._index_samples()
         self._col_cache = {}
         for a in self.added:
             a.raw_cols = p.filt_rows(a.unfiltered)
@@ -368,6 +362,14 @@ class Discrepancy:
         self._fit_current()
         self.notes.append(f"joint {joint}: the stuck mask was extended {lag} samples forward for the effort "
                           "delay; baseline and effects are compared on that sample set")
+
+    def _index_samples(self) -> None:
+        """Stacked training/held-out rows and per-joint moving samples of the current mask."""
+        p = self.p
+        self.rows_tr = self._rows(p.train)
+        self.rows_ho = self._rows(p.heldout)
+        self.mov_tr = [np.flatnonzero(self.moving[p.train, j]) + p.train.start for j in range(3)]
+        self.mov_ho = [np.flatnonzero(self.moving[p.heldout, j]) + p.heldout.start for j in range(3)]
 
     def _rows(self, sl: slice) -> np.ndarray:
         """Stacked rows of the samples in ``sl`` where the joint of the row moves."""
@@ -618,8 +620,6 @@ class Discrepancy:
         E = self._columns(eff, joint, None).reshape(3 * self.m, -1)
         Ew = E[tr] * self.rw[tr, None]
         Ep = Ew - self.Q @ (self.Q.T @ Ew) if self.Q.shape[1] else Ew
-        scale = np.linalg.norm(Ew, axis=0)
-        scale[scale == 0] = 1.0
         G = Ep.T @ Ep
         b = Ep.T @ self.r_w_tr
         rss0 = float(self.r_w_tr @ self.r_w_tr)
@@ -653,9 +653,9 @@ class Discrepancy:
             return None
         # Which components of the centre the data determine: moving one by 2 cm must cost at
         # least one unit of the information criterion.
-        n_eff = self.n_eff()
-        s["com_determined"] = [bool(min(rss(best_c + d * e), rss(best_c - d * e)) - best_v
-                                    > best_v / n_eff) for e in np.eye(3) for d in (0.02,)]
+        step = 0.02 * np.eye(3)
+        s["com_determined"] = [bool(min(rss(best_c + d), rss(best_c - d)) - best_v > best_v / self.n_eff())
+                               for d in step]
         return c, s
 
     def candidates(self, joints: list[int]) -> list[dict]:

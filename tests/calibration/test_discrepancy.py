@@ -86,6 +86,21 @@ def test_stuck_samples_do_not_leak_into_the_fit(workflow):
     assert res["baseline"]["heldout_rms"][2] < 2.5 * sigma
 
 
+def test_added_effects_nonlinear_parameters_refit_with_the_final_model(workflow):
+    # hysteresis@3 seed 2: the Dahl travel found with the first (soft) smooth sign came out
+    # 16 % long and left 3x the floor on the held-out block; after the slope is re-chosen the
+    # travel is refit with it.
+    res, _, truth = workflow([("hysteresis", 3)], 2)
+    e = res["effects"][0]
+    t = truth.params[0]
+    assert (e["name"], e["joint"]) == ("hysteresis", 3)
+    assert e["params"]["travel"] == pytest.approx(t["size"] / t["stiffness"], rel=0.08)
+    model, base = sim_model_and_base()
+    twin, _ = generate(HiddenCase((("hysteresis", 3),), 2), twin=True)
+    floor = Discrepancy(model, base, twin.q, twin.dq, twin.tau, twin.rate, None, Settings()).heldout_rms()[2]
+    assert res["final"]["heldout_rms"][2] < 1.4 * floor
+
+
 def test_null_case_finds_nothing(workflow):
     res, _, _ = workflow([], 3)
     assert res["verdict"] == "none", res["iterations"]

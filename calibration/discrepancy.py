@@ -865,28 +865,30 @@ class Discrepancy:
         A value chosen before a later effect or a new smooth-sign slope was in the model is
         biased by what the model then lacked (a Dahl travel found with a soft sign came out
         15 % long, and the held-out residual of a Dahl state is steep in its travel)."""
-        for i, a in enumerate(list(self.added)):
+        added = list(self.added)
+        for a in added:
             eff = CATALOGUE[a.effect]
             if not eff.point_mass and len(list(eff.grid(a.joint))) < 2:
                 continue   # nothing non-linear to refit (offset, spring, asymmetry)
-            others = self.added[:i] + self.added[i + 1:]
-            self.added = others
+            self.added = [o for o in added if o is not a]
             self._fit_current()
             best = self._profile(eff, a.joint)
-            self.added = others[:i] + [a] + others[i:]
-            if best is not None:
-                g, s = best
-                free = np.ones(eff.n_linear, bool)
-                free[s["fixed_columns"]] = False
-                if np.array_equal(free, a.free):   # the same parameters stay free
-                    if not np.allclose(g, a.grid, rtol=0.01, atol=0.0):
-                        self.notes.append(f"{a.effect}@{a.joint}: {eff.grid_name} refit with the model as it "
-                                          f"now stands: {np.round(a.grid, 6).tolist()} -> {np.round(g, 6).tolist()}")
-                    a.grid = g
-                    a.raw_cols = self._columns(eff, a.joint, g)[:, :, free]
-                    a.unfiltered = self._columns(eff, a.joint, g, unfiltered=True)[:, :, free]
-                    a.evidence["grid"]["value"] = g
-            self._fit_current()
+            self.added = added
+            if best is None:
+                continue
+            g, s = best
+            free = np.ones(eff.n_linear, bool)
+            free[s["fixed_columns"]] = False
+            if not np.array_equal(free, a.free):   # keep the parameters that were free
+                continue
+            if not np.allclose(g, a.grid, rtol=0.01, atol=0.0):
+                self.notes.append(f"{a.effect}@{a.joint}: {eff.grid_name} refit with the model as it now "
+                                  f"stands: {np.round(a.grid, 6).tolist()} -> {np.round(g, 6).tolist()}")
+            a.grid = g
+            a.raw_cols = self._columns(eff, a.joint, g)[:, :, free]
+            a.unfiltered = self._columns(eff, a.joint, g, unfiltered=True)[:, :, free]
+            a.evidence["grid"]["value"] = g
+        self._fit_current()
 
     def _refresh_params(self) -> None:
         k0 = 0 if self.mode == "given_model" else self.Wb.shape[1]

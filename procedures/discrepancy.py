@@ -79,6 +79,16 @@ def estimate_gravity(q, dq, tau, rate: float, settings) -> np.ndarray:
     return res.gravity(0)
 
 
+def _save(fig, path_dir: Path, name: str, out: dict) -> None:
+    """Write ``fig`` as ``name`` under ``path_dir``, close it and list it in ``out``."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path_dir / name, dpi=110)
+    plt.close(fig)
+    out[name] = str(path_dir / name)
+
+
 def plot_residuals(pairs: list[dict], structured: list[dict], w, path_dir: Path) -> dict:
     import matplotlib
 
@@ -96,11 +106,7 @@ def plot_residuals(pairs: list[dict], structured: list[dict], w, path_dir: Path)
         ax.set_title(f"{pr['effect']} on joint {pr['joint']}: residual against {pr['variable']}")
         ax.legend(markerscale=4)
         ax.grid(alpha=0.3)
-        name = f"residual_{k}_{pr['effect']}_joint{pr['joint']}.png"
-        fig.tight_layout()
-        fig.savefig(path_dir / name, dpi=110)
-        plt.close(fig)
-        out[name] = str(path_dir / name)
+        _save(fig, path_dir, f"residual_{k}_{pr['effect']}_joint{pr['joint']}.png", out)
     # Structured joints nothing explained: the residual against its best variable.
     for d in structured:
         j = d["joint"]
@@ -116,11 +122,7 @@ def plot_residuals(pairs: list[dict], structured: list[dict], w, path_dir: Path)
         ax.set_ylabel(f"held-out residual joint {j}")
         ax.set_title(f"joint {j}: structured residual no catalogue effect explains")
         ax.grid(alpha=0.3)
-        name = f"residual_unexplained_joint{j}.png"
-        fig.tight_layout()
-        fig.savefig(path_dir / name, dpi=110)
-        plt.close(fig)
-        out[name] = str(path_dir / name)
+        _save(fig, path_dir, f"residual_unexplained_joint{j}.png", out)
     return out
 
 

@@ -109,6 +109,7 @@ def main(argv=None) -> int:
     conf = {t: {p: 0 for p in labels} for t in IDS}
     strict = equiv = 0
     gap_ok = gap_n = 0
+    clear_ok = clear_n = 0
     rows_gap = []
     for r in cat:
         (e, j), = r["effects"]
@@ -124,6 +125,10 @@ def main(argv=None) -> int:
             good = f <= 0.5 * b and f <= 1.2 * fl
             gap_n += 1
             gap_ok += good
+            # With a baseline under twice the floor, halving it means going below the floor.
+            if b >= 2.0 * fl:
+                clear_n += 1
+                clear_ok += good
             rows_gap.append((e, j, r["seed"], b, f, fl, good))
     n = len(cat)
     fd = [r for r in nul if r["verdict"] != "none"]
@@ -143,7 +148,7 @@ def main(argv=None) -> int:
         (e, j), = r["effects"]
         print(f"  {e}@{j} seed {r['seed']} [{r['mode']}]: {predicted_label(r)} ({r['verdict']}) "
               f"rms {np.round(r['baseline_rms'][j - 1], 4)} -> {np.round(r['final_rms'][j - 1], 4)} "
-              f"floor {np.round(r['floor'][j - 1], 4)}")
+              f"floor {np.round(r['floor'][j - 1], 4)} (final/floor {r['final_rms'][j - 1] / r['floor'][j - 1]:.2f})")
     for r in two + out:
         print(f"  {'+'.join(f'{e}@{j}' for e, j in r['effects'])} seed {r['seed']}: found {r['found']} ({r['verdict']})")
     for r in fd:
@@ -158,6 +163,9 @@ def main(argv=None) -> int:
          "<= 5%", bool(nul) and len(fd) / len(nul) <= 0.05),
         ("held-out RMS <= 50% baseline and <= 1.2 x floor (correct cases)",
          f"{gap_ok}/{gap_n}" + (f" = {gap_ok / gap_n:.0%}" if gap_n else ""), "all", gap_n > 0 and gap_ok == gap_n),
+        ("  of which the effect stands out (baseline >= 2 x floor)",
+         f"{clear_ok}/{clear_n}" + (f" = {clear_ok / clear_n:.0%}" if clear_n else ""), "all",
+         clear_n > 0 and clear_ok == clear_n),
         ("two effects: both named", f"{two_ok}/{len(two)} (one of two: {two_some})", "all", bool(two) and two_ok == len(two)),
         ("outside the catalogue: verdict unexplained", f"{out_ok}/{len(out)} (wrongly explained: {out_named})",
          "all", bool(out) and out_ok == len(out)),

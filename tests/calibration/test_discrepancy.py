@@ -68,6 +68,19 @@ def test_ljung_box_white_vs_coloured():
     assert ljung_box(white) < 30 < ljung_box(coloured)
 
 
+def test_leave_one_out_flags_the_run_above_the_others():
+    from calibration.discrepancy_null import leave_one_out
+
+    def run(lb, r2):
+        return {"ljung_box": lb, "library_r2": r2, "gain": [0.0] * 3, "delta_bic": [0.0] * 3}
+
+    quiet = [run([20.0, 20.0, 20.0], [0.0, 0.0, 0.0]) for _ in range(5)]
+    # Ljung-Box 30 on joint 2 is above 1.25 x 20 of the other runs; R^2 0.04 is under 0 + 0.05.
+    doc = {"null_runs": {"identified": quiet + [run([20.0, 30.0, 20.0], [0.0, 0.0, 0.0])],
+                         "given_model": quiet + [run([20.0, 20.0, 24.0], [0.0, 0.04, 0.0])]}}
+    assert leave_one_out(doc) == {"identified": (1, 6), "given_model": (0, 6)}
+
+
 def test_heldout_r2_sees_a_constant_residual():
     # An offset against a given model is a discrepancy: the share is of the mean square.
     rng = np.random.default_rng(1)

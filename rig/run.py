@@ -437,7 +437,7 @@ def config_from_context(ctx: click.Context):
     from rig import config
 
     try:
-        return config.load((ctx.obj or {}).get("config_path") if ctx.obj else None)
+        return config.load((ctx.obj or {}).get("config_path"))
     except config.ConfigError as exc:
         raise click.ClickException(str(exc)) from None
 

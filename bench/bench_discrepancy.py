@@ -6,8 +6,9 @@ null false discoveries, held-out gap against the rig's noise floor, time, real d
 Every catalogue effect on each joint (1-3) is hidden in the simulated rig (seeds 0..S-1,
 `calibration.hidden_effects`); the workflow sees only the recorded arrays. Effects a model
 identified on the same data already contains (payload, torque offset, Coulomb asymmetry:
-see calibration.effects) are run against a model identified beforehand on another null run
-(--model); the others against the thesis model identified on the training block. The noise
+see calibration.effects) are run against a model identified beforehand on other null runs
+(--model; `calibration.hidden_effects.reference_runs`: an optimised excitation and a
+multi-sine); the others against the thesis model identified on the training block. The noise
 floor of a case is the same baseline's held-out RMS on its twin (same seed, trajectory, sensor
 noise and plant set-up, the effect's size 0: `generate(..., twin=True)`). Null seeds 100.. are
 disjoint from the threshold calibration's.

@@ -994,3 +994,36 @@ def run_workflow(model, base, q, dq, tau, rate: float, given=None, settings: Set
     """Run the workflow; returns (result dict, the Discrepancy object for plots and the model)."""
     w = Discrepancy(model, base, q, dq, tau, rate, given, settings)
     return w.run(), w
+
+
+def identify_on_runs(model, base, runs, settings: Settings | None = None) -> tuple[np.ndarray, float]:
+    """The thesis model identified on every moving sample of several recorded runs together
+    (each ``(q, dq, tau, rate)``): a lab's earlier `rig identify`, to be given to the workflow
+    as ``given``. Each run is prepared as the workflow prepares data (masked parallel
+    filtering, trimmed ends); their equations are stacked, and the Coulomb sign's slope (one
+    for all runs, from SLOPES) is the one with the least squares residual; then one weighted
+    pass (1 / residual std per joint), as the baseline fit. Returns the standard parameters
+    (82,) and the slope."""
+    th = {"identified": FALLBACK_THRESHOLDS["identified"], "given_model": FALLBACK_THRESHOLDS["given_model"]}
+    base_settings = settings or Settings()
+    ws = [Discrepancy(model, base, *run, settings=Settings(**(vars(base_settings) | {"thresholds": th})))
+          for run in runs]
+    best = None
+    for a in SLOPES:
+        rows, A, b = [], [], []
+        for w in ws:
+            w._set_slope(a)
+            r = np.concatenate([w.rows_tr, w.rows_ho])
+            rows.append(r % 3)
+            A.append(w.Wb[r])
+            b.append(w.y[r])
+        joint, A, b = np.concatenate(rows), np.vstack(A), np.concatenate(b)
+        coef = np.linalg.lstsq(A, b, rcond=None)[0]
+        res = b - A @ coef
+        if best is None or res @ res < best[0]:
+            best = (float(res @ res), a, joint, A, b, res)
+    _, a, joint, A, b, res = best
+    wt = 1.0 / np.maximum([res[joint == j].std() for j in range(3)], 1e-9)
+    coef = np.linalg.lstsq(A * wt[joint, None], b * wt[joint], rcond=None)[0]
+    model.slope = a
+    return base.standard_from_base(coef, model.standard_params()), a

@@ -14,8 +14,9 @@ largest null value with a margin:
 * delta BIC:             max over null seeds of the best sane candidate's BIC gain on the joint + 10.
 
 Both baselines are calibrated: "identified" (the thesis model fitted on the training block)
-and "given_model" (a model identified beforehand on another null run of the same rig, its
-reference seed). Run ``python -m calibration.discrepancy_null [n_seeds [workers]]`` to regenerate
+and "given_model" (a model identified beforehand on other null runs of the same rig, as a
+lab's earlier `rig identify`: `calibration.hidden_effects.reference_runs`, an optimised
+excitation and a multi-sine, with their own seeds). Run ``python -m calibration.discrepancy_null [n_seeds [workers]]`` to regenerate
 ``discrepancy_thresholds.json``; the file records the seeds, the per-seed statistics and the
 rule. Seeds used here (1000 + k) are disjoint from the test and bench seeds.
 """
@@ -29,7 +30,7 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-from calibration.discrepancy import THRESHOLDS_PATH, Discrepancy, Settings
+from calibration.discrepancy import THRESHOLDS_PATH, Discrepancy, Settings, identify_on_runs
 
 NULL_SEED_BASE = 1000
 _HUGE = {"ljung_box": [1e12] * 3, "library_r2": [1e12] * 3, "gain": [1e12] * 3, "delta_bic": [1e12] * 3}
@@ -46,15 +47,13 @@ def sim_model_and_base():
     return model, base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
 
 
-def reference_model(model, base, seed: int) -> np.ndarray:
-    """Standard parameters identified on the reference (null) run that goes with ``seed``."""
-    from calibration.hidden_effects import HiddenCase, generate, reference_seed
+def reference_model(model, base, seed: int) -> tuple[np.ndarray, float]:
+    """Standard parameters and Coulomb slope identified on the reference (null) runs that go
+    with ``seed`` (`calibration.hidden_effects.reference_runs`: the optimised excitation and a
+    multi-sine, all their samples). ``model.slope`` is set to that slope."""
+    from calibration.hidden_effects import reference_runs
 
-    rec, _ = generate(HiddenCase((), reference_seed(seed)))
-    w = Discrepancy(model, base, rec.q, rec.dq, rec.tau, rec.rate,
-                    settings=Settings(thresholds={"identified": _HUGE, "given_model": _HUGE}))
-    w.model.slope = w.slope
-    return w.base.standard_from_base(w.coef[:w.Wb.shape[1]], w.model.standard_params()), w.slope
+    return identify_on_runs(model, base, [(r.q, r.dq, r.tau, r.rate) for r in reference_runs(seed)])
 
 
 def null_statistics(model, base, seed: int, mode: str) -> dict:

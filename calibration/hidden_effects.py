@@ -20,7 +20,9 @@ step (the sim's `torque_offset` input), so the PID really fights them.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -213,8 +215,11 @@ def _plant(case_params: list[dict], twin: bool = False) -> tuple[PSMParameters, 
 
 def generate(case: HiddenCase, n_samples: int = N_SAMPLES, rate: float = RATE,
              noise: SensorNoise | None = None, trajectory_seed: int | None = None,
-             twin: bool = False) -> tuple[Recorded, Truth]:
+             twin: bool = False, excitation=None) -> tuple[Recorded, Truth]:
     """Run the simulated rig on ``case`` and record measured q, dq, effort at ``rate`` Hz.
+
+    ``excitation`` (a `calibration.excitation.FourierTrajectory`) replaces the seeded
+    multi-sine as the commanded trajectory; the seed then sets the sensor noise only.
 
     ``trajectory_seed`` defaults to the case seed: a case and its twin (``twin=True``: the
     same seed and plant set-up, every effect's size 0) follow the same trajectory with the
@@ -226,7 +231,7 @@ def generate(case: HiddenCase, n_samples: int = N_SAMPLES, rate: float = RATE,
     case_params = draw_case_parameters(case)
     params, eff, extra = _plant(case_params, twin)
     tseed = case.seed if trajectory_seed is None else trajectory_seed
-    traj = trajectory(tseed, n_samples / rate + 1.0)
+    traj = trajectory(tseed, n_samples / rate + 1.0) if excitation is None else _fourier_sampler(excitation)
     q0, dq0, _ = traj(0.0)
     spec = ArmSpec(ARM, params=params, effects=eff, noise=noise or SensorNoise(), q0=q0)
     world = SimWorld([spec], obj=None, seed=tseed, dt=SIM_DT)
@@ -278,3 +283,80 @@ def reference_seed(seed: int) -> int:
     """Seed of the reference (model identification) run that goes with a case seed: another
     trajectory on the same plant without effects, as a lab's earlier `rig identify`."""
     return 1_000_003 + seed
+
+
+def _fourier_sampler(ft):
+    """A FourierTrajectory as the generator's trajectory function: (3,) arrays for a scalar
+    time, (n, 3) for an array."""
+    def sample(tt):
+        q, dq, ddq = ft.sample(tt)
+        return (q[0], dq[0], ddq[0]) if np.ndim(tt) == 0 else (q, dq, ddq)
+    return sample
+
+
+#: The optimised excitation of the reference runs' identification (thesis 5.3), designed once
+#: by `design_reference_excitation` and stored with how it was made.
+REFERENCE_EXCITATION_PATH = Path(__file__).with_name("reference_excitation.json")
+#: Its design: the thesis' 0.13 Hz, 5 harmonics, 30 s; joint 3 inside the generator's band
+#: (0.04-0.20 m, where the multi-sines keep the tool) and every joint at half its velocity
+#: limit, as the multi-sines are, so that what the reference model learns about friction
+#: holds at the speeds the cases run at.
+REFERENCE_EXCITATION_DESIGN = {"frequency_hz": 0.13, "harmonics": 5, "duration": 30.0, "velocity_fraction": 0.5,
+                               "q3_band": [0.04, 0.20], "starts": 2, "iterations": 60, "seed": 0}
+
+
+def design_reference_excitation(path: Path = REFERENCE_EXCITATION_PATH) -> dict:
+    """Design the reference excitation (log condition number of the base regressor, SLSQP,
+    `calibration.excitation`) and write it to ``path``; ~30 s."""
+    from calibration.base_params import base_parameters_of
+    from calibration.excitation import ExcitationDesigner
+    from rig.psm_dynamics import PSMDynamics
+
+    d = REFERENCE_EXCITATION_DESIGN
+    model = PSMDynamics()
+    model.slope = 400.0
+    base = base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
+    lo, hi = np.array(Q_MIN, float), np.array(Q_MAX, float)
+    lo[2], hi[2] = d["q3_band"]
+    designer = ExcitationDesigner(model.regressor_batch, base.independent, lo, hi,
+                                  d["velocity_fraction"] * np.asarray(DQ_MAX, float),
+                                  frequency_hz=d["frequency_hz"], harmonics=d["harmonics"],
+                                  duration=d["duration"], rate=RATE)
+    # No time budget: every start runs, so the design is the same on any machine.
+    res = designer.optimise(n_starts=d["starts"], seed=d["seed"], maxiter=d["iterations"], time_budget=1e9)
+    doc = {"design": d, "trajectory": res.trajectory.to_dict(), "condition": res.condition_full,
+           "limit_use": res.limit_use, "seconds": res.seconds}
+    path.write_text(json.dumps(doc, indent=1) + "\n")
+    return doc
+
+
+def reference_excitation(path: Path = REFERENCE_EXCITATION_PATH):
+    """The stored reference excitation (a FourierTrajectory)."""
+    from calibration.excitation import FourierTrajectory
+
+    doc = json.loads(path.read_text())
+    if doc.get("design") != REFERENCE_EXCITATION_DESIGN:
+        raise ValueError(f"{path} was designed with {doc.get('design')}, not {REFERENCE_EXCITATION_DESIGN}: "
+                         "run `python -m calibration.hidden_effects --design-reference`")
+    return FourierTrajectory.from_dict(doc["trajectory"])
+
+
+def reference_runs(seed: int) -> list[Recorded]:
+    """The null runs a reference model is identified on for a case seed, as a lab would: the
+    optimised excitation (a well-conditioned regressor: every inertial and gravity parameter
+    pinned down) and a multi-sine of the kind the cases use (the friction at their speeds and
+    reversal rates). Different seeds from every case, null and calibration run."""
+    multisine, _ = generate(HiddenCase((), reference_seed(seed)))
+    excited, _ = generate(HiddenCase((), 2_000_003 + seed), excitation=reference_excitation())
+    return [multisine, excited]
+
+
+if __name__ == "__main__":
+    import sys
+
+    if sys.argv[1:] == ["--design-reference"]:
+        out = design_reference_excitation()
+        print(f"condition {out['condition']:.1f}, limit use {out['limit_use']}, {out['seconds']:.0f} s "
+              f"-> {REFERENCE_EXCITATION_PATH}")
+    else:
+        print("usage: python -m calibration.hidden_effects --design-reference")

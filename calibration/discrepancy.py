@@ -52,7 +52,9 @@ discrepancy", and BIC selection):
 
 Verdict: "none" (no joint's held-out residual is structured), "explained" (effects were added
 and nothing structured is left), "unexplained" (structure remains that no catalogue effect
-explains; effects that were confirmed are still listed). The workflow sees only arrays.
+explains; effects that were confirmed are still listed, and for each structured joint the
+closest catalogue effect and the test it failed are reported as evidence, never added). The
+workflow sees only arrays.
 
 Units: SI (rad, m, rad/s, m/s, N m, N, s, Hz).
 """
@@ -721,6 +723,7 @@ class Discrepancy:
     # -- the loop ---------------------------------------------------------------------------
     def run(self) -> dict:
         unexplained_joints: set[int] = set()
+        closest: dict[int, dict | None] = {}   # per joint: the best candidate that was not enough
         det = self.detect()
         first_detection = det
         for _ in range(self.settings.max_effects):
@@ -741,6 +744,7 @@ class Discrepancy:
                 on_joint = [c for c in eligible if c["joint"] == joint]
                 if not on_joint:
                     unexplained_joints.add(joint)
+                    closest[joint] = None
                     continue
                 best = on_joint[0]
                 gain_needed = max(self.th["gain"][joint - 1], LIBRARY_SHARE * lib[joint])
@@ -750,6 +754,13 @@ class Discrepancy:
                     accepted = best
                 elif not ok:
                     unexplained_joints.add(joint)
+                    # Kept as evidence for the report, never added: the verdict stays
+                    # "unexplained" rather than the nearest guess.
+                    closest[joint] = {"effect": best["effect"], "params": best["params"],
+                                      "delta_bic": best["delta_bic"],
+                                      "delta_bic_needed": self.th["delta_bic"][joint - 1],
+                                      "heldout_variance_removed": best["heldout_gain"],
+                                      "heldout_gain_needed": gain_needed, "library_r2": lib[joint]}
             record["accepted"] = None if accepted is None else f"{accepted['effect']}@{accepted['joint']}"
             self.iterations.append(record)
             if accepted is None:
@@ -774,6 +785,7 @@ class Discrepancy:
                           "heldout_rel_error": self.heldout_rel(reid["pred"]).tolist()},
                 "effects": [self._effect_doc(a) for a in self.added], "verdict": verdict,
                 "detection": {"initial": first_detection, "final": det, "structured_left": structured_left},
+                "closest_rejected": [{"joint": j, "candidate": closest.get(j)} for j in structured_left],
                 "iterations": self.iterations, "reidentification": reid["doc"], "notes": self.notes,
                 "thresholds": {"source": self.threshold_source, **self.th},
                 "catalogue_version": CATALOGUE_VERSION,

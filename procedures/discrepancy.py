@@ -150,6 +150,17 @@ def report_text(result: dict) -> str:
     if result["detection"]["structured_left"]:
         lines.append(f"structured residual left on joint(s) {result['detection']['structured_left']}: "
                      "no catalogue effect explains it")
+        for item in result.get("closest_rejected", []):
+            c = item["candidate"]
+            if c is None:
+                continue
+            why = []
+            if c["delta_bic"] <= c["delta_bic_needed"]:
+                why.append(f"dBIC {c['delta_bic']:.1f}, needs > {c['delta_bic_needed']:.1f}")
+            if c["heldout_variance_removed"] < c["heldout_gain_needed"]:
+                why.append(f"removes {c['heldout_variance_removed']:.2f} of the held-out residual variance, needs "
+                           f"{c['heldout_gain_needed']:.2f} (the generic library explains {c['library_r2']:.2f})")
+            lines.append(f"    joint {item['joint']}: closest catalogue effect {c['effect']}, not added: " + "; ".join(why))
     lines.append(f"model: {result['model']}")
     lines.append(f"time: {result['seconds']:.1f} s")
     return "\n".join(lines)

@@ -237,6 +237,14 @@ def test_outside_catalogue_is_not_named(workflow):
     # Structured (detected) but never explained by the nearest catalogue guess.
     assert res["verdict"] == "unexplained", res["iterations"]
     assert all(e["joint"] != 1 for e in res["effects"])
+    # The closest catalogue effect is reported as evidence, with the test it failed.
+    closest = {c["joint"]: c["candidate"] for c in res["closest_rejected"]}
+    assert 1 in closest and closest[1] is not None
+    c = closest[1]
+    assert c["delta_bic"] <= c["delta_bic_needed"] or c["heldout_variance_removed"] < c["heldout_gain_needed"]
+    from procedures.discrepancy import report_text
+    text = report_text(res | {"data": {"source": "sim"}, "baseline_kind": "thesis model", "model": "m.json"})
+    assert f"joint 1: closest catalogue effect {c['effect']}, not added" in text
 
 
 def test_effects_torque_reproduces_the_fit(workflow):

@@ -7,11 +7,19 @@ discrepancy", and BIC selection):
 
 1. **Prepare.** Zero-phase Butterworth (order 4, 10 Hz by default: wider than the thesis'
    3.5 Hz so that friction features at reversals survive) on q, dq; ddq by central
-   differences; ends trimmed by the filter's settling length. A joint whose filtered
-   velocity is inside its deadband is stuck: its effort there is whatever the controller
-   left inside the static friction band. The effort, the regressor, the smooth-sign Coulomb
-   column and every effect column are computed on the raw samples, zeroed on the joint's
-   stuck samples and then filtered with the same filter (masked parallel filtering: the
+   differences; ends trimmed by the filter's settling length. A joint is stuck on a sample
+   where its measured or its filtered velocity is inside its deadband (the zero-phase filter
+   starts every breakaway a few samples early): its effort there is whatever the controller
+   left inside the static friction band. The model columns are built on the state
+   ``effort_lag`` (1 ms) before each sample: the dVRK's 1 kHz PID reports the effort it
+   computed from the previous servo cycle's state. The regressor comes from the filtered
+   state, except its inertial term, whose source is chosen per joint by the training residual
+   (again after each added effect): the filtered acceleration (quiet, but filtered twice by
+   the time it meets the effort) or central differences of the measured velocity, filtered
+   once like the effort (as sharp as the effort at a breakaway; the simulated rig's and the
+   WPI PSM's insertion joint, which stick-slips, choose it). The effort, the regressor, the
+   smooth-sign Coulomb column and every effect column are zeroed on the joint's stuck
+   samples and then filtered with the same filter (masked parallel filtering: the
    equation holds on moving samples, is 0 = 0 on stuck ones, and a linear filter keeps it
    exact; filtering first and dropping the stuck samples afterwards would leave their
    effort smeared over ~20 moving samples on each side, a Stribeck- or delay-like pattern
@@ -99,7 +107,7 @@ TRAVEL_SCALES = (0.005, 0.02)
 REFINE_STEPS = 8
 #: Slopes a (s/rad, s/m) of the Coulomb sign tanh(a dq / 2) tried for an identified baseline.
 SLOPES = (100.0, 400.0, 1000.0, 3000.0)
-#: Velocity deadband (rad/s, rad/s, m/s) on the filtered velocity: slower, a joint may be
+#: Velocity deadband (rad/s, rad/s, m/s) on the measured and the filtered velocity: slower, a joint may be
 #: stuck, and its effort is then whatever the controller left inside the static friction
 #: band, which no function of (q, dq, ddq) predicts (thesis 7.5.1; `rig identify` leaves
 #: such samples out too). They are left out of every fit and every figure.
@@ -116,6 +124,7 @@ class Settings:
     order: int = 4
     heldout: float = 0.25         # fraction at the end
     max_effects: int = 4
+    effort_lag: float = 1e-3      # s: the effort reported with a sample was computed from the state this much earlier
     thresholds: dict | None = None  # {"identified": {...}, "given_model": {...}}; None: the stored file
 
 
@@ -175,7 +184,8 @@ def binned_r2(x_tr, r_tr, x_ho, r_ho, bins: int = 16) -> tuple[float, tuple[floa
 @dataclass
 class Prepared:
     """Raw (n, 3) and filtered-and-trimmed (m, 3) signals, the kept slice, train/held-out
-    index ranges into the kept samples."""
+    index ranges into the kept samples. ``q``, ``dq`` are the measured state ``effort_lag``
+    earlier (aligned with the effort); ``qf``, ``dqf``, ``ddqf`` the filtered measured state."""
 
     rate: float
     q: np.ndarray
@@ -228,7 +238,16 @@ def prepare(q, dq, tau, rate: float, settings: Settings) -> Prepared:
     # effect on every run. So the effort and every model column are masked (zeroed on the
     # joint's stuck raw samples) before filtering: the equation tau = W theta holds on the
     # moving samples, is 0 = 0 on the stuck ones, and survives the linear filter exactly.
-    moving_raw = (np.abs(dqf) >= DEADBAND).astype(float)
+    # The filter starts every breakaway a few samples early (and rings before it): a sample
+    # moves only if the measured velocity is outside the deadband as well.
+    moving_raw = ((np.abs(dqf) >= DEADBAND) & (np.abs(dq) >= DEADBAND)).astype(float)
+    if not 0.0 <= settings.effort_lag < 1.0 / rate:
+        raise DiscrepancyError(f"effort_lag {settings.effort_lag:g} s: it must be >= 0 (the effort cannot precede "
+                               f"the state) and under one sample ({1.0 / rate:g} s)")
+    # The measured state effort_lag before each sample (linear interpolation), which the
+    # model columns are built on.
+    t = np.arange(n) / rate
+    q, dq = (np.column_stack([np.interp(t - settings.effort_lag, t, x[:, j]) for j in range(3)]) for x in (q, dq))
     tauf = lowpass(tau * moving_raw, rate, settings.cutoff, settings.order)
     kept = slice(trim, n - trim)
     m = n - 2 * trim
@@ -280,7 +299,19 @@ class Discrepancy:
         n = p.q.shape[0]
         # The regressor on every raw sample (unfiltered, unmasked; the model's torque there is
         # what delay and backlash columns are built from) and masked-filtered (the fits).
-        self.W_raw = model.regressor_batch(p.qf_all, p.dqf_all, p.ddqf_all)
+        # Two sources of the inertial term (the columns multiplying ddq), the rest of the
+        # regressor from the filtered state: the filtered state's ddq (quiet, but filtered twice
+        # by the time it meets the effort, so smoother than the effort at a breakaway) or the
+        # measured velocity's central differences, filtered once like the effort. Each joint
+        # takes the one that leaves the smaller training residual (_choose_inertia).
+        z = np.zeros_like(p.dqf_all)
+        static = model.regressor_batch(p.qf_all, p.dqf_all, z)
+        at_rest = model.regressor_batch(p.qf_all, z, z)
+        self._chains = {"filtered": static + model.regressor_batch(p.qf_all, z, p.ddqf_all) - at_rest,
+                        "measured": static + model.regressor_batch(p.qf_all, z, np.gradient(p.dq, 1.0 / p.rate, axis=0))
+                        - at_rest}
+        self.inertia = ["filtered"] * 3
+        self.W_raw = self._chains["filtered"].copy()
         W = p.filt_rows(self.W_raw.reshape(n, 3, -1))
         W = W.reshape(-1, W.shape[2])
         self.W = W
@@ -315,7 +346,38 @@ class Discrepancy:
         self.notes: list[str] = []
         self.iterations: list[dict] = []
         self._fit_current()
+        self._choose_inertia()
         self.baseline_pred = self.pred.copy()
+
+    def _use_inertia(self, choice) -> None:
+        """Build the regressor with each joint's inertial term from ``choice[j]``."""
+        n = self.p.q.shape[0]
+        Wr = self._chains["filtered"].copy()
+        for j in range(3):
+            if choice[j] == "measured":
+                Wr[j::3] = self._chains["measured"][j::3]
+        self.inertia = list(choice)
+        self.W_raw = Wr
+        W = self.p.filt_rows(Wr.reshape(n, 3, -1))
+        self.W = W.reshape(-1, W.shape[2])
+        self._set_slope(self.slope)
+        if self.given is not None:
+            self.fixed = self.W @ self.given
+            self.fixed_raw = self.W_raw @ self.given
+
+    def _choose_inertia(self) -> None:
+        """Per joint, the inertial term's source with the smaller training residual of the
+        current model (chosen again after each added effect: an unmodelled one dominates the
+        first choice)."""
+        scores = {}
+        for c in ("filtered", "measured"):
+            self._use_inertia((c,) * 3)
+            self._fit_current()
+            r = (self.y - self.pred).reshape(-1, 3)
+            scores[c] = [float(np.sqrt(np.mean(r[self.mov_tr[j], j] ** 2))) for j in range(3)]
+        self.inertia_scores = scores
+        self._use_inertia(tuple(min(scores, key=lambda c: scores[c][j]) for j in range(3)))
+        self._fit_current()
 
     def _set_slope(self, a: float) -> None:
         """The Coulomb columns as sigma(dq) = tanh(a dq / 2) of the raw velocities, filtered
@@ -793,7 +855,7 @@ class Discrepancy:
                              "heldout_fraction": self.settings.heldout, "rate_hz": self.p.rate,
                              "samples": int(self.p.q.shape[0]), "train_samples": self.p.train.stop - self.p.train.start,
                              "heldout_samples": self.p.heldout.stop - self.p.heldout.start},
-                "coulomb_slope": self.slope, "seconds": time.perf_counter() - self.t0, "_reid": reid}
+                "coulomb_slope": self.slope, "inertia_source": self.inertia, "seconds": time.perf_counter() - self.t0, "_reid": reid}
 
     def _accept(self, c: dict, eligible: list[dict], det: list[dict]) -> None:
         eff = CATALOGUE[c["effect"]]
@@ -830,6 +892,7 @@ class Discrepancy:
         self._fit_current()
         if self.mode == "identified":
             self._reselect_slope()
+        self._choose_inertia()
         self._refine_added()
         self.added[-1].rms_after = self.heldout_rms().tolist()
         # Parameters from the joint fit now holding every added effect.

@@ -45,6 +45,9 @@ PARAMETERS = [
     Parameter("arm", "PSM1", "", "Arm whose /<arm>/measured_js a RUN_DIR provides", type=str),
     Parameter("heldout", 0.25, "", "Fraction of the data held out at its end", minimum=0.1, maximum=0.5),
     Parameter("cutoff", 10.0, "Hz", "Cut-off of the zero-phase Butterworth filter", minimum=1.0, maximum=50.0),
+    Parameter("effort_lag", 1.0, "ms", "How much earlier than its sample the reported effort was computed (one servo "
+              "period: 1 ms for the dVRK's 1 kHz PID and the simulated rig); under one sample", minimum=0.0,
+              maximum=4.0),
     Parameter("plots", True, "", "Write the residual PNGs", type=bool),
 ]
 
@@ -130,6 +133,7 @@ def report_text(result: dict) -> str:
     b = result["baseline"]
     lines = [f"rig discrepancy: verdict {result['verdict']}  ({result['data']['source']})",
              f"baseline: {result['baseline_kind']}",
+             "inertial term per joint (the smaller training residual): " + ", ".join(result["inertia_source"]),
              "held-out RMS per joint (N m, N m, N):  baseline " + ", ".join(f"{v:.4g}" for v in b["heldout_rms"])
              + "  ->  final " + ", ".join(f"{v:.4g}" for v in result["final"]["heldout_rms"]),
              "held-out relative error per joint:      baseline " + ", ".join(f"{v:.3f}" for v in b["heldout_rel_error"])
@@ -175,7 +179,8 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
     from rig.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
     from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
-    settings = Settings(cutoff=parameters["cutoff"], heldout=parameters["heldout"])
+    settings = Settings(cutoff=parameters["cutoff"], heldout=parameters["heldout"],
+                        effort_lag=parameters["effort_lag"] * 1e-3)
     with Run(PROCEDURE, parameters=parameters, config=None, steps=list(STEPS), root=run_root,
              progress=progress) as rn:
         with rn.step(STEPS[0]):

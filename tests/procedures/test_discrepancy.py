@@ -28,6 +28,15 @@ def test_cli_on_real_csv_json(tmp_path):
     # The final model never fits the held-out block worse than the baseline on any joint by much.
     for b, f in zip(doc["baseline"]["heldout_rms"], doc["final"]["heldout_rms"]):
         assert f <= 1.05 * b
+    # The insertion joint stick-slips (thesis 5.6): its inertial term is sharper from the
+    # measured velocity; the noisy outer joints keep the filtered one.
+    assert doc["inertia_source"] == ["filtered", "filtered", "measured"]
+
+
+def test_cli_effort_lag_of_a_sample_or_more_is_refused(tmp_path):
+    res = CliRunner().invoke(main, ["discrepancy", "--csv", str(tmp_path / "x.csv"), "--effort-lag", "6"])
+    assert res.exit_code != 0
+    assert "effort" in res.output.lower()
 
 
 def test_cli_needs_exactly_one_input():

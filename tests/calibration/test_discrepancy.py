@@ -277,6 +277,31 @@ def test_outside_catalogue_is_not_named(workflow):
     assert f"joint 1: closest catalogue effect {c['effect']}, not added" in text
 
 
+def test_reidentification_with_a_given_model_is_validated_on_the_held_out_block(workflow, sim, monkeypatch):
+    # Hysteresis is separable from the rigid-body/friction parameters, so the given model's
+    # base parameters are re-identified with it; the effect's parameters then come from that
+    # joint fit, and it is kept only if no joint predicts the held-out block >5 % worse.
+    import calibration.discrepancy as D
+
+    res, _, truth = workflow([("hysteresis", 3)], 0, "given_model")
+    doc = res["reidentification"]
+    assert doc["done"], doc
+    assert np.all(np.array(doc["heldout_rms_reidentified"]) <= D.REIDENTIFY_TOLERANCE * np.array(
+        doc["heldout_rms_fixed_model"]))
+    assert res["final"]["heldout_rms"] == pytest.approx(doc["heldout_rms_reidentified"])
+    fd = next(e for e in res["effects"] if e["name"] == "hysteresis")["params"]["Fd"]
+    assert fd == pytest.approx(truth.params[0]["size"], rel=0.1)
+    # A re-identification that generalises worse is refused: the given model with the effect stays.
+    monkeypatch.setattr(D, "REIDENTIFY_TOLERANCE", 0.5)
+    model, base = sim
+    given, slope = reference_model(model, base, 0)
+    rec, _ = generate(HiddenCase((("hysteresis", 3),), 0))
+    res2 = Discrepancy(model, base, rec.q, rec.dq, rec.tau, rec.rate, given, Settings()).run()
+    assert not res2["reidentification"]["done"]
+    assert "worse on joint(s)" in res2["reidentification"]["note"]
+    assert res2["final"]["heldout_rms"] == pytest.approx(res2["reidentification"]["heldout_rms_fixed_model"])
+
+
 def test_effects_torque_reproduces_the_fit(workflow):
     res, w, _ = workflow([("spring", 1), ("hysteresis", 3)], 0)
     e = next(e for e in res["effects"] if e["name"] == "spring")

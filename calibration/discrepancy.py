@@ -973,16 +973,23 @@ class Discrepancy:
             a.evidence["grid"]["value"] = g
         self._fit_current()
 
-    def _refresh_params(self) -> None:
-        k0 = 0 if self.mode == "given_model" else self.Wb.shape[1]
+    def _refresh_params(self, coef: np.ndarray | None = None, k0: int | None = None,
+                        standard: np.ndarray | None = None) -> None:
+        """Each added effect's parameters from a fit's coefficients: the current fit by
+        default, or ``coef`` whose effect columns start at ``k0`` with the baseline's Coulomb
+        levels taken from ``standard`` (a re-identified model's standard parameters)."""
+        if coef is None:
+            coef, k0 = self.coef, (0 if self.mode == "given_model" else self.Wb.shape[1])
         for a in self.added:
-            k = a.raw_cols.shape[2]
+            n_cols = a.raw_cols.shape[2]
             theta = np.zeros(len(a.free))
-            theta[a.free] = self.coef[k0:k0 + k]
-            k0 += k
+            theta[a.free] = coef[k0:k0 + n_cols]
+            k0 += n_cols
             extra = {k: a.params[k] for k in ("com_determined",) if k in a.params}
-            a.params = CATALOGUE[a.effect].params(theta, a.grid, a.joint,
-                                                  self._baseline_terms(self.coef, a.joint)) | extra
+            terms = self._baseline_terms(self.coef, a.joint)
+            if standard is not None:
+                terms["Fc"] = float(standard[70 + 4 * (a.joint - 1)])
+            a.params = CATALOGUE[a.effect].params(theta, a.grid, a.joint, terms) | extra
 
     def _reidentify(self) -> dict:
         """Identified mode: the loop's fits are already joint. Given model: re-identify the
@@ -1018,15 +1025,7 @@ class Discrepancy:
                 **rms}}
         # The effects' parameters from the joint fit, with the re-identified Coulomb levels.
         k0 = self.Wb.shape[1]
-        pi = self.base.standard_from_base(coef[:k0], self.given)
-        for a in self.added:
-            k = a.raw_cols.shape[2]
-            theta = np.zeros(len(a.free))
-            theta[a.free] = coef[k0:k0 + k]
-            k0 += k
-            extra = {k: a.params[k] for k in ("com_determined",) if k in a.params}
-            terms = self._baseline_terms(self.coef, a.joint) | {"Fc": float(pi[70 + 4 * (a.joint - 1)])}
-            a.params = CATALOGUE[a.effect].params(theta, a.grid, a.joint, terms) | extra
+        self._refresh_params(coef, k0, self.base.standard_from_base(coef[:k0], self.given))
         return {"pred": pred, "coef": coef, "doc": {
             "done": True, "note": "base parameters and effects re-identified together on the training block", **rms}}
 
@@ -1106,9 +1105,9 @@ def identify_on_runs(model, base, runs, settings: Settings | None = None) -> tup
     for all runs, from SLOPES) is the one with the least squares residual; then one weighted
     pass (1 / residual std per joint), as the baseline fit. Returns the standard parameters
     (82,) and the slope."""
-    th = {"identified": FALLBACK_THRESHOLDS["identified"], "given_model": FALLBACK_THRESHOLDS["given_model"]}
+    # Detection thresholds play no part in an identification: the fallback ones spare a file read.
     base_settings = settings or Settings()
-    ws = [Discrepancy(model, base, *run, settings=Settings(**(vars(base_settings) | {"thresholds": th})))
+    ws = [Discrepancy(model, base, *run, settings=Settings(**(vars(base_settings) | {"thresholds": FALLBACK_THRESHOLDS})))
           for run in runs]
     best = None
     for a in SLOPES:

@@ -353,8 +353,7 @@ class Discrepancy:
         self.added: list[Added] = []
         self.notes: list[str] = []
         self.iterations: list[dict] = []
-        self._fit_current()
-        self._choose_inertia()
+        self._choose_inertia()   # fits the baseline with each source and keeps the better per joint
         self.baseline_pred = self.pred.copy()
 
     def _use_inertia(self, choice) -> None:
@@ -384,8 +383,10 @@ class Discrepancy:
             r = (self.y - self.pred).reshape(-1, 3)
             scores[c] = [float(np.sqrt(np.mean(r[self.mov_tr[j], j] ** 2))) for j in range(3)]
         self.inertia_scores = scores
-        self._use_inertia(tuple(min(scores, key=lambda c: scores[c][j]) for j in range(3)))
-        self._fit_current()
+        choice = tuple(min(scores, key=lambda c: scores[c][j]) for j in range(3))
+        if choice != tuple(self.inertia):   # else the last fit above already is this one
+            self._use_inertia(choice)
+            self._fit_current()
 
     def _set_slope(self, a: float) -> None:
         """The Coulomb columns as sigma(dq) = tanh(a dq / 2) of the raw velocities, filtered

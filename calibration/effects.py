@@ -7,7 +7,9 @@ Each :class:`Effect` is one physical component a rigid-body + viscous/Coulomb/of
   non-linear in one parameter (Stribeck velocity, period of a position ripple, Dahl travel
   constant, backlash width, delay, exponent of the damping law) carry a small grid over
   that parameter; the workflow fits theta linearly inside each grid value and keeps the
-  best (a profile likelihood). The grid value counts as one more parameter in the BIC;
+  best (a profile likelihood). The grid value counts as one more parameter in the BIC.
+  Backlash has a second, discrete one (the motor side's share of the joint inertia),
+  searched as options, each with the width grid;
 * its parameters with units (``params``), from theta and the grid value;
 * a sanity check on those parameters (e.g. Fs >= Fc >= 0): a fit that needs unphysical
   values is not that effect, whatever its score;
@@ -36,8 +38,10 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from numba import njit
 
-CATALOGUE_VERSION = "1.0"
+#: 1.1: backlash returns the momentum at the contact and has a motor-side inertia (params changed).
+CATALOGUE_VERSION = "1.1"
 
 #: Bodies a payload is attributed to for joint 1, 2, 3 (rig.psm_dynamics.BODY_NAMES).
 PAYLOAD_BODIES = ("yaw_link", "pitch_end", "tool")
@@ -59,6 +63,12 @@ class EffectContext:
     # The current model's inertia on each joint (M_jj at the data's median configuration:
     # N m s^2/rad, kg), for the backlash crossing.
     inertia: np.ndarray | None = None
+    # For the backlash crossing too: the model's M_jj on every sample (n, 3), the joint
+    # accelerations the model's torque was built with (n, 3), and each joint's Coulomb level and
+    # viscous coefficient in the current model (3, 2).
+    mass_diag: np.ndarray | None = None
+    ddq: np.ndarray | None = None
+    friction: np.ndarray | None = None
 
     def sign(self, v):
         return np.tanh(0.5 * self.slope * v)
@@ -89,6 +99,14 @@ class Effect:
     #: The non-linear parameter is a point mass's centre, found by variable projection over
     #: the body's ten standard columns (``columns(ctx, j, None)``) instead of a grid.
     point_mass: bool = False
+    #: A second, discrete non-linear parameter (joint -> its values); the grid value is then
+    #: the pair (grid value, option) and the grid is searched for each option.
+    options: Callable | None = None
+    option_name: str | None = None
+    #: The torque needs the joint accelerations and the model's M_jj on the samples
+    #: (``torque(..., ddq=, mass_diag=)``; defaults: central differences of dq, the inertia
+    #: in the parameters).
+    needs_dynamics: bool = False
 
     @property
     def n_linear(self) -> int:
@@ -113,11 +131,15 @@ class Effect:
         return self._sanity(params, joint)
 
     def torque(self, params: dict, joint: int, q, dq, tau_model=None, rate: float = 200.0,
-               slope: float = 400.0) -> np.ndarray:
+               slope: float = 400.0, ddq=None, mass_diag=None) -> np.ndarray:
         """(n, 3) torque the effect adds (N m, N) on raw samples (n, 3)."""
         q, dq = np.atleast_2d(q), np.atleast_2d(dq)
         out = np.zeros_like(q, dtype=float)
-        res = self._torque(params, joint, q, dq, tau_model, rate, slope)
+        if self.needs_dynamics:
+            ddq = np.gradient(dq, 1.0 / rate, axis=0) if ddq is None else np.atleast_2d(ddq)
+            res = self._torque(params, joint, q, dq, tau_model, rate, slope, ddq, mass_diag)
+        else:
+            res = self._torque(params, joint, q, dq, tau_model, rate, slope)
         if self.all_joints:
             return res
         out[:, joint - 1] = res
@@ -159,27 +181,16 @@ def dahl_state(q: np.ndarray, travel: float) -> np.ndarray:
     return z
 
 
-def gap_window(tau_model: np.ndarray, inertia: float, rate: float, width: float) -> np.ndarray:
-    """1 while a play of total width ``width`` (rad or m) is being crossed, else 0, on samples
-    at ``rate`` Hz: the lost motion at a reversal of the transmitted torque.
-
-    The encoder reads the motor side, which follows the measured path; the joint side is in
-    contact with one face of the play while the torque ``tau_model`` the path needs pushes
-    on it. When that torque changes sign the joint side is left to its own loads and the
-    motor crosses the play: relative to the joint it accelerates by tau_model / inertia (the
-    path's torque less the loads, over the joint's inertia), until it has travelled the
-    width and meets the other face. The relative position is kept between the faces, so a
-    reversal in the middle of a crossing turns back from where the motor is.
-    """
-    u = np.asarray(tau_model, float)
-    h = 1.0 / rate
-    half = 0.5 * width
-    w = np.zeros(len(u))
-    side = np.sign(u[0]) if len(u) else 0.0
+@njit(cache=True)
+def _gap_kernel(u, inertia, vp, h, half, fc, fv, slope):
+    n = u.shape[0]
+    w = np.zeros(n)
+    momentum = np.zeros(n)
+    side = np.sign(u[0]) if n else 0.0
     x = side * half          # motor minus joint, relative to the middle of the play
-    v = 0.0
+    v = 0.0                  # motor minus joint velocity
     in_gap = False
-    for k in range(len(u)):
+    for k in range(n):
         s = np.sign(u[k])
         if not in_gap:
             if s != 0 and side != 0 and s != side:
@@ -188,16 +199,74 @@ def gap_window(tau_model: np.ndarray, inertia: float, rate: float, width: float)
                 side = s
                 x = side * half
         if in_gap:
-            v += h * u[k] / inertia
+            # The joint side, at vp - v, carries its own friction; the path's torque u was
+            # computed with the friction at vp.
+            rel = u[k] - fv * v - fc * (np.tanh(0.5 * slope * vp[k]) - np.tanh(0.5 * slope * (vp[k] - v)))
+            v += h * rel / inertia[k]
             x += h * v
-            if abs(x) >= half:
+            if abs(x) >= half and v * x > 0.0:    # at a face and moving into it
                 x = np.sign(x) * half
                 side = np.sign(x)
+                momentum[k] = inertia[k] * v
                 in_gap, v = False, 0.0
                 if s != side:     # the torque turned back while crossing: cross again
                     in_gap = True
             w[k] = 1.0 if in_gap or abs(x) < half else 0.0
-    return w
+    return w, momentum
+
+
+def gap_crossings(transmitted, link_inertia, rate: float, width: float, dq=None,
+                  friction=(0.0, 0.0), slope: float = 400.0):
+    """Crossings of a play of total width ``width`` (rad or m), on samples at ``rate`` Hz:
+    (window, momentum), each (n,). ``window`` is 1 while the play is open, else 0;
+    ``momentum`` (N m s, N s) is, on the sample where the motor meets the other face, the
+    joint side's momentum relative to the motor side at that contact, else 0.
+
+    The encoder reads the motor side, which follows the measured path; the joint side is in
+    contact with one face of the play while the torque the drive transmits to it
+    (``transmitted``: the path's torque less the motor side's own inertia torque) pushes on it.
+    When that torque changes sign the joint side is left to its own loads and the motor
+    crosses the play: relative to the joint it accelerates by the transmitted torque over the
+    joint side's inertia ``link_inertia`` (scalar or per sample), less the difference of the
+    joint's friction (``friction`` = (Fc, Fv) with the smooth sign of ``slope``) between the
+    path's velocity ``dq`` and the joint side's own, until it has travelled the width and
+    meets the other face. A reversal in the middle of a crossing turns back from where the
+    motor is.
+    """
+    u = np.ascontiguousarray(transmitted, dtype=float)
+    inertia = np.ascontiguousarray(np.broadcast_to(np.asarray(link_inertia, float), u.shape))
+    vp = np.zeros(len(u)) if dq is None else np.ascontiguousarray(dq, dtype=float)
+    return _gap_kernel(u, inertia, vp, 1.0 / rate, 0.5 * width, float(friction[0]), float(friction[1]),
+                       float(slope))
+
+
+#: Time constant (s) over which the measured effort returns a contact's momentum after a
+#: crossing: the position loop catching the joint side up with the path. The workflow does
+#: not know the loop; at its 10 Hz analysis bandwidth the shape of a 10-40 ms return barely
+#: matters, its area (the momentum) does.
+GAP_RETURN = 0.02
+
+
+def gap_torque(tau_model, ddq, mass_diag, dq, rate: float, width: float, motor_inertia: float,
+               friction=(0.0, 0.0), slope: float = 400.0) -> np.ndarray:
+    """(n,) change of a joint's measured effort a play of total width ``width`` makes, per
+    unit unloaded fraction. The motor side (inertia ``motor_inertia``) follows the path; the
+    drive transmits ``tau_model - motor_inertia * ddq`` to the joint side, whose inertia is
+    ``mass_diag - motor_inertia`` (``mass_diag``: the model's M_jj, scalar or per sample).
+    While the play is open (`gap_crossings`) the effort loses the transmitted torque; at each
+    contact it gives back the momentum the joint side then has relative to the path, spread
+    over `GAP_RETURN` (unit area)."""
+    u = np.asarray(tau_model, float) - motor_inertia * np.asarray(ddq, float)
+    link = np.maximum(np.asarray(mass_diag, float) - motor_inertia, 1e-9)
+    w, momentum = gap_crossings(u, link, rate, width, dq, friction, slope)
+    out = -w * u
+    a = np.exp(-1.0 / (rate * GAP_RETURN))
+    tail = int(np.ceil(8.0 * GAP_RETURN * rate))
+    kernel = (1.0 - a) * a ** np.arange(tail) * rate
+    for i in np.flatnonzero(momentum):
+        m = min(tail, len(u) - i)
+        out[i:i + m] += momentum[i] * kernel[:m]
+    return out
 
 
 def delayed(x: np.ndarray, samples: float) -> np.ndarray:
@@ -374,37 +443,52 @@ def payload_standard_delta(params: dict, body_names) -> np.ndarray:
     return d
 
 
+#: Motor side of a play: fractions of the joint's inertia (M_jj at the median configuration)
+#: tried for the inertia on the motor side of the play (the rotor's share, which the drive
+#: still has to accelerate while the play is open).
+MOTOR_FRACTIONS = (0.0, 0.1, 0.2, 0.3)
+
+
 def _backlash() -> Effect:
-    def cols(ctx, j, width):
+    def cols(ctx, j, g):
+        width, frac = g
         inertia = float(ctx.inertia[j - 1])
         if not inertia > 0:
             return _on(j, np.zeros(len(ctx.q)))
-        w = gap_window(ctx.tau_model[:, j - 1], inertia, ctx.rate, width)
-        return _on(j, -w * ctx.tau_model[:, j - 1])
+        fc, fv = ctx.friction[j - 1]
+        return _on(j, gap_torque(ctx.tau_model[:, j - 1], ctx.ddq[:, j - 1], ctx.mass_diag[:, j - 1],
+                                 ctx.dq[:, j - 1], ctx.rate, width, frac * inertia, (fc, fv), ctx.slope))
 
-    def params(th, width, j, base):
-        return {"width": float(width), "unloaded_fraction": float(th[0]), "inertia": float(base["inertia"])}
+    def params(th, g, j, base):
+        width, frac = g
+        return {"width": float(width), "unloaded_fraction": float(th[0]), "motor_fraction": float(frac),
+                "motor_inertia": float(frac * base["inertia"]), "inertia": float(base["inertia"]),
+                "Fc": float(base.get("Fc", 0.0)), "Fv": float(base.get("Fv", 0.0))}
 
     def sanity(p, j):
         if not 0.2 <= p["unloaded_fraction"] <= 1.5:
             return (f"the load seen while crossing the gap drops by {p['unloaded_fraction']:.3g} of the "
-                    "model torque (a gap unloads by about 1)")
+                    "transmitted torque (a gap unloads by about 1)")
         if not p["inertia"] > 0:
             return f"the model's inertia on the joint is {p['inertia']:.3g}: the crossing is undefined"
         return None
 
-    def torque(p, j, q, dq, tm, rate, slope):
-        w = gap_window(tm[:, j - 1], p["inertia"], rate, p["width"])
-        return -p["unloaded_fraction"] * w * tm[:, j - 1]
+    def torque(p, j, q, dq, tm, rate, slope, ddq, mass_diag):
+        md = p["inertia"] if mass_diag is None else np.atleast_2d(mass_diag)[:, j - 1]
+        return p["unloaded_fraction"] * gap_torque(tm[:, j - 1], ddq[:, j - 1], md, dq[:, j - 1], rate,
+                                                   p["width"], p["motor_inertia"], (p["Fc"], p["Fv"]), slope)
 
     return Effect("backlash", "dead zone at torque reversal: while the motor crosses the play of width b "
-                  "(driven relative to the unloaded joint by the model torque over the joint inertia) "
-                  "the drive transmits nothing", "motor travel across the play after a torque reversal",
+                  "(driven relative to the joint side by the transmitted torque over the joint side's "
+                  "inertia) the drive transmits nothing, and the contact at the far face returns the "
+                  "joint side's lag in momentum", "motor travel across the play after a torque reversal",
                   "crossing the play after each reversal of the transmitted torque", ("unloaded_fraction",),
-                  lambda j: {"width": _u(j, "rad", "m"), "unloaded_fraction": "1",
-                             "inertia": _u(j, "N m s^2/rad", "kg")},
+                  lambda j: {"width": _u(j, "rad", "m"), "unloaded_fraction": "1", "motor_fraction": "1",
+                             "motor_inertia": _u(j, "N m s^2/rad", "kg"), "inertia": _u(j, "N m s^2/rad", "kg"),
+                             "Fc": _u(j, "N m", "N"), "Fv": _u(j, "N m s/rad", "N s/m")},
                   lambda j: _geom(0.002, 0.04, 7) if j < 3 else _geom(0.0003, 0.006, 7), "width",
-                  cols, params, sanity, torque, uses_model=True)
+                  cols, params, sanity, torque, uses_model=True, nonlinear_dim=2,
+                  options=lambda j: MOTOR_FRACTIONS, option_name="motor_fraction", needs_dynamics=True)
 
 
 def _hysteresis() -> Effect:
@@ -520,16 +604,20 @@ def describe() -> dict:
 
 
 def effects_torque(effects: list[dict], q, dq, tau_model=None, rate: float = 200.0, slope: float = 400.0,
-                   exclude=("payload",)) -> np.ndarray:
+                   exclude=("payload",), ddq=None, mass_diag=None) -> np.ndarray:
     """Sum of the torques (n, 3) of a model file's ``effects`` entries on raw samples.
 
     A payload is part of the rigid-body parameters (see ``payload_standard_delta``) and is
-    excluded here. ``tau_model`` (n, 3) is needed for time_delay and backlash.
+    excluded here. ``tau_model`` (n, 3) is needed for time_delay and backlash; backlash also
+    uses the joint accelerations ``ddq`` (default: central differences of dq) and the model's
+    mass-matrix diagonal on the samples ``mass_diag`` (n, 3) (default: the inertia in its
+    parameters, the median configuration's).
     """
     q, dq = np.atleast_2d(q), np.atleast_2d(dq)
     out = np.zeros_like(q, dtype=float)
     for e in effects:
         if e["name"] in exclude:
             continue
-        out += CATALOGUE[e["name"]].torque(e["params"], int(e["joint"]), q, dq, tau_model, rate, slope)
+        out += CATALOGUE[e["name"]].torque(e["params"], int(e["joint"]), q, dq, tau_model, rate, slope,
+                                           ddq, mass_diag)
     return out

@@ -32,7 +32,7 @@ from rig.psm_dynamics import Body, PSMParameters
 from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 from rig.sim import ArmSpec, HiddenEffects, SensorNoise, SimWorld
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 ARM = "PSM1"
 RATE = 200.0           # Hz, the recorded rate (the WPI data's)
 SIM_DT = 1e-3          # s, the dVRK servo period
@@ -64,6 +64,12 @@ _SIZE = {
 # position-dependent friction scales it, so joints 1-2 would see only ~0.05 N m. The generator
 # raises the plant's Coulomb level on that joint to make the effect as large as the others.
 _POSFRIC_FC = np.array([0.15, 0.15, 0.6])
+# A play on the pitch axis opens only where the torque the drive transmits changes sign. The
+# real PSM's pitch is balanced (the WPI data's joint-2 effort: median -0.10 N m, range
+# -1.65..1.41 N m); the simulated arm's is not (0.9..2.5 N m on the generator's trajectories),
+# so a joint-2 play would never open. A joint-2 backlash case (and its twin) gets a constant
+# counter-torque on the pitch axis, N m, that leaves its load crossing zero.
+_PITCH_BALANCE = 1.8
 # Bodies a payload sits on for an effect attributed to joint 1, 2, 3.
 _PAYLOAD_BODY = ("yaw_link", "pitch_end", "tool")
 
@@ -195,6 +201,10 @@ def _plant(case_params: list[dict], twin: bool = False) -> tuple[PSMParameters, 
             params = _add_point_mass(params, _PAYLOAD_BODY[j], size, p["com"])
         elif name == "backlash":
             eff.backlash[j] = size
+            if j == 1:
+                fo = params.drive.Fo.copy()
+                fo[1] -= _PITCH_BALANCE
+                params = replace(params, drive=replace(params.drive, Fo=fo))
         elif name == "hysteresis":
             eff.hysteresis[j] = size
             eff.hysteresis_stiffness[j] = p["stiffness"]
@@ -226,7 +236,8 @@ def generate(case: HiddenCase, n_samples: int = N_SAMPLES, rate: float = RATE,
     same sensor-noise draws, which is how the bench knows the noise floor of each case. The
     twin differs from the null case only where the set-up itself changes the plant: a
     position-dependent friction case raises the joint's Coulomb level (see _POSFRIC_FC), and
-    its twin keeps that level without the ripple.
+    its twin keeps that level without the ripple; a joint-2 backlash case balances the pitch
+    axis (see _PITCH_BALANCE), and so does its twin.
     """
     case_params = draw_case_parameters(case)
     params, eff, extra = _plant(case_params, twin)

@@ -597,7 +597,7 @@ class Discrepancy:
                                 tuple(self.model.body_names), self._inertia())
             if eff.needs_dynamics:
                 ctx.mass_diag, ctx.friction = self._mass_diag(), np.nan_to_num(self._friction())
-                ctx.ddq = p.ddqf_all
+                ctx.ddq, ctx.deadband = p.ddqf_all, DEADBAND
             raw = eff.columns(ctx, joint, g)
             return raw if unfiltered else p.filt_rows(raw)
         if unfiltered:
@@ -789,11 +789,12 @@ class Discrepancy:
         return out
 
     def _baseline_terms(self, coef: np.ndarray, joint: int) -> dict:
-        """The joint's Coulomb level Fc in the current fit (for Fs >= Fc checks) and its
-        inertia (for the backlash crossing)."""
+        """The joint's Coulomb level Fc in the current fit (for Fs >= Fc checks), and for the
+        backlash crossing its viscous coefficient Fv, its inertia and its stuck velocity."""
         inertia = float(self._inertia(coef)[joint - 1])
         fc, fv = self._friction(coef)[joint - 1]
-        return ({"Fc": float(fc)} if np.isfinite(fc) else {}) | {"Fv": float(np.nan_to_num(fv)), "inertia": inertia}
+        return ({"Fc": float(fc)} if np.isfinite(fc) else {}) | {"Fv": float(np.nan_to_num(fv)), "inertia": inertia,
+                                                                 "stuck_velocity": float(DEADBAND[joint - 1])}
 
     def _friction(self, coef: np.ndarray | None = None) -> np.ndarray:
         """(3, 2): each joint's Coulomb level Fc and viscous coefficient Fv in the current fit
@@ -815,9 +816,14 @@ class Discrepancy:
         configuration (for the backlash crossing; kept for the last parameters asked)."""
         coef = self.coef if coef is None else coef
         key = None if self.mode == "given_model" else coef[:self.Wb.shape[1]].tobytes()
-        if self._mass_cache is not None and self._mass_cache[0] == key:
-            return self._mass_cache[1]
-        q = self.p.qf_all
+        if self._mass_cache is None or self._mass_cache[0] != key:
+            self._mass_cache = (key, self._mass_diagonal_at(self.p.qf_all, coef))
+        return self._mass_cache[1]
+
+    def _mass_diagonal_at(self, q: np.ndarray, coef: np.ndarray) -> np.ndarray:
+        """(len(q), 3): M_jj of the model (the given one, or the base parameters ``coef``) at
+        configurations q: the regressor's change for a unit acceleration of each joint, times
+        the parameters."""
         z = np.zeros_like(q)
         Y0 = self.model.regressor_batch(q, z, z)
         out = np.empty_like(q)
@@ -827,26 +833,12 @@ class Discrepancy:
             dY = (self.model.regressor_batch(q, z, e) - Y0)[j::3]
             out[:, j] = dY @ self.given if self.mode == "given_model" else \
                 self.base.regressor(dY) @ coef[:self.Wb.shape[1]]
-        self._mass_cache = (key, out)
         return out
 
     def _inertia(self, coef: np.ndarray | None = None) -> np.ndarray:
-        """Diagonal of the current model's mass matrix (3,) at the data's median configuration:
-        the regressor's change for a unit acceleration of each joint, times the parameters."""
+        """Diagonal of the current model's mass matrix (3,) at the data's median configuration."""
         coef = self.coef if coef is None else coef
-        qmed = np.median(self.p.qf_all, axis=0)[None]
-        z = np.zeros((1, 3))
-        Y0 = self.model.regressor_batch(qmed, z, z)
-        out = np.empty(3)
-        for j in range(3):
-            e = z.copy()
-            e[0, j] = 1.0
-            dY = self.model.regressor_batch(qmed, z, e) - Y0
-            if self.mode == "given_model":
-                out[j] = dY[j] @ self.given
-            else:
-                out[j] = self.base.regressor(dY)[j] @ coef[:self.Wb.shape[1]]
-        return out
+        return self._mass_diagonal_at(np.median(self.p.qf_all, axis=0)[None], coef)[0]
 
     # -- the loop ---------------------------------------------------------------------------
     def run(self) -> dict:

@@ -69,6 +69,8 @@ class EffectContext:
     mass_diag: np.ndarray | None = None
     ddq: np.ndarray | None = None
     friction: np.ndarray | None = None
+    # Velocity under which each joint counts as stuck (3,).
+    deadband: np.ndarray | None = None
 
     def sign(self, v):
         return np.tanh(0.5 * self.slope * v)
@@ -247,16 +249,32 @@ def gap_crossings(transmitted, link_inertia, rate: float, width: float, dq=None,
 GAP_RETURN = 0.02
 
 
+def bridge_stuck(u: np.ndarray, dq, stuck_velocity: float) -> np.ndarray:
+    """``u`` with the samples where the joint is stuck (|dq| < ``stuck_velocity``) replaced by
+    the straight line between the moving samples on either side. While a joint sticks at a
+    reversal its drive torque ramps through the static friction band as the position loop
+    winds up; a model's torque there follows its smooth sign of a velocity near zero, which
+    jumps by twice the Coulomb level at a time the ramp does not."""
+    if dq is None or not stuck_velocity > 0:
+        return u
+    moving = np.abs(np.asarray(dq, float)) >= stuck_velocity
+    if moving.all() or not moving.any():
+        return u
+    k = np.arange(len(u))
+    return np.where(moving, u, np.interp(k, k[moving], u[moving]))
+
+
 def gap_torque(tau_model, ddq, mass_diag, dq, rate: float, width: float, motor_inertia: float,
-               friction=(0.0, 0.0), slope: float = 400.0) -> np.ndarray:
+               friction=(0.0, 0.0), slope: float = 400.0, stuck_velocity: float = 0.0) -> np.ndarray:
     """(n,) change of a joint's measured effort a play of total width ``width`` makes, per
     unit unloaded fraction. The motor side (inertia ``motor_inertia``) follows the path; the
     drive transmits ``tau_model - motor_inertia * ddq`` to the joint side, whose inertia is
     ``mass_diag - motor_inertia`` (``mass_diag``: the model's M_jj, scalar or per sample).
     While the play is open (`gap_crossings`) the effort loses the transmitted torque; at each
     contact it gives back the momentum the joint side then has relative to the path, spread
-    over `GAP_RETURN` (unit area)."""
-    u = np.asarray(tau_model, float) - motor_inertia * np.asarray(ddq, float)
+    over `GAP_RETURN` (unit area). Where the joint is stuck (|dq| < ``stuck_velocity``) the
+    transmitted torque is bridged (`bridge_stuck`)."""
+    u = bridge_stuck(np.asarray(tau_model, float), dq, stuck_velocity) - motor_inertia * np.asarray(ddq, float)
     link = np.maximum(np.asarray(mass_diag, float) - motor_inertia, 1e-9)
     w, momentum = gap_crossings(u, link, rate, width, dq, friction, slope)
     out = -w * u
@@ -457,13 +475,15 @@ def _backlash() -> Effect:
             return _on(j, np.zeros(len(ctx.q)))
         fc, fv = ctx.friction[j - 1]
         return _on(j, gap_torque(ctx.tau_model[:, j - 1], ctx.ddq[:, j - 1], ctx.mass_diag[:, j - 1],
-                                 ctx.dq[:, j - 1], ctx.rate, width, frac * inertia, (fc, fv), ctx.slope))
+                                 ctx.dq[:, j - 1], ctx.rate, width, frac * inertia, (fc, fv), ctx.slope,
+                                 float(ctx.deadband[j - 1])))
 
     def params(th, g, j, base):
         width, frac = g
         return {"width": float(width), "unloaded_fraction": float(th[0]), "motor_fraction": float(frac),
                 "motor_inertia": float(frac * base["inertia"]), "inertia": float(base["inertia"]),
-                "Fc": float(base.get("Fc", 0.0)), "Fv": float(base.get("Fv", 0.0))}
+                "Fc": float(base.get("Fc", 0.0)), "Fv": float(base.get("Fv", 0.0)),
+                "stuck_velocity": float(base.get("stuck_velocity", 0.0))}
 
     def sanity(p, j):
         if not 0.2 <= p["unloaded_fraction"] <= 1.5:
@@ -476,7 +496,8 @@ def _backlash() -> Effect:
     def torque(p, j, q, dq, tm, rate, slope, ddq, mass_diag):
         md = p["inertia"] if mass_diag is None else np.atleast_2d(mass_diag)[:, j - 1]
         return p["unloaded_fraction"] * gap_torque(tm[:, j - 1], ddq[:, j - 1], md, dq[:, j - 1], rate,
-                                                   p["width"], p["motor_inertia"], (p["Fc"], p["Fv"]), slope)
+                                                   p["width"], p["motor_inertia"], (p["Fc"], p["Fv"]), slope,
+                                                   p.get("stuck_velocity", 0.0))
 
     return Effect("backlash", "dead zone at torque reversal: while the motor crosses the play of width b "
                   "(driven relative to the joint side by the transmitted torque over the joint side's "
@@ -485,7 +506,8 @@ def _backlash() -> Effect:
                   "crossing the play after each reversal of the transmitted torque", ("unloaded_fraction",),
                   lambda j: {"width": _u(j, "rad", "m"), "unloaded_fraction": "1", "motor_fraction": "1",
                              "motor_inertia": _u(j, "N m s^2/rad", "kg"), "inertia": _u(j, "N m s^2/rad", "kg"),
-                             "Fc": _u(j, "N m", "N"), "Fv": _u(j, "N m s/rad", "N s/m")},
+                             "Fc": _u(j, "N m", "N"), "Fv": _u(j, "N m s/rad", "N s/m"),
+                             "stuck_velocity": _u(j, "rad/s", "m/s")},
                   lambda j: _geom(0.002, 0.04, 7) if j < 3 else _geom(0.0003, 0.006, 7), "width",
                   cols, params, sanity, torque, uses_model=True, nonlinear_dim=2,
                   options=lambda j: MOTOR_FRACTIONS, option_name="motor_fraction", needs_dynamics=True)

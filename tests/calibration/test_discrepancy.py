@@ -369,7 +369,7 @@ def test_backlash_is_named_with_its_play_and_the_model_file_reproduces_its_torqu
 
     ctx = EffectContext(w.p.q, w.p.dq, w.p.rate, w.slope, w.tau_model_raw, w.W_raw, tuple(model.body_names),
                         np.array([p["inertia"]] * 3), w._mass_diag(), w.p.ddqf_all,
-                        np.array([[p["Fc"], p["Fv"]]] * 3))
+                        np.array([[p["Fc"], p["Fv"]]] * 3), np.array([p["stuck_velocity"]] * 3))
     col = CATALOGUE["backlash"].columns(ctx, 3, (p["width"], p["motor_fraction"]))[:, 2, 0]
     tq = effects_torque([e], w.p.q, w.p.dq, w.tau_model_raw, w.p.rate, w.slope, ddq=w.p.ddqf_all,
                         mass_diag=w._mass_diag())
@@ -388,13 +388,7 @@ def test_effects_torque_reproduces_the_fit(workflow):
 @pytest.mark.slow
 @pytest.mark.parametrize("effect", IDS)
 @pytest.mark.parametrize("joint", [1, 2, 3])
-def test_every_catalogue_effect_on_every_joint(workflow, effect, joint, request):
-    if (effect, joint) == ("backlash", 3):
-        # Known limit (issue 7 note): seed 0's held-out block holds two crossings of the play;
-        # the backlash candidate (dBIC 668) removes 0.16 of their variance where the null
-        # calls for 0.25, so the verdict is "none". Still run: an XPASS says it improved.
-        request.node.add_marker(pytest.mark.xfail(reason="backlash@3 seed 0: two crossings held out, gain 0.16 < 0.25",
-                                                  strict=False))
+def test_every_catalogue_effect_on_every_joint(workflow, effect, joint):
     mode = "given_model" if CATALOGUE[effect].in_rigid_body_model else "identified"
     res, _, _ = workflow([(effect, joint)], 0, mode)
     found = [(e["name"], e["joint"]) for e in res["effects"]]

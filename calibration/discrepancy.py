@@ -43,10 +43,11 @@ discrepancy", and BIC selection):
 4. **Attribute**: the joint (only structured joints are searched), the variable that best
    explains the residual (binned conditional mean, fitted on train, scored on held-out)
    and the regime (the bin range where the residual's mean is largest).
-5. **Name**: every catalogue effect on the structured joints, over its grid, is fitted
+5. **Name**: every catalogue effect on every joint (for 3c), over its grid, is fitted
    together with the current model (the baseline's parameters re-identified with it, by
    Frisch-Waugh projection: exact joint least squares); the BIC (with the effective number
-   of independent samples of the filtered band) ranks them; the best must pass its sanity
+   of independent samples of the filtered band) ranks them; the best on a structured joint
+   must pass its sanity
    check, a BIC gain above the null threshold, and be confirmed on the held-out block: it
    must remove at least the null-calibrated share of the joint's residual variance and at
    least half of what the generic library could explain. Effects whose columns the baseline
@@ -958,7 +959,8 @@ class Discrepancy:
                     "attribution": self.attribute(c["joint"]),
                     "delta_bic": c["delta_bic"], "delta_bic_threshold": self.th["delta_bic"][c["joint"] - 1],
                     "heldout_variance_removed": c["heldout_gain"], "heldout_gain_needed": c["gain_needed"],
-                    "grid": {"name": eff.grid_name, "value": c["grid"]}, "sanity": "pass",
+                    "grid": {"name": eff.grid_name if eff.option_name is None else [eff.grid_name, eff.option_name],
+                             "value": c["grid"]}, "sanity": "pass",
                     "equivalent_explanations": ties}
         if not free.all():
             evidence["not_separable"] = [eff.linear_names[i] for i in np.flatnonzero(~free)]

@@ -620,7 +620,8 @@ def describe() -> dict:
     """The catalogue as data (for reports and the model file)."""
     return {"version": CATALOGUE_VERSION,
             "effects": {e.id: {"description": e.description, "variable": e.variable, "regime": e.regime,
-                               "grid": e.grid_name, "units_joint1": e.units(1), "units_joint3": e.units(3),
+                               "grid": e.grid_name, "option": e.option_name,
+                               "units_joint1": e.units(1), "units_joint3": e.units(3),
                                "absorbed_by_identified_model": e.in_rigid_body_model,
                                "equivalent_to": list(e.equivalent_to)} for e in CATALOGUE.values()}}
 

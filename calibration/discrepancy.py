@@ -651,21 +651,68 @@ class Discrepancy:
         value's neighbours, inside the grid's range (a period or a Stribeck velocity between
         two grid values fits much better at the right value, which the BIC should see). An
         effect with options (a second, discrete parameter) is profiled for each option; its
-        grid value is then (value, option)."""
+        grid value is then (value, option), and the option is chosen by the information
+        criterion (an option may change the number of columns: a friction profile's
+        harmonics)."""
         if eff.point_mass:
             return self._profile_point_mass(eff, joint)
         if eff.options is None:
             return self._profile_grid(eff, joint, None)
-        best = None
-        for o in eff.options(joint):
-            r = self._profile_grid(eff, joint, o)
-            if r is not None and (best is None or r[1]["rss1"] < best[1]["rss1"]):
-                best = r
-        return best
+        n_eff = self.n_eff()
 
-    def _profile_grid(self, eff, joint: int, option):
-        def cols(g):
-            return self._columns(eff, joint, g if option is None else (g, option))
+        def bic(r):
+            k = len(r[1]["theta"]) - len(r[1]["fixed_columns"])
+            return n_eff * np.log(r[1]["rss1"]) + k * np.log(n_eff)
+
+        if not eff.nested_options:
+            scored = [r for r in (self._profile_grid(eff, joint, o) for o in eff.options(joint)) if r is not None]
+            return min(scored, key=bic) if scored else None
+        # Nested options (a friction profile's harmonics: option K's columns are the first of
+        # the largest option's): on the grid the largest option's columns are filtered once
+        # and sliced. The smallest option and the grid's best by the criterion are refined: on
+        # the grid alone a single ripple between two grid periods loses to three harmonics of
+        # a period three times as long, which holds it as its third.
+        options = list(eff.options(joint))
+        top, grid = max(options), set(eff.grid(joint))
+
+        def sliced(o):
+            def cols(g):
+                if g in grid:
+                    return self._columns(eff, joint, (g, top))[:, :, :len(eff.linear_names_at((g, o)))]
+                return self._columns(eff, joint, (g, o))
+            return cols
+
+        # The grid's criterion for every option from one projection of the largest option's
+        # columns (the residual after each leading block of them, by one QR).
+        sizes = [len(eff.linear_names_at((None, o))) for o in options]
+        coarse = {}
+        for g in sorted(grid):
+            for o, k, rss in zip(options, sizes, self._nested_rss(self._columns(eff, joint, (g, top)), sizes)):
+                coarse[o] = min(coarse.get(o, np.inf), n_eff * np.log(rss) + k * np.log(n_eff))
+        refine = sorted({min(options), min(coarse, key=coarse.get)})
+        scored = [r for r in (self._profile_grid(eff, joint, o, cols=sliced(o)) for o in refine) if r is not None]
+        return min(scored, key=bic) if scored else None
+
+    def _nested_rss(self, E: np.ndarray, sizes: list[int]) -> list[float]:
+        """Training residual sums of squares (weighted, as ``_score``'s rss1) of the current
+        model plus the first k columns of E, for each k in ``sizes``: one projection and one QR
+        of all of them."""
+        tr = self.rows_tr
+        Ew = E.reshape(3 * self.m, -1)[tr] * self.rw[tr, None]
+        Ew = Ew / np.maximum(np.linalg.norm(Ew, axis=0), 1e-300)
+        Ep = Ew - self.Q @ (self.Q.T @ Ew) if self.Q.shape[1] else Ew
+        Qe = np.linalg.qr(Ep)[0]
+        gain = np.cumsum((Qe.T @ self.r_w_tr) ** 2)
+        rss0 = float(self.r_w_tr @ self.r_w_tr)
+        return [max(rss0 - float(gain[k - 1]), 1e-300) for k in sizes]
+
+    def _profile_grid(self, eff, joint: int, option, cols=None):
+        """(grid value, score) of the effect at ``option`` (None: no options) over its grid,
+        then a golden-section search next to the best grid value. ``cols`` (grid value ->
+        columns) replaces the effect's own columns at (value, option)."""
+        if cols is None:
+            def cols(g):
+                return self._columns(eff, joint, g if option is None else (g, option))
 
         def value(g):
             return g if option is None else (g, option)
@@ -774,7 +821,7 @@ class Discrepancy:
                     out.append({"effect": eff.id, "joint": joint, "absorbed": True})
                     continue
                 g, s = best
-                k = eff.n_params - len(s["fixed_columns"])
+                k = eff.n_params(g) - len(s["fixed_columns"])
                 dbic = n_eff * np.log(s["rss0"] / s["rss1"]) - k * np.log(n_eff)
                 after = self.heldout_rms(s["pred"])
                 # On the joint it is attributed to (also for a payload, whose columns load
@@ -948,7 +995,7 @@ class Discrepancy:
                              "params": eff.params(s["theta"], g, c["joint"],
                                                   self._baseline_terms(s["coef"], c["joint"]))}
         before = self.heldout_rms()
-        free = np.ones(eff.n_linear, bool)
+        free = np.ones(len(c["score"]["theta"]), bool)
         free[c["score"]["fixed_columns"]] = False
         cols = self._columns(eff, c["joint"], c["grid"])[:, :, free]
         unfiltered = self._columns(eff, c["joint"], c["grid"], unfiltered=True)[:, :, free]
@@ -963,7 +1010,7 @@ class Discrepancy:
                              "value": c["grid"]}, "sanity": "pass",
                     "equivalent_explanations": ties}
         if not free.all():
-            evidence["not_separable"] = [eff.linear_names[i] for i in np.flatnonzero(~free)]
+            evidence["not_separable"] = [eff.linear_names_at(c["grid"])[i] for i in np.flatnonzero(~free)]
         self.added.append(Added(eff.id, c["joint"], c["grid"], cols, unfiltered, free, c["params"], evidence,
                                 before.tolist(), []))
         self._fit_current()
@@ -1029,9 +1076,10 @@ class Discrepancy:
             if best is None:
                 continue
             g, s = best
-            free = np.ones(eff.n_linear, bool)
+            free = np.ones(len(s["theta"]), bool)
             free[s["fixed_columns"]] = False
-            if not np.array_equal(free, a.free):   # keep the parameters that were free
+            # Keep the parameters that were free (a number of harmonics may change when all are).
+            if not (np.array_equal(free, a.free) or (free.all() and a.free.all())):
                 continue
             if not np.allclose(g, a.grid, rtol=0.01, atol=0.0):
                 self.notes.append(f"{a.effect}@{a.joint}: {eff.grid_name} refit with the model as it now "

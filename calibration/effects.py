@@ -8,8 +8,9 @@ Each :class:`Effect` is one physical component a rigid-body + viscous/Coulomb/of
   constant, backlash width, delay, exponent of the damping law) carry a small grid over
   that parameter; the workflow fits theta linearly inside each grid value and keeps the
   best (a profile likelihood). The grid value counts as one more parameter in the BIC.
-  Backlash has a second, discrete one (the motor side's share of the joint inertia),
-  searched as options, each with the width grid;
+  Backlash has a second, discrete one (the motor side's share of the joint inertia), and
+  position-dependent friction its number of harmonics (the columns then number twice
+  that), each searched as options with the grid; the option is chosen by the BIC;
 * its parameters with units (``params``), from theta and the grid value;
 * a sanity check on those parameters (e.g. Fs >= Fc >= 0): a fit that needs unphysical
   values is not that effect, whatever its score;
@@ -41,7 +42,9 @@ import numpy as np
 from numba import njit
 
 #: 1.1: backlash returns the momentum at the contact and has a motor-side inertia (params changed).
-CATALOGUE_VERSION = "1.1"
+#: 1.2: position_friction's level is a Fourier series of 1-4 harmonics of its period (params
+#: a_sin, a_cos, harmonics added; 1.1 entries, one ripple as amplitude and phase, still evaluate).
+CATALOGUE_VERSION = "1.2"
 
 #: Bodies a payload is attributed to for joint 1, 2, 3 (rig.psm_dynamics.BODY_NAMES).
 PAYLOAD_BODIES = ("yaw_link", "pitch_end", "tool")
@@ -109,15 +112,25 @@ class Effect:
     #: (``torque(..., ddq=, mass_diag=)``; defaults: central differences of dq, the inertia
     #: in the parameters).
     needs_dynamics: bool = False
+    #: The linear parameters' names for a grid value, where their number depends on it (the
+    #: option sets it); default ``linear_names``.
+    names: Callable | None = None
+    #: The options are nested: option o's columns are the first ones of the largest option's
+    #: (a friction profile's harmonics), so the largest option's columns serve them all.
+    nested_options: bool = False
 
     @property
     def n_linear(self) -> int:
         return len(self.linear_names)
 
-    @property
-    def n_params(self) -> int:
-        """Free parameters for the information criterion (linear + the grid parameter)."""
-        return self.n_linear + (self.nonlinear_dim if self.grid_name else 0)
+    def linear_names_at(self, g) -> tuple[str, ...]:
+        """Names of the linear parameters (the columns) at grid value ``g``."""
+        return tuple(self.names(g)) if self.names is not None else self.linear_names
+
+    def n_params(self, g=None) -> int:
+        """Free parameters for the information criterion at grid value ``g`` (linear + the
+        non-linear ones)."""
+        return len(self.linear_names_at(g)) + (self.nonlinear_dim if self.grid_name else 0)
 
     def columns(self, ctx: EffectContext, joint: int, g) -> np.ndarray:
         """(n, 3, k): torque on every joint per unit of each linear parameter."""
@@ -350,34 +363,72 @@ def _coulomb_asymmetry() -> Effect:
                   in_rigid_body_model=True, equivalent_to=("torque_offset",))
 
 
-def _position_friction() -> Effect:
-    def cols(ctx, j, period):
-        s = ctx.sign(ctx.dq[:, j - 1])
-        x = 2 * np.pi * ctx.q[:, j - 1] / period
-        return _on_k(j, [s * np.sin(x), s * np.cos(x)])
+#: Harmonics tried for a position-dependent friction level: its profile over a period P is a
+#: Fourier series of this many terms (1: a single ripple; more: a smooth level varying along
+#: the stroke, as the thesis found on the real insertion axis, 5.6). The information criterion
+#: chooses the number with the period.
+FRICTION_HARMONICS = (1, 2, 3, 4)
 
-    def params(th, period, j, base):
-        amp = float(np.hypot(th[0], th[1]))
+
+def _harmonics(q, period: float, n: int) -> list:
+    x = 2 * np.pi * np.asarray(q, float) / period
+    out = []
+    for k in range(1, int(n) + 1):
+        out += [np.sin(k * x), np.cos(k * x)]
+    return out
+
+
+def friction_profile(params: dict, q) -> np.ndarray:
+    """The position-dependent part of a joint's Coulomb level, f(q) (N m, N), of a
+    ``position_friction`` entry: sum over harmonics k of a_sin[k] sin(2 pi k q / P) +
+    a_cos[k] cos(2 pi k q / P). Entries written before catalogue 1.2 carry a single ripple as
+    amplitude and phase: A sin(2 pi q / P + phi)."""
+    q = np.asarray(q, float)
+    if "a_sin" not in params:
+        return params["amplitude"] * np.sin(2 * np.pi * q / params["period"] + params["phase"])
+    terms = _harmonics(q, params["period"], len(params["a_sin"]))
+    coef = np.ravel(np.column_stack([params["a_sin"], params["a_cos"]]))
+    return sum(c * t for c, t in zip(coef, terms))
+
+
+def _position_friction() -> Effect:
+    def cols(ctx, j, g):
+        period, n = g
+        s = ctx.sign(ctx.dq[:, j - 1])
+        return _on_k(j, [s * t for t in _harmonics(ctx.q[:, j - 1], period, n)])
+
+    def params(th, g, j, base):
+        period, n = g
+        a_sin, a_cos = th[0::2], th[1::2]
         fc = base.get("Fc", 0.0)
-        return {"amplitude": amp, "phase": float(np.arctan2(th[1], th[0])), "period": float(period),
-                "Fc": float(fc), "relative_amplitude": amp / fc if fc > 0 else float("inf")}
+        f = friction_profile({"period": period, "a_sin": a_sin, "a_cos": a_cos}, np.linspace(0.0, period, 721))
+        amp = float(np.max(np.abs(f)))
+        return {"amplitude": amp, "phase": float(np.arctan2(a_cos[0], a_sin[0])), "period": float(period),
+                "harmonics": int(n), "a_sin": [float(v) for v in a_sin], "a_cos": [float(v) for v in a_cos],
+                "lowest": float(np.min(f)), "Fc": float(fc), "relative_amplitude": amp / fc if fc > 0 else float("inf")}
 
     def sanity(p, j):
-        # The friction level Fc + A sin(.) must stay >= 0 (within a 20 % allowance).
-        if p["amplitude"] > 1.2 * max(p["Fc"], 0.0):
-            return f"ripple amplitude {p['amplitude']:.4g} exceeds the Coulomb level {p['Fc']:.4g}"
+        # The friction level Fc + f(q) must stay >= 0 (within a 20 % allowance).
+        if -p["lowest"] > 1.2 * max(p["Fc"], 0.0):
+            return (f"the friction level dips {-p['lowest']:.4g} below the Coulomb level {p['Fc']:.4g} "
+                    "(it would turn negative)")
         return None
 
     def torque(p, j, q, dq, tm, rate, slope):
-        x = 2 * np.pi * q[:, j - 1] / p["period"] + p["phase"]
-        return p["amplitude"] * _sig(dq[:, j - 1], slope) * np.sin(x)
+        return _sig(dq[:, j - 1], slope) * friction_profile(p, q[:, j - 1])
 
-    return Effect("position_friction", "Coulomb level varying with position: "
-                  "sigma(dq) A sin(2 pi q / P + phi)", "q (in motion)", "whole stroke", ("a_sin", "a_cos"),
+    def names(g):
+        return tuple(n for k in range(1, int(g[1]) + 1) for n in (f"a_sin{k}", f"a_cos{k}"))
+
+    return Effect("position_friction", "Coulomb level varying with position: sigma(dq) f(q), f a Fourier "
+                  "series of period P (sum over k <= K of a_k sin(2 pi k q / P) + b_k cos(2 pi k q / P))",
+                  "q (in motion)", "whole stroke", ("a_sin1", "a_cos1"),
                   lambda j: {"amplitude": _u(j, "N m", "N"), "phase": "rad", "period": _u(j, "rad", "m"),
-                             "Fc": _u(j, "N m", "N"), "relative_amplitude": "1"},
+                             "harmonics": "1", "a_sin": _u(j, "N m", "N"), "a_cos": _u(j, "N m", "N"),
+                             "lowest": _u(j, "N m", "N"), "Fc": _u(j, "N m", "N"), "relative_amplitude": "1"},
                   lambda j: _geom(0.15, 2.0, 9) if j < 3 else _geom(0.015, 0.2, 9), "period",
-                  cols, params, sanity, torque)
+                  cols, params, sanity, torque, options=lambda j: FRICTION_HARMONICS, option_name="harmonics",
+                  names=names, nested_options=True)
 
 
 def _spring() -> Effect:

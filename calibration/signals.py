@@ -11,6 +11,7 @@ transfer-function form loses precision at low cutoff/rate ratios) and run with
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 import scipy.signal
@@ -25,6 +26,13 @@ class SignalError(ValueError):
 
 def design_lowpass(rate: float, cutoff: float = DEFAULT_CUTOFF_HZ, order: int = DEFAULT_ORDER) -> np.ndarray:
     """Butterworth low-pass in SOS form; ``rate`` and ``cutoff`` in Hz."""
+    return _design_lowpass(float(rate), float(cutoff), order).copy()
+
+
+@lru_cache(maxsize=64)
+def _design_lowpass(rate: float, cutoff: float, order) -> np.ndarray:
+    # Designed once per (rate, cutoff, order): the discrepancy workflow filters ~1000 column
+    # sets a run, and the design (zpk -> sos) cost more than the filtering.
     if not np.isfinite(rate) or rate <= 0:
         raise SignalError(f"sampling rate must be positive, got {rate} Hz")
     nyquist = 0.5 * rate
@@ -91,7 +99,12 @@ def settling_samples(rate: float, cutoff: float = DEFAULT_CUTOFF_HZ, order: int 
     Defined as the first sample after which the remaining |impulse response| sums to less
     than ``fraction`` of the total.
     """
-    sos = design_lowpass(rate, cutoff, order)
+    return _settling_samples(float(rate), float(cutoff), order, float(fraction))
+
+
+@lru_cache(maxsize=64)
+def _settling_samples(rate: float, cutoff: float, order, fraction: float) -> int:
+    sos = _design_lowpass(rate, cutoff, order)
     n = int(max(64, 40 * rate / cutoff))
     imp = np.zeros(n)
     imp[0] = 1.0

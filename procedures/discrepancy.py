@@ -129,6 +129,14 @@ def plot_residuals(pairs: list[dict], structured: list[dict], w, path_dir: Path)
     return out
 
 
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, (list, tuple)) and v and all(isinstance(x, float) for x in v):
+        return "[" + ", ".join(f"{x:.4g}" for x in v) + "]"
+    return str(v)
+
+
 def report_text(result: dict) -> str:
     b = result["baseline"]
     lines = [f"rig discrepancy: verdict {result['verdict']}  ({result['data']['source']})",
@@ -144,7 +152,7 @@ def report_text(result: dict) -> str:
                      + ("  STRUCTURED" if d["structured"] else ""))
     for e in result["effects"]:
         ev = e["evidence"]
-        par = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in e["params"].items())
+        par = ", ".join(f"{k} {_fmt(v)}" for k, v in e["params"].items())
         lines.append(f"effect {e['name']} on joint {e['joint']}: {par}")
         lines.append(f"    dBIC {ev['delta_bic']:.1f}, held-out variance removed {ev['heldout_variance_removed']:.2f} "
                      f"(needed {ev['heldout_gain_needed']:.2f}); explains: {ev['attribution']['variable']}"

@@ -10,7 +10,8 @@ import pytest
 
 from calibration.discrepancy import Discrepancy, Settings, heldout_r2, ljung_box
 from calibration.discrepancy_null import reference_model, sim_model_and_base
-from calibration.effects import CATALOGUE, IDS, dahl_state, effects_torque, gap_crossings, gap_torque
+from calibration.effects import (CATALOGUE, IDS, EffectContext, dahl_state, effects_torque, friction_profile,
+                                 gap_crossings, gap_torque)
 from calibration.hidden_effects import (CATALOGUE_CASES, REFERENCE_EXCITATION_PATH, HiddenCase, generate,
                                         reference_excitation)
 
@@ -53,6 +54,30 @@ def test_sanity_checks_refuse_unphysical_parameters():
     assert st.sanity({"dFs": 0.2, "Fs": 0.7, "Fc": 0.5, "vs": 0.01}, 3) is None
     assert CATALOGUE["spring"].sanity({"k": -1.0, "q0": 0.0}, 1) is not None
     assert CATALOGUE["hysteresis"].sanity({"Fd": -0.1, "travel": 1e-3, "sigma0": -100}, 2) is not None
+
+
+def test_position_friction_profile_matches_its_columns_and_reads_older_entries():
+    eff = CATALOGUE["position_friction"]
+    t = np.linspace(0.0, 20.0, 400)
+    q = np.column_stack([0.1 * np.sin(t)] * 2 + [0.15 + 0.05 * np.sin(t)])
+    dq = np.gradient(q, 0.05, axis=0)
+    ctx = EffectContext(q, dq, 200.0, 400.0)
+    theta, g = np.array([0.02, -0.01, 0.03, 0.005]), (0.08, 2)
+    cols = eff.columns(ctx, 3, g)[:, 2, :]
+    p = eff.params(theta, g, 3, {"Fc": 0.5})
+    assert p["harmonics"] == 2 and eff.linear_names_at(g) == ("a_sin1", "a_cos1", "a_sin2", "a_cos2")
+    assert eff.n_params(g) == 5 and eff.n_params((0.08, 1)) == 3
+    tq = eff.torque(p, 3, q, dq, rate=200.0, slope=400.0)
+    np.testing.assert_allclose(tq[:, 2], cols @ theta, atol=1e-12)
+    assert np.all(tq[:, :2] == 0)
+    # A catalogue 1.1 entry (one ripple as amplitude and phase) and its one-harmonic form agree.
+    legacy = {"amplitude": 0.05, "phase": 0.4, "period": 0.1, "Fc": 0.5}
+    one = eff.params(np.array([0.05 * np.cos(0.4), 0.05 * np.sin(0.4)]), (0.1, 1), 3, {"Fc": 0.5})
+    np.testing.assert_allclose(eff.torque(legacy, 3, q, dq), eff.torque(one, 3, q, dq), atol=1e-12)
+    assert one["amplitude"] == pytest.approx(0.05, rel=1e-4) and one["phase"] == pytest.approx(0.4)
+    # A profile that takes the friction level below zero is refused; a gentler one passes.
+    assert eff.sanity(eff.params(np.array([0.0, 0.0, 0.7, 0.0]), (0.1, 2), 3, {"Fc": 0.5}), 3) is not None
+    assert eff.sanity(eff.params(np.array([0.0, 0.0, 0.3, 0.0]), (0.1, 2), 3, {"Fc": 0.5}), 3) is None
 
 
 def test_dahl_state_saturates_and_reverses():
@@ -227,6 +252,36 @@ def test_stiction_on_the_insertion_joint_reaches_the_noise_floor(workflow):
     twin, _ = generate(HiddenCase((("stiction", 3),), 0), twin=True)
     floor = Discrepancy(model, base, twin.q, twin.dq, twin.tau, twin.rate, None, Settings()).heldout_rms()[2]
     assert res["final"]["heldout_rms"][2] < 1.2 * floor
+    assert res["final"]["heldout_rms"][2] < 0.5 * res["baseline"]["heldout_rms"][2]
+
+
+def test_position_friction_ripple_is_one_harmonic_of_the_true_period(workflow):
+    res, _, truth = workflow([("position_friction", 3)], 0)
+    first = res["effects"][0]
+    assert (first["name"], first["joint"]) == ("position_friction", 3), res["iterations"]
+    assert first["params"]["harmonics"] == 1
+    assert first["params"]["period"] == pytest.approx(truth.params[0]["period"], rel=0.05)
+
+
+def test_position_friction_profile_of_two_harmonics_is_recovered(sim):
+    # A null run of the rig whose insertion effort carries a friction level varying along the
+    # stroke as two harmonics of 0.1 m (added to the recorded effort; the workflow sees only
+    # the arrays): the information criterion picks two harmonics, not one and not four.
+    model, base = sim
+    model.slope = 400.0
+    rec, _ = generate(HiddenCase((), 7))
+    truth = {"period": 0.1, "a_sin": [0.2, 0.0], "a_cos": [0.0, 0.15]}
+    tau = rec.tau.copy()
+    tau[:, 2] += np.tanh(200.0 * rec.dq[:, 2]) * friction_profile(truth, rec.q[:, 2])
+    res = Discrepancy(model, base, rec.q, rec.dq, tau, rec.rate, None, Settings()).run()
+    first = res["effects"][0]
+    assert (first["name"], first["joint"]) == ("position_friction", 3), res["iterations"]
+    p = first["params"]
+    assert p["harmonics"] == 2 and p["period"] == pytest.approx(0.1, rel=0.05)
+    # The profile over the stroke, up to a constant (the model's Coulomb level takes the mean).
+    grid = np.linspace(rec.q[:, 2].min(), rec.q[:, 2].max(), 200)
+    err = friction_profile(p, grid) - friction_profile(truth, grid)
+    assert np.ptp(err) < 0.1 * np.ptp(friction_profile(truth, grid))
     assert res["final"]["heldout_rms"][2] < 0.5 * res["baseline"]["heldout_rms"][2]
 
 

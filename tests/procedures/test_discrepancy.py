@@ -31,6 +31,11 @@ def test_cli_on_real_csv_json(tmp_path):
     # The insertion joint stick-slips (thesis 5.6): its inertial term is sharper from the
     # measured velocity; the noisy outer joints keep the filtered one.
     assert doc["inertia_source"] == ["filtered", "filtered", "measured"]
+    # The insertion joint's friction varies along the stroke (thesis 5.6): a profile of more
+    # than one harmonic is named on joint 3 and takes a third of its held-out gap away.
+    pf = [e for e in doc["effects"] if (e["name"], e["joint"]) == ("position_friction", 3)]
+    assert pf and pf[0]["params"]["harmonics"] >= 2, doc["iterations"]
+    assert doc["final"]["heldout_rms"][2] < 0.67 * doc["baseline"]["heldout_rms"][2]
 
 
 def test_cli_effort_lag_of_a_sample_or_more_is_refused(tmp_path):

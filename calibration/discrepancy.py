@@ -1182,9 +1182,19 @@ class Discrepancy:
             var = a.evidence["attribution"]["variable"]
             x = _variable(self, var)
             ho = self.mov_ho[j]
-            out.append({"effect": a.effect, "joint": a.joint, "variable": var, "x": x[ho],
-                        "before": (self.y - self.baseline_pred).reshape(-1, 3)[ho, j],
-                        "after": (self.y - final).reshape(-1, 3)[ho, j]})
+            pair = {"effect": a.effect, "joint": a.joint, "variable": var, "x": x[ho],
+                    "before": (self.y - self.baseline_pred).reshape(-1, 3)[ho, j],
+                    "after": (self.y - final).reshape(-1, 3)[ho, j]}
+            if a.effect == "position_friction":
+                # The friction level against position: the residual times the direction of
+                # motion, and the fitted profile f(q) less its mean (the model's Fc holds it).
+                from calibration.effects import friction_profile
+
+                grid = np.linspace(p.qf[ho, j].min(), p.qf[ho, j].max(), 300)
+                f = friction_profile(a.params, grid)
+                pair["profile"] = {"q": p.qf[ho, j], "direction": np.sign(p.dqf[ho, j]), "grid": grid,
+                                   "f": f - np.mean(friction_profile(a.params, p.qf[ho, j]))}
+            out.append(pair)
         return out
 
 

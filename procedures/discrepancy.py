@@ -101,7 +101,20 @@ def plot_residuals(pairs: list[dict], structured: list[dict], w, path_dir: Path)
     out = {}
     for k, pr in enumerate(pairs, 1):
         unit = "N" if pr["joint"] == 3 else "N m"
-        fig, ax = plt.subplots(figsize=(7, 4.2))
+        prof = pr.get("profile")
+        if prof is None:
+            fig, ax = plt.subplots(figsize=(7, 4.2))
+        else:
+            fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 4.2))
+            qu = "m" if pr["joint"] == 3 else "rad"
+            ax2.plot(prof["q"], prof["direction"] * pr["before"], ".", ms=2, alpha=0.5, label="before (baseline)")
+            ax2.plot(prof["q"], prof["direction"] * pr["after"], ".", ms=2, alpha=0.5, label="after")
+            ax2.plot(prof["grid"], prof["f"], "k-", lw=1.5, label="fitted f(q) - mean")
+            ax2.set_xlabel(f"q{pr['joint']} [{qu}]")
+            ax2.set_ylabel(f"residual x sign(dq{pr['joint']}) [{unit}]")
+            ax2.set_title("friction level against position")
+            ax2.legend(markerscale=4)
+            ax2.grid(alpha=0.3)
         ax.plot(pr["x"], pr["before"], ".", ms=2, alpha=0.5, label="before (baseline)")
         ax.plot(pr["x"], pr["after"], ".", ms=2, alpha=0.5, label=f"after (+ {pr['effect']})")
         ax.set_xlabel(pr["variable"])

@@ -36,6 +36,8 @@ def test_cli_on_real_csv_json(tmp_path):
     pf = [e for e in doc["effects"] if (e["name"], e["joint"]) == ("position_friction", 3)]
     assert pf and pf[0]["params"]["harmonics"] >= 2, doc["iterations"]
     assert doc["final"]["heldout_rms"][2] < 0.67 * doc["baseline"]["heldout_rms"][2]
+    assert any(name.endswith("position_friction_joint3.png") and Path(path).stat().st_size > 0
+               for name, path in doc["plots"].items())
 
 
 def test_cli_effort_lag_of_a_sample_or_more_is_refused(tmp_path):

@@ -84,7 +84,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.effects import CATALOGUE, CATALOGUE_VERSION, EffectContext
+from calibration.effects import CATALOGUE, CATALOGUE_VERSION, EffectContext, friction_profile
 from calibration.signals import lowpass, settling_samples
 
 THRESHOLDS_PATH = Path(__file__).with_name("discrepancy_thresholds.json")
@@ -1188,8 +1188,6 @@ class Discrepancy:
             if a.effect == "position_friction":
                 # The friction level against position: the residual times the direction of
                 # motion, and the fitted profile f(q) less its mean (the model's Fc holds it).
-                from calibration.effects import friction_profile
-
                 grid = np.linspace(p.qf[ho, j].min(), p.qf[ho, j].max(), 300)
                 f = friction_profile(a.params, grid)
                 pair["profile"] = {"q": p.qf[ho, j], "direction": np.sign(p.dqf[ho, j]), "grid": grid,

@@ -119,10 +119,6 @@ class Effect:
     #: (a friction profile's harmonics), so the largest option's columns serve them all.
     nested_options: bool = False
 
-    @property
-    def n_linear(self) -> int:
-        return len(self.linear_names)
-
     def linear_names_at(self, g) -> tuple[str, ...]:
         """Names of the linear parameters (the columns) at grid value ``g``."""
         return tuple(self.names(g)) if self.names is not None else self.linear_names

@@ -660,9 +660,11 @@ class Discrepancy:
             return self._profile_grid(eff, joint, None)
         n_eff = self.n_eff()
 
+        def crit(rss, k):
+            return n_eff * np.log(rss) + k * np.log(n_eff)
+
         def bic(r):
-            k = len(r[1]["theta"]) - len(r[1]["fixed_columns"])
-            return n_eff * np.log(r[1]["rss1"]) + k * np.log(n_eff)
+            return crit(r[1]["rss1"], len(r[1]["theta"]) - len(r[1]["fixed_columns"]))
 
         if not eff.nested_options:
             scored = [r for r in (self._profile_grid(eff, joint, o) for o in eff.options(joint)) if r is not None]
@@ -688,7 +690,7 @@ class Discrepancy:
         coarse = {}
         for g in sorted(grid):
             for o, k, rss in zip(options, sizes, self._nested_rss(self._columns(eff, joint, (g, top)), sizes)):
-                coarse[o] = min(coarse.get(o, np.inf), n_eff * np.log(rss) + k * np.log(n_eff))
+                coarse[o] = min(coarse.get(o, np.inf), crit(rss, k))
         refine = sorted({min(options), min(coarse, key=coarse.get)})
         scored = [r for r in (self._profile_grid(eff, joint, o, cols=sliced(o)) for o in refine) if r is not None]
         return min(scored, key=bic) if scored else None

@@ -1155,23 +1155,55 @@ class Discrepancy:
 
     # -- the augmented model ------------------------------------------------------------------
     def standard_parameters(self, result: dict) -> np.ndarray:
-        """82 standard parameters of the augmented model (a payload folded in)."""
+        """82 standard parameters of the augmented model (a payload folded in).
+
+        Physically consistent (every body's pseudo-inertia positive semi-definite, masses,
+        Fc, Fv, Ia >= 0), so that a controller's M(q) and a simulated plant built from them
+        are well posed: the fitted base parameters' inverse map when it is consistent, else
+        the consistent vector (an SDP) whose rigid-body torques on the training block are
+        closest to the fitted ones. ``result["standard_consistency"]`` says which, by how
+        much those torques changed on the training block and the held-out RMS of the model
+        as written (per joint, N m, N m, N)."""
         from calibration.effects import payload_standard_delta
-        from calibration.estimators import model_nominal
+        from calibration.estimators import check_physical, model_nominal
 
         reid = result["_reid"]
+        beta = free = None
         if self.mode == "identified":
-            beta = self.coef[:self.Wb.shape[1]]
-            pi = self.base.standard_from_base(beta, model_nominal(self.model))
+            beta, free = self.coef[:self.Wb.shape[1]], model_nominal(self.model)
         elif reid["doc"].get("done"):
-            beta = reid["coef"][:self.Wb.shape[1]]
-            pi = self.base.standard_from_base(beta, self.given)
-        else:
+            beta, free = reid["coef"][:self.Wb.shape[1]], self.given
+        if beta is None:
             pi = self.given.copy()
             for a in self.added:
                 if a.effect == "payload":
                     pi = pi + payload_standard_delta(a.params, self.model.body_names)
+            return pi
+        pi = self.base.standard_from_base(beta, free)
+        final = result["final"]["heldout_rms"]
+        doc = {"projected": False, "training_torque_change_rms": [0.0, 0.0, 0.0], "heldout_rms": list(final)}
+        if not check_physical(pi, self.model)["all_pass"]:
+            pi, beta_c = self._consistent(beta, free)
+            change = (self.Wb @ (beta_c - beta)).reshape(-1, 3)
+            tr = slice(self.p.train.start, self.p.train.stop)
+            doc = {"projected": True,
+                   "training_torque_change_rms": [float(v) for v in np.sqrt((change[tr] ** 2).mean(0))],
+                   "heldout_rms": self.heldout_rms(reid["pred"] + change.reshape(-1)).tolist()}
+        result["standard_consistency"] = doc
         return pi
+
+    def _consistent(self, beta: np.ndarray, nominal) -> tuple[np.ndarray, np.ndarray]:
+        """The physically consistent standard parameters whose rigid-body torques on the
+        training block's samples are closest to those of ``beta`` (`Identification.sdp`
+        on the fitted torques, pulled toward ``nominal`` where the data do not see), and
+        their base parameters."""
+        from calibration.estimators import Identification
+
+        tr = self.p.train
+        Wb = self.Wb[3 * tr.start:3 * tr.stop]
+        fit = Identification(Wb, (Wb @ beta).reshape(-1, 3), self.base, self.model, nominal=nominal,
+                             max_condition=np.inf).sdp(weighting="none", tol=1e-8)
+        return np.asarray(fit.pi, float), np.asarray(fit.beta, float)
 
     def residual_pairs(self, result: dict) -> list[dict]:
         """For the plots: per added effect, the held-out residual before/after against the

@@ -225,7 +225,7 @@ def _plant(case_params: list[dict], twin: bool = False) -> tuple[PSMParameters, 
 
 def generate(case: HiddenCase, n_samples: int = N_SAMPLES, rate: float = RATE,
              noise: SensorNoise | None = None, trajectory_seed: int | None = None,
-             twin: bool = False, excitation=None) -> tuple[Recorded, Truth]:
+             twin: bool = False, excitation=None, plant=None) -> tuple[Recorded, Truth]:
     """Run the simulated rig on ``case`` and record measured q, dq, effort at ``rate`` Hz.
 
     ``excitation`` (a `calibration.excitation.FourierTrajectory`) replaces the seeded
@@ -238,9 +238,16 @@ def generate(case: HiddenCase, n_samples: int = N_SAMPLES, rate: float = RATE,
     position-dependent friction case raises the joint's Coulomb level (see _POSFRIC_FC), and
     its twin keeps that level without the ripple; a joint-2 backlash case balances the pitch
     axis (see _PITCH_BALANCE), and so does its twin.
+
+    ``plant`` = (PSMParameters, HiddenEffects) replaces the case's plant (a model file's,
+    `rig.model_file.IdentifiedModel.plant`): the same trajectory and noise draws on another
+    plant, to compare what that model's simulated rig records with what the case recorded.
     """
     case_params = draw_case_parameters(case)
     params, eff, extra = _plant(case_params, twin)
+    if plant is not None:
+        params, eff = plant
+        extra = {"delay": np.zeros(3), "sinusoid": None, "coupling": None}
     tseed = case.seed if trajectory_seed is None else trajectory_seed
     traj = trajectory(tseed, n_samples / rate + 1.0) if excitation is None else _fourier_sampler(excitation)
     q0, dq0, _ = traj(0.0)

@@ -186,6 +186,12 @@ def report_text(result: dict) -> str:
                 why.append(f"removes {c['heldout_variance_removed']:.2f} of the held-out residual variance, needs "
                            f"{c['heldout_gain_needed']:.2f} (the generic library explains {c['library_r2']:.2f})")
             lines.append(f"    joint {item['joint']}: closest catalogue effect {c['effect']}, not added: " + "; ".join(why))
+    sc = result.get("standard_consistency")
+    if sc and sc["projected"]:
+        lines.append("model file: the fitted rigid-body parameters are not physically consistent; written as the "
+                     "consistent ones closest in torque (training-block change " + ", ".join(
+                         f"{v:.3g}" for v in sc["training_torque_change_rms"]) + "), held-out RMS as written "
+                     + ", ".join(f"{v:.4g}" for v in sc["heldout_rms"]))
     lines.append(f"model: {result['model']}")
     lines.append(f"time: {result['seconds']:.1f} s")
     return "\n".join(lines)
@@ -236,9 +242,14 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
                 rn.dir / "model.json", standard=pi, names=model.param_names(), slope=w.slope,
                 gravity=model.gravity, gravity_source="given model" if given is not None else "estimated",
                 validation={"heldout_rms_before": result["baseline"]["heldout_rms"],
-                            "heldout_rms_after": result["final"]["heldout_rms"]},
+                            "heldout_rms_after": result["standard_consistency"]["heldout_rms"]
+                            if "standard_consistency" in result else result["final"]["heldout_rms"],
+                            "heldout_rms_after_fit": result["final"]["heldout_rms"],
+                            "note": "after: the model as written (physically consistent standard "
+                                    "parameters); after_fit: the workflow's unconstrained fit"},
                 provenance_info=provenance(source, rn.dir, {"procedure": PROCEDURE}),
                 extra={"effects": effects, "effects_catalogue": describe()["version"],
+                       "standard_consistency": result.get("standard_consistency"),
                        "effects_note": "torques of the effects add to the rigid-body model: "
                                        "calibration.effects.effects_torque(effects, q, dq, tau_model)"})
             pairs = w.residual_pairs(result) if parameters["plots"] else []

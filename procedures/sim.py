@@ -292,9 +292,12 @@ class SimServer:
 @click.option("--loadcell-pty/--no-loadcell", "loadcell", default=True, show_default=True,
               help="Serve the load cell (firmware fake) on a pseudo-terminal and print its path.")
 @click.option("--mocap/--no-mocap", default=True, show_default=True, help="Publish mocap rigid-body poses.")
+@click.option("--plant-model", type=click.Path(dir_okay=False), default=None,
+              help="Model file (model.json of `rig identify` or `rig discrepancy`) the served arms' plants take: "
+                   "its parameters and added effects (default: each arm's plant_model, else the nominal PSM).")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit.")
 @click.pass_context
-def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, list_steps):
+def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, plant_model, list_steps):
     """Serve the simulated rig as the dVRK's ROS 2 topics (/<ARM>/measured_js ... at RATE Hz),
     mocap poses on /mocap/<body>/pose and the load cell on a pty, paced to the wall clock.
 
@@ -319,6 +322,13 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, list_step
             if n not in cfg.arms:
                 raise click.BadParameter(f"no arm {n!r} in {cfg.source}; arms: {', '.join(cfg.arms)}",
                                          param_hint="--arms")
+    if plant_model:
+        from rig.config import ConfigError, with_plant_model
+
+        try:
+            cfg = with_plant_model(cfg, plant_model, names)
+        except ConfigError as exc:
+            raise click.BadParameter(str(exc), param_hint="--plant-model") from None
     world = world_from_config(cfg, arms=names, seed=seed)
 
     stop = threading.Event()

@@ -31,11 +31,18 @@ Simulated arms may carry hidden effects for the discrepancy workflow and tests::
 
     [effects.PSM1]
     stiction = [0.0, 0.0, 1.0]      # breakaway level per joint (N m, N m, N)
+
+or take their whole plant from a model file, such as the augmented model `rig discrepancy`
+writes (parameters and added effects; see `rig.model_file.IdentifiedModel.plant`)::
+
+    [arms.PSM1]
+    plant_model = "logs/20261121T101500Z-discrepancy/model.json"
 """
 
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import tomllib
 from dataclasses import dataclass
@@ -96,6 +103,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
                             lambda v: all(x > 0 for x in v), "three efforts > 0"),
         "watchdog": Key("float", 0.05, "stale measured_js interval that stops the run, s", _positive, "an interval > 0 s"),
         "sensor_noise": Key("bool", True, "simulate encoder quantisation and velocity/effort noise"),
+        "plant_model": Key("str", "", "model file (the model.json of `rig identify` or `rig discrepancy`) whose "
+                           "parameters and effects a simulated arm's plant takes (default: the nominal PSM); "
+                           "a relative path is taken from the configuration file's folder"),
     },
     "loadcell": {
         "driver": Key("str", "sim", "load-cell driver", *_DRIVER_LOADCELL),
@@ -262,6 +272,8 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
     for name, a in arms.items():
         if not a["namespace"]:
             a["namespace"] = "/" + name
+        if a["plant_model"]:
+            a["plant_model"] = _plant_model(source, name, a)
     loadcell = _section(source, "loadcell", SCHEMA["loadcell"], document.get("loadcell", {}))
     if loadcell["driver"] == "serial" and not loadcell["port"]:
         raise ConfigError(f"{source}: loadcell.port: required when loadcell.driver = 'serial' (e.g. '/dev/ttyACM0')")
@@ -285,8 +297,40 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
             raise ConfigError(f"{source}: effects.{name}: not an arm; arms: {', '.join(arms)}")
         if arms[name]["driver"] != "sim":
             raise ConfigError(f"{source}: effects.{name}: hidden effects apply only to simulated arms (driver = 'sim')")
+        if arms[name]["plant_model"]:
+            raise ConfigError(f"{source}: effects.{name}: the arm's plant is arms.{name}.plant_model, effects "
+                              "included; give one or the other")
         effects[name] = _section(source, f"effects.{name}", SCHEMA["effects"], e)
     return RigConfig(source, rig, arms, loadcell, mocap, obj, effects)
+
+
+def _plant_model(source: str, name: str, arm: dict) -> str:
+    """The absolute path of an arm's plant model, checked now (it must load and be simulable)."""
+    from rig.model_file import ModelFileError, load_model
+
+    where = f"{source}: arms.{name}.plant_model"
+    if arm["driver"] != "sim":
+        raise ConfigError(f"{where}: only a simulated arm (driver = 'sim') takes a plant model")
+    path = Path(arm["plant_model"]).expanduser()
+    if not path.is_absolute() and Path(source).is_file():
+        path = Path(source).resolve().parent / path
+    try:
+        load_model(path).plant()
+    except ModelFileError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    return str(path.resolve())
+
+
+def with_plant_model(cfg: RigConfig, path: str | Path, arms: list[str] | None = None) -> RigConfig:
+    """``cfg`` with ``path`` as the plant model of ``arms`` (default: every simulated arm);
+    their hidden effects, if any, give way to the model's."""
+    names = arms or [n for n, a in cfg.arms.items() if a["driver"] == "sim"]
+    new_arms = copy.deepcopy(cfg.arms)
+    for n in names:
+        new_arms[n]["plant_model"] = str(Path(path).expanduser())
+        new_arms[n]["plant_model"] = _plant_model("--plant-model", n, new_arms[n])
+    effects = {k: v for k, v in cfg.effects.items() if k not in names}
+    return dataclasses.replace(cfg, arms=new_arms, effects=effects)
 
 
 def load(path: str | Path | None = None) -> RigConfig:

@@ -17,7 +17,12 @@ One JSON document (``model.json`` in the identify run's folder) holding:
 * ``gravity``: the gravity vector in frame 0 (m/s^2) the parameters belong to, and how it
   was obtained;
 * ``validation``: the figures of the identification;
-* ``provenance``: data source, run folder, UTC date, package version, git revision.
+* ``provenance``: data source, run folder, UTC date, package version, git revision;
+* ``effects`` (after `rig discrepancy`): the catalogue effects added to the model, each
+  {"name", "joint" 1-3, "params", "units"} (``calibration.effects``, catalogue version in
+  ``effects_catalogue``). `IdentifiedModel.plant` turns the file into a simulated arm's plant
+  with those effects; `calibration.effects.EffectCompensation` gives a controller their
+  torques step by step.
 
 `latest_model()` finds the newest completed `identify` run's model and, when a newer
 `friction-ramp` run has results it does not carry yet, merges them in (in memory: a run's
@@ -42,6 +47,9 @@ SCHEMA_VERSION = 1
 MODEL_FILENAME = "model.json"
 STICK_SLIP_FILENAME = "stick_slip.json"
 N_STANDARD = 82
+#: Effect ids a model file's ``effects`` section may carry (calibration.effects.IDS).
+EFFECT_IDS = ("stiction", "coulomb_asymmetry", "position_friction", "spring", "payload", "backlash",
+              "hysteresis", "time_delay", "torque_offset", "viscous_nonlinear")
 
 
 class ModelFileError(ValueError):
@@ -162,12 +170,146 @@ class IdentifiedModel:
         return self.document.get("friction", {})
 
     @property
+    def effects(self) -> list[dict]:
+        """The ``effects`` entries (empty when the file has none), checked: a known id, a
+        joint 1-3 and a params object; raises ModelFileError naming the entry otherwise."""
+        entries = self.document.get("effects") or []
+        if not isinstance(entries, list):
+            raise ModelFileError(f"{self.path}: effects: expected a list of effect entries")
+        for i, e in enumerate(entries):
+            where = f"{self.path}: effects[{i}]"
+            if not isinstance(e, dict) or e.get("name") not in EFFECT_IDS:
+                raise ModelFileError(f"{where}: not a catalogue effect (name {e.get('name') if isinstance(e, dict) else e!r}; "
+                                     f"known: {', '.join(EFFECT_IDS)})")
+            if e.get("joint") not in (1, 2, 3) or not isinstance(e.get("params"), dict):
+                raise ModelFileError(f"{where} ({e['name']}): needs a joint 1-3 and a params object")
+        return entries
+
+    def plant(self):
+        """The simulated plant this model describes: (`rig.psm_dynamics.PSMParameters`,
+        `rig.sim.HiddenEffects`), for `rig.sim.ArmSpec(params=..., effects=...)`.
+
+        The rigid body and Coulomb/viscous/offset/rotor terms are the standard parameters;
+        an identified Stribeck excess and the ``effects`` entries become the sim's physical
+        effects: stiction as the breakaway level Fc + excess at the Stribeck velocity,
+        a direction-dependent level as its mean rise on the Coulomb level plus half its
+        difference as a constant load, position-dependent friction as the absolute Coulomb
+        profile, spring, Dahl hysteresis, backlash (play and motor-side inertia), per-joint
+        effort delay, constant load and non-linear damping as themselves. A payload entry is
+        already in the standard parameters. The simulated friction is dry (exact stick) where
+        the model's is the smooth sign tanh(a dq / 2); the plant's gravity is the simulated
+        world's, not the file's vector. Raises ModelFileError for a file without dynamic
+        parameters or effects the plant cannot hold (two friction profiles of different
+        periods on a joint, say).
+        """
+        from dataclasses import replace
+
+        from rig.sim import HiddenEffects
+        from rig.psm_dynamics import PSMParameters
+
+        if self.standard is None:
+            raise ModelFileError(f"{self.path}: a friction-only model file has no dynamic parameters: "
+                                 "run `rig identify` first")
+        params = PSMParameters.from_standard_vector(self.standard, self.slope)
+        drive = params.drive
+        Fc, Ia = drive.Fc.copy(), drive.Ia.copy()
+        eff = HiddenEffects()
+        excess, vs = np.zeros(3), eff.stribeck_velocity.copy()
+        st = self.stribeck
+        if st is not None:
+            excess += st["Fst"]
+            vs = st["vs"].copy()
+        periods: dict[int, float] = {}
+        for i, e in enumerate(self.effects):
+            j, p, name = int(e["joint"]) - 1, e["params"], e["name"]
+            where = f"{self.path}: effects[{i}] ({name}@{j + 1})"
+            try:
+                if name == "stiction":
+                    excess[j] += float(p["dFs"])
+                    vs[j] = float(p["vs"])
+                elif name == "coulomb_asymmetry":
+                    # dFc (1 + sigma(dq)) / 2: the level rises by dFc/2 both ways, plus dFc/2.
+                    Fc[j] += 0.5 * float(p["dFc"])
+                    eff.torque_offset[j] += 0.5 * float(p["dFc"])
+                elif name == "position_friction":
+                    a_sin, a_cos = _profile_coefficients(p)
+                    period = float(p["period"])
+                    if j in periods and not math.isclose(periods[j], period, rel_tol=1e-9):
+                        raise ValueError(f"a second friction profile of period {period:g} (the first: "
+                                         f"{periods[j]:g}); the simulated plant holds one per joint")
+                    if len(a_sin) > eff.friction_profile_sin.shape[1]:
+                        raise ValueError(f"{len(a_sin)} harmonics; the simulated plant holds "
+                                         f"{eff.friction_profile_sin.shape[1]}")
+                    periods[j] = period
+                    eff.friction_profile_period[j] = period
+                    eff.friction_profile_sin[j, :len(a_sin)] += a_sin
+                    eff.friction_profile_cos[j, :len(a_cos)] += a_cos
+                elif name == "spring":
+                    k, q0 = float(p["k"]), float(p.get("q0") or 0.0)
+                    total = eff.spring[j] + k
+                    eff.spring_rest[j] = (eff.spring[j] * eff.spring_rest[j] + k * q0) / total if total else 0.0
+                    eff.spring[j] = total
+                elif name == "payload":
+                    if e.get("applied_to") != "standard_parameters":
+                        raise ValueError("a payload not folded into the standard parameters")
+                elif name == "backlash":
+                    if eff.backlash[j] > 0:
+                        raise ValueError("a second play on the joint")
+                    if not Ia[j] > 0:
+                        raise ValueError(f"a play needs a rotor inertia > 0 on the motor side (Ia {Ia[j]:.4g})")
+                    if not float(p["width"]) > 0:
+                        raise ValueError("needs a play width > 0")
+                    eff.backlash[j] = float(p["width"])
+                    if "motor_inertia" in p:
+                        eff.backlash_motor_inertia[j] = min(float(p["motor_inertia"]), Ia[j])
+                elif name == "hysteresis":
+                    if eff.hysteresis[j] > 0:
+                        raise ValueError("a second Dahl friction on the joint")
+                    if not (float(p["Fd"]) > 0 and float(p["travel"]) > 0):
+                        raise ValueError("needs a Dahl level Fd > 0 and a travel > 0")
+                    eff.hysteresis[j] = float(p["Fd"])
+                    eff.hysteresis_stiffness[j] = float(p["Fd"]) / float(p["travel"])
+                elif name == "time_delay":
+                    delay = np.broadcast_to(np.asarray(eff.time_delay, float), (3,)).copy()
+                    delay[j] += float(p["delay"])
+                    eff.time_delay = delay
+                elif name == "torque_offset":
+                    eff.torque_offset[j] += float(p["offset"])
+                elif name == "viscous_nonlinear":
+                    if eff.viscous_nonlinear[j] != 0:
+                        raise ValueError("a second non-linear damping law on the joint")
+                    eff.viscous_nonlinear[j] = float(p["c"])
+                    eff.viscous_exponent[j] = float(p["exponent"])
+            except (KeyError, TypeError, ValueError, ZeroDivisionError) as exc:
+                raise ModelFileError(f"{where}: cannot be simulated: {exc}") from None
+        eff.stiction = np.where(excess > 0, Fc + excess, 0.0)
+        eff.stribeck_velocity = vs
+        values = [eff.spring, eff.spring_rest, eff.torque_offset, eff.viscous_nonlinear, eff.hysteresis,
+                  eff.friction_profile_sin, eff.friction_profile_cos, eff.backlash, eff.stiction, Fc]
+        if not all(np.all(np.isfinite(v)) for v in values) or np.any(eff.stribeck_velocity <= 0) \
+                or np.any(eff.backlash < 0) or np.any(np.asarray(eff.time_delay) < 0):
+            raise ModelFileError(f"{self.path}: effects: a parameter is not finite or out of its range")
+        return replace(params, drive=replace(drive, Fc=Fc)), eff
+
+    @property
     def validation(self) -> dict:
         return self.document.get("validation", {})
 
     @property
     def provenance(self) -> dict:
         return self.document.get("provenance", {})
+
+
+def _profile_coefficients(p: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(a_sin, a_cos) of a position_friction entry; an entry of catalogue 1.1 (one ripple
+    A sin(2 pi q / P + phi)) has a_sin = A cos(phi), a_cos = A sin(phi)."""
+    if "a_sin" in p:
+        a_sin, a_cos = np.asarray(p["a_sin"], float), np.asarray(p["a_cos"], float)
+        if a_sin.shape != a_cos.shape or a_sin.ndim != 1:
+            raise ValueError("a_sin and a_cos must be lists of the same length")
+        return a_sin, a_cos
+    A, phi = float(p["amplitude"]), float(p["phase"])
+    return np.array([A * math.cos(phi)]), np.array([A * math.sin(phi)])
 
 
 def _finite_list(x, what: str) -> list[float]:

@@ -51,9 +51,17 @@ class HiddenEffects:
     payload_mass: float = 0.0                                                  # kg on the tool
     payload_com: np.ndarray = field(default_factory=lambda: np.zeros(3))       # m, tool joint frame
     backlash: np.ndarray = field(default_factory=lambda: np.zeros(3))          # total play (rad, m)
-    time_delay: float = 0.0                                                    # s, measured effort behind the motion
+    # Inertia on the motor side of a play (N m s^2/rad, kg); NaN: half the rotor inertia Ia.
+    backlash_motor_inertia: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    time_delay: float | np.ndarray = 0.0                                       # s, measured effort behind the motion (one or per joint)
     torque_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))     # constant load on the joint
-    viscous_nonlinear: np.ndarray = field(default_factory=lambda: np.zeros(3))  # c in c dq |dq|
+    viscous_nonlinear: np.ndarray = field(default_factory=lambda: np.zeros(3))  # c in c sign(dq) |dq|^n
+    viscous_exponent: np.ndarray = field(default_factory=lambda: np.full(3, 2.0))  # n of that law
+    # An absolute Coulomb-level profile f(q) = sum_k s_k sin(2 pi k q / P) + c_k cos(2 pi k q / P),
+    # k = 1..4 (N m, N), over the period P (rad, m; 0 = none): a model file's position_friction.
+    friction_profile_period: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    friction_profile_sin: np.ndarray = field(default_factory=lambda: np.zeros((3, 4)))   # (joint, k)
+    friction_profile_cos: np.ndarray = field(default_factory=lambda: np.zeros((3, 4)))
     hysteresis: np.ndarray = field(default_factory=lambda: np.zeros(3))        # Dahl level Fd (0 = off)
     hysteresis_stiffness: np.ndarray = field(default_factory=lambda: np.array([40.0, 40.0, 400.0]))  # sigma0
 
@@ -141,7 +149,8 @@ class _Arm:
         self.sl = slice(3 * index, 3 * index + 3)
         self.params = params
         self.rng = rng
-        self.delay_steps = int(round(spec.effects.time_delay / dt))
+        self.delay_steps = np.round(np.broadcast_to(np.asarray(spec.effects.time_delay, float), (3,)) / dt).astype(np.int64)
+        self.columns = np.arange(self.sl.start, self.sl.stop)
         self.rcm_world = np.asarray(spec.base, float) @ K.RCM_FRAME
 
 
@@ -196,7 +205,7 @@ class SimWorld:
         self.q_des[:] = self.q
         self.modes = np.full(len(arms), sim_kernel.MODE_POSITION, dtype=np.int64)
         self._obj = np.zeros(3)
-        self._history = np.zeros((max(a.delay_steps for a in self.arms.values()) + 1, n3))
+        self._history = np.zeros((max(int(a.delay_steps.max()) for a in self.arms.values()) + 1, n3))
         self._history_pos = 0
         self.object: ObjectSpec | None = None
         self._edges = np.zeros((0, 2), dtype=np.int64)
@@ -229,12 +238,20 @@ class SimWorld:
         self.q_spring = cat("spring_rest")
         self.offset = cat("torque_offset")
         self.visc2 = cat("viscous_nonlinear")
+        self.visc_exp = cat("viscous_exponent")
+        self.profile_period = cat("friction_profile_period")
+        # (harmonic, joint) rows of the absolute friction profile.
+        profile_sin = np.concatenate([np.asarray(e.friction_profile_sin, float) for e in eff]).T
+        profile_cos = np.concatenate([np.asarray(e.friction_profile_cos, float) for e in eff]).T
         self.dahl_level = cat("hysteresis")
         self.dahl_sigma = cat("hysteresis_stiffness")
         self.backlash = cat("backlash")
-        # With backlash half of the rotor inertia sits on the motor side of the play.
-        self.Im = np.where(self.backlash > 0, 0.5 * self.Ia, 1.0)
-        self.Ij = np.where(self.backlash > 0, 0.5 * self.Ia, self.Ia)
+        # With backlash part of the rotor inertia sits on the motor side of the play: half of
+        # it unless given (the rest turns with the joint side).
+        motor = cat("backlash_motor_inertia")
+        motor = np.where(np.isnan(motor), 0.5 * self.Ia, np.clip(motor, 0.0, self.Ia))
+        self.Im = np.where(self.backlash > 0, motor, 1.0)
+        self.Ij = np.where(self.backlash > 0, self.Ia - motor, self.Ia)
         # Transmission stiffness outside the play (N m/rad, N/m) and its damping. The kernel
         # integrates this contact implicitly for the motor-joint pair (an explicit step was
         # unstable in the damping: c h / Im = 1.33 on joint 3), so any values are stable.
@@ -248,7 +265,10 @@ class SimWorld:
         self.quantum = np.concatenate([a.spec.noise.position_quantum for a in arms])
         self.bases = np.array([a.rcm_world for a in arms])
         self.r_offset = K.L_TOOL - K.L_RCC
-        self._constants = np.array([getattr(self, {"period": "posfric_period", "kspring": "k_spring",
+        rows = {f"profile_{kind}{k + 1}": table[k] for kind, table in (("sin", profile_sin), ("cos", profile_cos))
+                for k in range(sim_kernel.PROFILE_HARMONICS)}
+        self._constants = np.array([rows[r] if r in rows else
+                                    getattr(self, {"period": "posfric_period", "kspring": "k_spring",
                                                    "qspring": "q_spring", "effort_limit": "effort_limit"}.get(r, r))
                                     for r in sim_kernel.CONSTANT_ROWS])
 
@@ -343,7 +363,7 @@ class SimWorld:
         n = a.spec.noise
         q = _quantise(self.qm[a.sl], n.position_quantum)
         dq = self.dqm[a.sl] + a.rng.normal(0.0, 1.0, 3) * n.velocity_noise
-        effort = self._history[(self._history_pos - a.delay_steps) % len(self._history), a.sl]
+        effort = self._history[(self._history_pos - a.delay_steps) % len(self._history), a.columns]
         effort = _quantise(effort + a.rng.normal(0.0, 1.0, 3) * n.effort_noise, n.effort_quantum)
         return q, dq, effort
 
@@ -418,9 +438,15 @@ def world_from_config(cfg, arms: list[str] | None = None, with_object: bool = Tr
     specs = []
     for name in names:
         a = cfg.arms[name]
-        effects = HiddenEffects(**{k: (np.array(v) if isinstance(v, list) else v)
-                                   for k, v in cfg.effects.get(name, {}).items()})
-        specs.append(ArmSpec(name=name, base=cfg.base_matrix(name), effects=effects,
+        if a["plant_model"]:
+            from rig.model_file import load_model
+
+            params, effects = load_model(a["plant_model"]).plant()
+        else:
+            params = PSMParameters()
+            effects = HiddenEffects(**{k: (np.array(v) if isinstance(v, list) else v)
+                                       for k, v in cfg.effects.get(name, {}).items()})
+        specs.append(ArmSpec(name=name, base=cfg.base_matrix(name), params=params, effects=effects,
                              noise=SensorNoise() if a["sensor_noise"] else SensorNoise.off(),
                              effort_limit=np.array(a["effort_limit"]), q0=np.array(a["q0"])))
     obj = None

@@ -45,7 +45,11 @@ def tip_and_jacobian(q, base, r_offset):
 # Rows of the constants array passed to `step` (one column per joint of the rig).
 CONSTANT_ROWS = ("Ij", "Im", "Fc", "Fs", "vs", "asym", "posfric", "period", "Fv", "Fo", "offset",
                  "kspring", "qspring", "visc2", "dahl_level", "dahl_sigma", "backlash", "kp", "kd",
-                 "ki", "ilim", "effort_limit", "quantum", "backlash_k", "backlash_c")
+                 "ki", "ilim", "effort_limit", "quantum", "backlash_k", "backlash_c", "visc_exp",
+                 "profile_period", "profile_sin1", "profile_sin2", "profile_sin3", "profile_sin4",
+                 "profile_cos1", "profile_cos2", "profile_cos3", "profile_cos4")
+#: Harmonics of the absolute friction profile (rows profile_sin*/profile_cos*).
+PROFILE_HARMONICS = 4
 # Rows of the state array (updated in place).
 STATE_ROWS = ("q", "dq", "qm", "dqm", "dahl", "q_des", "dq_des", "integral", "tau_cmd", "tau_applied")
 
@@ -53,14 +57,20 @@ STATE_ROWS = ("q", "dq", "qm", "dqm", "dahl", "q_des", "dq_des", "integral", "ta
 @njit(cache=True)
 def step(h, Mt, nle, G, state, c, modes, edges, rest, obj, bases, r_offset, tensions):
     """One time step of every arm. `c`: CONSTANT_ROWS x 3N, `state`: STATE_ROWS x 3N,
-    `obj` = (stiffness N/m, damping N s/m, 1.0 for a string else 0.0)."""
+    `obj` = (stiffness N/m, damping N s/m, 1.0 for a string else 0.0).
+
+    A joint's Coulomb level is Fc (1 + posfric sin(2 pi q / period)) (the relative ripple of a
+    hidden effect) plus an absolute profile sum_k s_k sin(2 pi k q / P) + c_k cos(2 pi k q / P)
+    over profile_period P (0: none; a model file's position-dependent friction). The smooth
+    load's c sign(dq) |dq|^n has exponent n = visc_exp."""
     q, dq, qm, dqm, dahl = state[0], state[1], state[2], state[3], state[4]
     q_des, dq_des, integral, tau_cmd, tau_applied = state[5], state[6], state[7], state[8], state[9]
     (Ij, Im, Fc, Fs, vs, asym, posfric, period, Fv, Fo, offset, kspring, qspring, visc2,
      dahl_level, dahl_sigma, backlash, kp, kd, ki, ilim, effort_limit, quantum,
-     backlash_k, backlash_c) = (
+     backlash_k, backlash_c, visc_exp, profile_period) = (
         c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12], c[13],
-        c[14], c[15], c[16], c[17], c[18], c[19], c[20], c[21], c[22], c[23], c[24])
+        c[14], c[15], c[16], c[17], c[18], c[19], c[20], c[21], c[22], c[23], c[24], c[25], c[26])
+    profile_sin, profile_cos = c[27:31], c[31:35]
     stiffness, damping, string = obj[0], obj[1], obj[2] > 0.5
     n3 = q.shape[0]
     n_arms = n3 // 3
@@ -117,8 +127,12 @@ def step(h, Mt, nle, G, state, c, modes, edges, rest, obj, bases, r_offset, tens
     contact = np.zeros(n3, dtype=np.bool_)
     has_backlash = False
     for j in range(n3):
-        smooth = (Fv[j] * dq[j] + Fo[j] + offset[j] + kspring[j] * (q[j] - qspring[j])
-                  + visc2[j] * dq[j] * abs(dq[j]))
+        smooth = Fv[j] * dq[j] + Fo[j] + offset[j] + kspring[j] * (q[j] - qspring[j])
+        if visc2[j] != 0.0:
+            if visc_exp[j] == 2.0:
+                smooth += visc2[j] * dq[j] * abs(dq[j])
+            else:
+                smooth += visc2[j] * np.sign(dq[j]) * abs(dq[j]) ** visc_exp[j]
         if dahl_level[j] > 0.0:
             dx = dq[j] * h
             target = np.sign(dx) * dahl_level[j]
@@ -175,6 +189,10 @@ def step(h, Mt, nle, G, state, c, modes, edges, rest, obj, bases, r_offset, tens
     down = np.empty(n3)
     for j in range(n3):
         fc = Fc[j] * (1.0 + posfric[j] * np.sin(2.0 * np.pi * q[j] / period[j]))
+        if profile_period[j] > 0.0:
+            x = 2.0 * np.pi * q[j] / profile_period[j]
+            for k in range(PROFILE_HARMONICS):
+                fc += profile_sin[k, j] * np.sin((k + 1) * x) + profile_cos[k, j] * np.cos((k + 1) * x)
         s = abs(v[j]) / vs[j]
         level = fc + (Fs[j] - Fc[j]) * np.exp(-s * s)
         up[j] = max(h * (level + 0.5 * asym[j]), 0.0)

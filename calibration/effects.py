@@ -673,6 +673,56 @@ def describe() -> dict:
                                "equivalent_to": list(e.equivalent_to)} for e in CATALOGUE.values()}}
 
 
+#: Why a controller does not feed an effect forward (`EffectCompensation`).
+NOT_COMPENSATED = {
+    "payload": "in the standard parameters (the rigid-body model carries it)",
+    "backlash": "a play is crossed, not pushed against: its torque is the drive's own reversal history, "
+                "which a feedforward torque cannot cancel",
+    "time_delay": "a lag of the effort reading, not a load on the joint",
+}
+
+
+class EffectCompensation:
+    """A model file's effects as a controller's feedforward, one control step at a time:
+    ``comp(q, dq)`` -> (3,) torques (N m, N m, N) the effects add at the state (q, dq).
+
+    The torques are the catalogue's own (`Effect.torque`, the smooth sign tanh(a dq / 2)
+    with the model's slope a). A Dahl state is kept per hysteresis entry and advanced by
+    the position change since the previous call (the same update as `dahl_state`), so keep
+    one object per arm and call it once per step with that step's state. ``skipped``
+    lists the entries not fed forward with the reason (`NOT_COMPENSATED`).
+    """
+
+    def __init__(self, effects: list[dict], slope: float):
+        self.slope = float(slope)
+        self.entries = [e for e in effects if e["name"] not in NOT_COMPENSATED]
+        self.skipped = [{"name": e["name"], "joint": int(e["joint"]), "reason": NOT_COMPENSATED[e["name"]]}
+                        for e in effects if e["name"] in NOT_COMPENSATED]
+        self._dahl = [0.0] * len(self.entries)
+        self._q_last: np.ndarray | None = None
+
+    def __bool__(self) -> bool:
+        return bool(self.entries)
+
+    def __call__(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        q, dq = np.asarray(q, float), np.asarray(dq, float)
+        step = np.zeros(3) if self._q_last is None else q - self._q_last
+        self._q_last = q.copy()
+        out = np.zeros(3)
+        for i, e in enumerate(self.entries):
+            j = int(e["joint"]) - 1
+            if e["name"] == "hysteresis":
+                d = step[j]
+                if d != 0.0:
+                    s = 1.0 if d > 0 else -1.0
+                    self._dahl[i] = s + (self._dahl[i] - s) * np.exp(-abs(d) / e["params"]["travel"])
+                out[j] += e["params"]["Fd"] * self._dahl[i]
+            else:
+                out += CATALOGUE[e["name"]].torque(e["params"], int(e["joint"]), q[None], dq[None],
+                                                   slope=self.slope)[0]
+        return out
+
+
 def effects_torque(effects: list[dict], q, dq, tau_model=None, rate: float = 200.0, slope: float = 400.0,
                    exclude=("payload",), ddq=None, mass_diag=None) -> np.ndarray:
     """Sum of the torques (n, 3) of a model file's ``effects`` entries on raw samples.

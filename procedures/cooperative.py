@@ -71,7 +71,9 @@ def _vector(text: str | None, what: str) -> np.ndarray:
 @click.option("--mode", type=click.Choice(["impedance", "position"]), default="impedance", show_default=True,
               help="Slave control: impedance with tension tracking, or the position-based tracking of 7.7.3.")
 @click.option("--model", "model_path", type=click.Path(dir_okay=False), default=None,
-              help="Identified model file (default: the newest `rig identify` result; nominal on the simulated rig).")
+              help="Identified model file (default: the newest `rig identify` result; nominal on the simulated rig). "
+                   "Effects a `rig discrepancy` model adds are fed forward with the rigid body where they are loads "
+                   "(backlash and an effort delay are named, not fed forward).")
 @click.option("--seed", type=int, default=None, help="Seed of the simulated rig.")
 @click.option("--dry-run", is_flag=True, help="Check the plan against every limit, print it, move nothing.")
 @click.option("--ros-commands", is_flag=True,
@@ -127,7 +129,8 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
 
 # ----------------------------------------------------------------------------- set-up
 def _model_for(cfg, model_path, simulated: bool):
-    """(FeedforwardModel factory, StickSlip or None, description) from a model file or nominal."""
+    """(PSMDynamics, StickSlip or None, description, effects) from a model file or nominal;
+    ``effects``: the file's added effects (`rig discrepancy`), [] when it has none."""
     from rig import model_file
     from rig.psm_dynamics import PSMDynamics
 
@@ -141,8 +144,12 @@ def _model_for(cfg, model_path, simulated: bool):
         if not simulated:
             raise click.ClickException("no identified model: run `rig identify` (and `rig friction-ramp`) first, "
                                        "or pass --model FILE")
-        return PSMDynamics(), None, "nominal model (no identified model yet)"
-    return m.dynamics(), m.stick_slip(), f"identified model {m.path}"
+        return PSMDynamics(), None, "nominal model (no identified model yet)", []
+    effects = m.effects
+    note = f"identified model {m.path}"
+    if effects:
+        note += " with its effects " + ", ".join(f"{e['name']}@{e['joint']}" for e in effects)
+    return m.dynamics(), m.stick_slip(), note, effects
 
 
 def _registration_for(cfg, names, simulated: bool):
@@ -166,7 +173,10 @@ def _registration_for(cfg, names, simulated: bool):
 
 
 def build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
-                     object_kind, object_stiffness, elements, dt):
+                     object_kind, object_stiffness, elements, dt, effects=None):
+    """The cooperative controller; ``effects`` (a model file's entries) are fed forward on
+    every arm with its rigid-body model (`calibration.effects.EffectCompensation`)."""
+    from calibration.effects import EffectCompensation
     from rig.control import FeedforwardModel, StickSlipCompensation
     from rig.cooperative import CooperativeController, ForceLoop, Motion, PositionForceLoop, preset
 
@@ -179,7 +189,9 @@ def build_controller(cfg, names, master, params, translation, rotation, mode, dy
         friction[n] = comp
     gains, follow = preset(object_kind)
     return CooperativeController(
-        names, master, rcm_frames, {n: FeedforwardModel(dyn) for n in names}, friction, elements,
+        names, master, rcm_frames,
+        {n: FeedforwardModel(dyn, EffectCompensation(effects, d.slope) if effects else None) for n in names},
+        friction, elements,
         params["force"], dt=dt, motion=Motion(translation, rotation, params["duration"], params["settle"]),
         loop=ForceLoop(), gains=gains, object_stiffness=object_stiffness, follow_measured_master=follow,
         mode=mode, position_loop=PositionForceLoop(deadband=params["deadband"]),
@@ -196,9 +208,9 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
 
     simulated = cfg.simulated
     if model is not None:
-        dyn, stick, model_note = model, None, "model given by the caller"
+        dyn, stick, model_note, effects = model, None, "model given by the caller", []
     else:
-        dyn, stick, model_note = _model_for(cfg, model_path, simulated)
+        dyn, stick, model_note, effects = _model_for(cfg, model_path, simulated)
     rcm_frames, registration_note = _registration_for(cfg, names, simulated)
     limits = SafetyLimits(tension_ceiling=params["tension_ceiling"])
     if params["force"] >= limits.tension_ceiling:
@@ -208,13 +220,14 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
     try:
         return _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
                     model_note, registration_note, limits, dry_run, ros_commands, interactive,
-                    parameter_set, seed, progress)
+                    parameter_set, seed, progress, effects)
     finally:
         rig.close()
 
 
 def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames, model_note,
-         registration_note, limits, dry_run, ros_commands, interactive, parameter_set, seed, progress):
+         registration_note, limits, dry_run, ros_commands, interactive, parameter_set, seed, progress,
+         effects=()):
     clock = rig.clock
     elements = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
     kind = cfg.object["kind"]
@@ -246,7 +259,14 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                 raise AbortRun(f"the object has {len(elements)} elements but load cells on only {held}: "
                                "a triangle of three arms needs a load cell on every element")
         controller = build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick,
-                                      rcm_frames, kind, stiffness, elements, 1.0 / clock.rate)
+                                      rcm_frames, kind, stiffness, elements, 1.0 / clock.rate, list(effects))
+        comp = next(iter(controller.impedance.values())).model.effects if controller.impedance else None
+        model_effects = {"fed_forward": [], "not_fed_forward": []}
+        if comp is not None:
+            model_effects = {"fed_forward": [f"{e['name']}@{e['joint']}" for e in comp.entries],
+                             "not_fed_forward": comp.skipped}
+            for sk in comp.skipped:
+                run._write(f"model effect {sk['name']}@{sk['joint']} not fed forward: {sk['reason']}\n")
         js = {n: rig.arms[n].measured_js() for n in names}
         q0 = {n: js[n].position[:3] for n in names}
         sensors = [rig.forces[k] for k in sorted(rig.forces)]
@@ -334,7 +354,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                               last_live=None if live.last_applied is None else live.last_applied - t_start)
             if ros_commands or interactive:
                 result["live_commands"] = live.summary(t_start)
-            result.update({"model": model_note, "registration": registration_note, "arms": names,
+            result.update({"model": model_note, "model_effects": model_effects, "registration": registration_note, "arms": names,
                            "master": master, "mode": mode, "object": kind,
                            "filter_delay": _filter_delays(controller)})
             plot = Path(run.dir) / "cooperative.png"

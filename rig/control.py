@@ -179,14 +179,23 @@ class StickSlipCompensation:
 
 
 class FeedforwardModel:
-    """u = M^(q) y + N^(q, dq) (eq. 7.1-7.2), from an identified or nominal PSMDynamics."""
+    """u = M^(q) y + N^(q, dq) (eq. 7.1-7.2), from an identified or nominal PSMDynamics.
 
-    def __init__(self, dynamics: PSMDynamics):
+    ``effects`` (optional): a callable (q, dq) -> (3,) torques of the effects a model file
+    adds to the rigid body (`calibration.effects.EffectCompensation`, built by the
+    procedure from the file), fed forward with N^. It may keep state (a Dahl friction
+    state): one per arm, called once per control step."""
+
+    def __init__(self, dynamics: PSMDynamics, effects=None):
         self.dyn = dynamics
+        self.effects = effects
 
     def __call__(self, q: np.ndarray, dq: np.ndarray, y: np.ndarray) -> np.ndarray:
         # One RNEA pass gives M y + C dq + g (friction added separately).
-        return self.dyn.inverse_dynamics(q, dq, y, friction=False)
+        u = self.dyn.inverse_dynamics(q, dq, y, friction=False)
+        if self.effects is not None:
+            u = u + self.effects(q, dq)
+        return u
 
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
         return self.dyn.mass_matrix(q)

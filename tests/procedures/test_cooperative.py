@@ -303,3 +303,30 @@ def test_uses_the_registration_run_and_the_model_file_and_says_which(tmp_path):
     assert data["model"] == f"identified model {path}"
     assert data["registration"] == f"registration {reg_dir}"
     assert data["max_error_during_motion"] < 0.25
+
+
+def test_model_file_effects_are_fed_forward_and_the_rest_named(tmp_path):
+    """A model file from `rig discrepancy` carries effects: the slaves' feedforward adds
+    those it can (here a joint-3 spring and friction profile) and the result names the ones
+    it cannot (a play). The simulated arms' plants are that model file too."""
+    from rig.model_file import save_model
+    from rig.psm_dynamics import PSMDynamics, standard_parameter_names
+
+    effects = [{"name": "spring", "joint": 3, "params": {"k": 30.0, "q0": 0.08}},
+               {"name": "position_friction", "joint": 3,
+                "params": {"period": 0.03, "harmonics": 1, "a_sin": [0.3], "a_cos": [0.0]}},
+               {"name": "backlash", "joint": 1, "params": {"width": 0.004, "motor_inertia": 0.03}}]
+    path = save_model(tmp_path / "model.json", standard=PSMDynamics().standard_params(),
+                      names=standard_parameter_names(), slope=400.0, gravity=np.array([0.0, 0.0, -9.81]),
+                      extra={"effects": effects})
+    toml = tmp_path / "rig.toml"
+    toml.write_text('[arms.PSM1]\nplant_model = "model.json"\n[arms.PSM2]\nplant_model = "model.json"\n'
+                    'base_xyz = [1.0728, 0.0, 0.0]\nbase_rpy = [0.0, 0.0, 3.141592653589793]\n')
+    res = CliRunner().invoke(main, ["--config", str(toml), "cooperative", "--model", str(path), "--duration", "2",
+                                    "--settle", "1.5", "--hold-after", "0.5", "--json"])
+    assert res.exit_code == 0, res.output
+    data = json.loads([x for x in res.stdout.splitlines() if x.startswith("{")][-1])
+    assert data["model"] == f"identified model {path} with its effects spring@3, position_friction@3, backlash@1"
+    assert data["model_effects"]["fed_forward"] == ["spring@3", "position_friction@3"]
+    assert [s["name"] for s in data["model_effects"]["not_fed_forward"]] == ["backlash"]
+    assert data["max_error_during_motion"] < 0.25

@@ -223,6 +223,13 @@ def _plant(case_params: list[dict], twin: bool = False) -> tuple[PSMParameters, 
     return params, eff, extra
 
 
+def case_plant(case: HiddenCase) -> tuple[PSMParameters, HiddenEffects]:
+    """The simulated plant of ``case`` (for a controller run on it; the recorded effort's
+    generator-side delay and the disturbances outside the catalogue are not part of it)."""
+    params, eff, _ = _plant(draw_case_parameters(case))
+    return params, eff
+
+
 def generate(case: HiddenCase, n_samples: int = N_SAMPLES, rate: float = RATE,
              noise: SensorNoise | None = None, trajectory_seed: int | None = None,
              twin: bool = False, excitation=None, plant=None) -> tuple[Recorded, Truth]:

@@ -150,9 +150,14 @@ def main(argv=None) -> int:
         (e, j), = r["effects"]
         print(f"  {e}@{j} seed {r['seed']} [{r['mode']}]: {predicted_label(r)} ({r['verdict']}) "
               f"rms {np.round(r['baseline_rms'][j - 1], 4)} -> {np.round(r['final_rms'][j - 1], 4)} "
-              f"floor {np.round(r['floor'][j - 1], 4)} (final/floor {r['final_rms'][j - 1] / r['floor'][j - 1]:.2f})")
+              f"floor {np.round(r['floor'][j - 1], 4)} (final/floor {r['final_rms'][j - 1] / r['floor'][j - 1]:.2f}) "
+              f"{r['seconds']:.1f} s")
     for r in two + out:
-        print(f"  {'+'.join(f'{e}@{j}' for e, j in r['effects'])} seed {r['seed']}: found {r['found']} ({r['verdict']})")
+        print(f"  {'+'.join(f'{e}@{j}' for e, j in r['effects'])} seed {r['seed']}: found {r['found']} ({r['verdict']}) "
+              f"{r['seconds']:.1f} s")
+    slowest = max(results, key=lambda r: r["seconds"])
+    print(f"  slowest: {'+'.join(f'{e}@{j}' for e, j in slowest['effects']) or 'null'} seed {slowest['seed']} "
+          f"[{slowest['mode']}] {slowest['seconds']:.1f} s (workflow only, under the bench's workers)")
     for r in fd:
         print(f"  null seed {r['seed']} [{r['mode']}]: false discovery {r['found']} ({r['verdict']})")
 

@@ -141,10 +141,18 @@ class Settings:
 
 
 def load_thresholds(path: Path = THRESHOLDS_PATH) -> tuple[dict, str]:
-    """The null-calibrated thresholds and where they came from."""
+    """The null-calibrated thresholds and where they came from. The thresholds depend on
+    the catalogue (the best null candidate sets the gain and dBIC thresholds): a file
+    calibrated with another catalogue version is still used, and its source says so."""
     try:
         doc = json.loads(Path(path).read_text())
-        return doc["thresholds"], f"{path} ({doc.get('method', {}).get('summary', 'null simulations')})"
+        method = doc.get("method", {})
+        source = f"{path} ({method.get('summary', 'null simulations')}"
+        version = method.get("catalogue_version")
+        if version != CATALOGUE_VERSION:
+            source += (f"; calibrated with catalogue {version or 'before 1.2'}, this is {CATALOGUE_VERSION}: "
+                       "recalibrate with python -m calibration.discrepancy_null")
+        return doc["thresholds"], source + ")"
     except (OSError, KeyError, json.JSONDecodeError):
         return FALLBACK_THRESHOLDS, "built-in fallback (no calibrated threshold file)"
 

@@ -134,11 +134,13 @@ def calibrate(n_seeds: int = 40, progress=print, workers: int = 2) -> dict:
     for i, mode in enumerate(("identified", "given_model")):
         out["null_runs"][mode] = stats[i * n_seeds:(i + 1) * n_seeds]
         out["thresholds"][mode] = thresholds_from(out["null_runs"][mode])
+    from calibration.effects import CATALOGUE_VERSION
     from calibration.hidden_effects import GENERATOR_VERSION, N_SAMPLES, RATE
 
     out["method"] = {"summary": f"null simulations, {n_seeds} seeds x 2 baselines",
                      "rule": __doc__.split("* Ljung-Box")[1].split("Both baselines")[0].strip(),
-                     "seeds": seeds, "generator_version": GENERATOR_VERSION, "samples": N_SAMPLES, "rate_hz": RATE,
+                     "seeds": seeds, "generator_version": GENERATOR_VERSION, "catalogue_version": CATALOGUE_VERSION,
+                     "samples": N_SAMPLES, "rate_hz": RATE,
                      "settings": vars(Settings()) | {"thresholds": None},
                      "date": datetime.now(timezone.utc).isoformat(), "seconds": time.perf_counter() - t0}
     return out

@@ -478,3 +478,21 @@ def test_augmented_model_file_as_the_simulated_plant_reproduces_the_recording(wo
     assert rms["without effects"][0] > 0.1 and rms["without effects"][2] > 0.3, rms
     assert np.all(rms["augmented"][[0, 2]] < 0.02 * rms["without effects"][[0, 2]]), rms
     assert np.all(rms["augmented"] < 0.005), rms
+
+
+def test_thresholds_file_records_the_catalogue_it_was_calibrated_with(tmp_path):
+    import json
+
+    from calibration.discrepancy import THRESHOLDS_PATH, load_thresholds
+    from calibration.effects import CATALOGUE_VERSION
+
+    thresholds, source = load_thresholds()
+    assert json.loads(THRESHOLDS_PATH.read_text())["method"]["catalogue_version"] == CATALOGUE_VERSION
+    assert "recalibrate" not in source
+    doc = json.loads(THRESHOLDS_PATH.read_text())
+    doc["method"]["catalogue_version"] = "1.1"
+    old = tmp_path / "t.json"
+    old.write_text(json.dumps(doc))
+    again, source = load_thresholds(old)
+    assert again == thresholds
+    assert f"calibrated with catalogue 1.1, this is {CATALOGUE_VERSION}: recalibrate" in source

@@ -324,11 +324,20 @@ def _plant_model(source: str, name: str, arm: dict) -> str:
 def with_plant_model(cfg: RigConfig, path: str | Path, arms: list[str] | None = None) -> RigConfig:
     """``cfg`` with ``path`` as the plant model of ``arms`` (default: every simulated arm);
     their hidden effects, if any, give way to the model's."""
+    from rig.model_file import ModelFileError, load_model
+
     names = arms or [n for n, a in cfg.arms.items() if a["driver"] == "sim"]
+    for n in names:
+        if cfg.arms[n]["driver"] != "sim":
+            raise ConfigError(f"{n} is not a simulated arm (driver {cfg.arms[n]['driver']!r}): it takes no plant model")
+    path = Path(path).expanduser().resolve()
+    try:
+        load_model(path).plant()
+    except ModelFileError as exc:
+        raise ConfigError(str(exc)) from None
     new_arms = copy.deepcopy(cfg.arms)
     for n in names:
-        new_arms[n]["plant_model"] = str(Path(path).expanduser())
-        new_arms[n]["plant_model"] = _plant_model("--plant-model", n, new_arms[n])
+        new_arms[n]["plant_model"] = str(path)
     effects = {k: v for k, v in cfg.effects.items() if k not in names}
     return dataclasses.replace(cfg, arms=new_arms, effects=effects)
 

@@ -162,3 +162,13 @@ def test_plant_model_errors_name_the_problem(tmp_path):
     with pytest.raises(ModelFileError, match="needs a Dahl level Fd > 0"):
         _model_file(tmp_path / "h.json", [{"name": "hysteresis", "joint": 2,
                                            "params": {"Fd": 0.1, "travel": 0.0}}]).plant()
+
+
+def test_rig_sim_plant_model_option_refuses_a_bad_file(tmp_path):
+    from click.testing import CliRunner
+
+    from rig.cli import main
+
+    res = CliRunner().invoke(main, ["sim", "--plant-model", str(tmp_path / "none.json"), "--duration", "0.1"])
+    assert res.exit_code == 2
+    assert f"Invalid value for --plant-model: {tmp_path / 'none.json'}: no such model file" in res.output

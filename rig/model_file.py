@@ -280,7 +280,9 @@ class IdentifiedModel:
                         raise ValueError("a second non-linear damping law on the joint")
                     eff.viscous_nonlinear[j] = float(p["c"])
                     eff.viscous_exponent[j] = float(p["exponent"])
-            except (KeyError, TypeError, ValueError, ZeroDivisionError) as exc:
+            except KeyError as exc:
+                raise ModelFileError(f"{where}: cannot be simulated: parameter {exc} missing") from None
+            except (TypeError, ValueError, ZeroDivisionError) as exc:
                 raise ModelFileError(f"{where}: cannot be simulated: {exc}") from None
         eff.stiction = np.where(excess > 0, Fc + excess, 0.0)
         eff.stribeck_velocity = vs

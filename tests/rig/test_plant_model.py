@@ -172,3 +172,9 @@ def test_rig_sim_plant_model_option_refuses_a_bad_file(tmp_path):
     res = CliRunner().invoke(main, ["sim", "--plant-model", str(tmp_path / "none.json"), "--duration", "0.1"])
     assert res.exit_code == 2
     assert f"Invalid value for --plant-model: {tmp_path / 'none.json'}: no such model file" in res.output
+
+
+def test_an_entry_without_its_parameters_is_named(tmp_path):
+    m = _model_file(tmp_path / "m.json", [{"name": "spring", "joint": 2, "params": {"q0": 0.1}}])
+    with pytest.raises(ModelFileError, match=r"effects\[0\] \(spring@2\): cannot be simulated: parameter 'k' missing"):
+        m.plant()

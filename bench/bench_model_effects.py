@@ -58,36 +58,12 @@ def _model_file(effects, seed, directory):
     return case, rec, load_model(path), res
 
 
-def _track(plant, m, feed_effects: bool, seconds: float = 3.0) -> float:
+def _track(plant, m, feed_effects: bool) -> float:
     """RMS tip error (m) over the last 2 s of an impedance-controlled path on ``plant``."""
     from calibration.effects import EffectCompensation
-    from rig import psm_kinematics as K
-    from rig.control import FeedforwardModel, Impedance, StickSlipCompensation
-    from rig.sim import ArmSpec, SimWorld
+    from rig.control import follow_path
 
-    params, eff = plant
-    dyn = m.dynamics()
-    q0 = np.array([0.1, -0.1, 0.12])
-    w = SimWorld([ArmSpec("A", params=params, effects=eff, q0=q0)], seed=1)
-    w.set_state("A", q0)
-    d = dyn.params.drive
-    model = FeedforwardModel(dyn, EffectCompensation(m.effects, m.slope) if feed_effects else None)
-    imp = Impedance(model, StickSlipCompensation(d.Fc.copy(), d.Fv.copy(), d.Fo.copy(), d.slope), None,
-                    np.full(3, 300.0), np.zeros(3), damping_ratio=0.8, design_stiffness=300.0)
-    x0, a, wv = K.tip_in_rcm(q0), np.array([0.02, 0.02, 0.015]), np.pi
-    errors = []
-    n = int(round(seconds / w.dt))
-    for k in range(n):
-        t = k * w.dt
-        s, c, s2, c2 = np.sin(wv * t), np.cos(wv * t), np.sin(2 * wv * t), np.cos(2 * wv * t)
-        xd = x0 + a * np.array([s, 1 - c, s2 / 2])
-        q, dq, _ = w.measured_js("A")
-        w.servo_jf("A", imp(q, dq, xd, a * wv * np.array([c, s, c2]), a * wv ** 2 * np.array([-s, c, -2 * s2]),
-                            np.zeros(3)))
-        w.step()
-        if k >= n - int(round(2.0 / w.dt)):
-            errors.append(K.tip_in_rcm(w.true_state("A")[0]) - xd)
-    return float(np.sqrt((np.array(errors) ** 2).sum(1).mean()))
+    return follow_path(plant, m.dynamics(), EffectCompensation(m.effects, m.slope) if feed_effects else None)
 
 
 def run_case(spec: str, seed: int) -> dict:

@@ -289,3 +289,38 @@ class Impedance:
         a = xdd_d + (spring - h_e) / self.Md
         y = np.linalg.solve(J, a - Jdot_dq)
         return self.model(q, dq, y) + fric + J.T @ h_e
+
+
+def follow_path(plant, dynamics: PSMDynamics, effects=None, seconds: float = 3.0, record: float = 2.0,
+                q0=(0.1, -0.1, 0.12), seed: int = 1) -> float:
+    """RMS tip error (m) over the last ``record`` s of one simulated arm following a Lissajous
+    path (2 x 2 x 1.5 cm at 0.5 Hz, the third axis at twice that) from its tip at ``q0``
+    under `Impedance` (300 N/m, damping ratio 0.8, the arm's own inertia) with the model
+    ``dynamics`` (its eq. 4.16 friction compensated) and ``effects`` fed forward
+    (`FeedforwardModel`). ``plant`` = (PSMParameters, HiddenEffects) of the simulated arm.
+    A bench of what a model is worth to a controller on a given plant."""
+    from rig.sim import ArmSpec, SimWorld
+
+    params, plant_effects = plant
+    q0 = np.asarray(q0, float)
+    w = SimWorld([ArmSpec("A", params=params, effects=plant_effects, q0=q0)], seed=seed)
+    w.set_state("A", q0)
+    d = dynamics.params.drive
+    imp = Impedance(FeedforwardModel(dynamics, effects),
+                    StickSlipCompensation(d.Fc.copy(), d.Fv.copy(), d.Fo.copy(), d.slope), None,
+                    np.full(3, 300.0), np.zeros(3), damping_ratio=0.8, design_stiffness=300.0)
+    x0, a, wv = K.tip_in_rcm(q0), np.array([0.02, 0.02, 0.015]), np.pi
+    n = int(round(seconds / w.dt))
+    first = n - int(round(record / w.dt))
+    errors = []
+    for k in range(n):
+        t = k * w.dt
+        s, c, s2, c2 = np.sin(wv * t), np.cos(wv * t), np.sin(2 * wv * t), np.cos(2 * wv * t)
+        xd = x0 + a * np.array([s, 1 - c, s2 / 2])
+        q, dq, _ = w.measured_js("A")
+        w.servo_jf("A", imp(q, dq, xd, a * wv * np.array([c, s, c2]), a * wv ** 2 * np.array([-s, c, -2 * s2]),
+                            np.zeros(3)))
+        w.step()
+        if k >= first:
+            errors.append(K.tip_in_rcm(w.true_state("A")[0]) - xd)
+    return float(np.sqrt((np.array(errors) ** 2).sum(1).mean()))

@@ -3,14 +3,11 @@ is one "the controllers ... can use"): `calibration.effects.EffectCompensation` 
 `rig.control.FeedforwardModel`, and what it buys an impedance-controlled arm."""
 
 import numpy as np
-import pytest
 
 from calibration.effects import EffectCompensation, effects_torque
-from rig import psm_kinematics as K
-from rig.control import FeedforwardModel, Impedance, StickSlipCompensation
+from rig.control import follow_path
 from rig.model_file import load_model, save_model
 from rig.psm_dynamics import PSMDynamics, PSMParameters
-from rig.sim import ArmSpec, SimWorld
 
 EFFECTS = [
     {"name": "position_friction", "joint": 3,
@@ -54,27 +51,8 @@ def test_impedance_with_the_model_files_effects_follows_a_path_on_that_plant(tmp
     dyn = m.dynamics()
 
     def track(feed_effects):
-        q0 = np.array([0.1, -0.1, 0.12])
-        w = SimWorld([ArmSpec("A", params=params, effects=plant_effects, q0=q0)], seed=1)
-        w.set_state("A", q0)
-        d = dyn.params.drive
-        model = FeedforwardModel(dyn, EffectCompensation(m.effects, m.slope) if feed_effects else None)
-        imp = Impedance(model, StickSlipCompensation(d.Fc.copy(), d.Fv.copy(), d.Fo.copy(), d.slope), None,
-                        np.full(3, 300.0), np.zeros(3), damping_ratio=0.8, design_stiffness=300.0)
-        x0, a, wv = K.tip_in_rcm(q0), np.array([0.02, 0.02, 0.015]), np.pi
-        errors = []
-        for k in range(3000):
-            t = k * w.dt
-            s, c, s2, c2 = np.sin(wv * t), np.cos(wv * t), np.sin(2 * wv * t), np.cos(2 * wv * t)
-            xd = x0 + a * np.array([s, 1 - c, s2 / 2])
-            vd = a * wv * np.array([c, s, c2])
-            ad = a * wv ** 2 * np.array([-s, c, -2 * s2])
-            q, dq, _ = w.measured_js("A")
-            w.servo_jf("A", imp(q, dq, xd, vd, ad, np.zeros(3)))
-            w.step()
-            if k >= 1000:
-                errors.append(K.tip_in_rcm(w.true_state("A")[0]) - xd)
-        return np.sqrt((np.array(errors) ** 2).sum(1).mean())
+        return follow_path((params, plant_effects), dyn,
+                           EffectCompensation(m.effects, m.slope) if feed_effects else None)
 
     fed, blind = track(True), track(False)
     assert blind > 3e-3                # the effects push the tip millimetres off the path ...

@@ -185,11 +185,18 @@ def dahl_state(q: np.ndarray, travel: float) -> np.ndarray:
     z = np.empty_like(q, dtype=float)
     zk = 0.0
     for k, d in enumerate(dx):
-        if d != 0.0:
-            s = 1.0 if d > 0 else -1.0
-            zk = s + (zk - s) * np.exp(-abs(d) / travel)
+        zk = dahl_step(zk, d, travel)
         z[k] = zk
     return z
+
+
+def dahl_step(z: float, d: float, travel: float) -> float:
+    """The unit Dahl state ``z`` after a move ``d`` (rad or m; monotone) of a joint with
+    travel constant ``travel``: z -> sign(d) exponentially with |d| / travel."""
+    if d == 0.0:
+        return z
+    s = 1.0 if d > 0 else -1.0
+    return s + (z - s) * np.exp(-abs(d) / travel)
 
 
 @njit(cache=True)
@@ -688,7 +695,7 @@ class EffectCompensation:
 
     The torques are the catalogue's own (`Effect.torque`, the smooth sign tanh(a dq / 2)
     with the model's slope a). A Dahl state is kept per hysteresis entry and advanced by
-    the position change since the previous call (the same update as `dahl_state`), so keep
+    the position change since the previous call (`dahl_step`, as `dahl_state`), so keep
     one object per arm and call it once per step with that step's state. ``skipped``
     lists the entries not fed forward with the reason (`NOT_COMPENSATED`).
     """
@@ -712,10 +719,7 @@ class EffectCompensation:
         for i, e in enumerate(self.entries):
             j = int(e["joint"]) - 1
             if e["name"] == "hysteresis":
-                d = step[j]
-                if d != 0.0:
-                    s = 1.0 if d > 0 else -1.0
-                    self._dahl[i] = s + (self._dahl[i] - s) * np.exp(-abs(d) / e["params"]["travel"])
+                self._dahl[i] = dahl_step(self._dahl[i], step[j], e["params"]["travel"])
                 out[j] += e["params"]["Fd"] * self._dahl[i]
             else:
                 out += CATALOGUE[e["name"]].torque(e["params"], int(e["joint"]), q[None], dq[None],

@@ -306,8 +306,6 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
 
 def _plant_model(source: str, name: str, arm: dict) -> str:
     """The absolute path of an arm's plant model, checked now (it must load and be simulable)."""
-    from rig.model_file import ModelFileError, load_model
-
     where = f"{source}: arms.{name}.plant_model"
     if arm["driver"] != "sim":
         raise ConfigError(f"{where}: only a simulated arm (driver = 'sim') takes a plant model")
@@ -315,29 +313,34 @@ def _plant_model(source: str, name: str, arm: dict) -> str:
     if not path.is_absolute() and Path(source).is_file():
         path = Path(source).resolve().parent / path
     try:
+        return _checked_plant_model(path)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+
+
+def _checked_plant_model(path: Path) -> str:
+    """The absolute path of a model file that loads and maps onto a simulated plant."""
+    from rig.model_file import ModelFileError, load_model
+
+    path = path.resolve()
+    try:
         load_model(path).plant()
     except ModelFileError as exc:
-        raise ConfigError(f"{where}: {exc}") from None
-    return str(path.resolve())
+        raise ConfigError(str(exc)) from None
+    return str(path)
 
 
 def with_plant_model(cfg: RigConfig, path: str | Path, arms: list[str] | None = None) -> RigConfig:
     """``cfg`` with ``path`` as the plant model of ``arms`` (default: every simulated arm);
     their hidden effects, if any, give way to the model's."""
-    from rig.model_file import ModelFileError, load_model
-
     names = arms or [n for n, a in cfg.arms.items() if a["driver"] == "sim"]
     for n in names:
         if cfg.arms[n]["driver"] != "sim":
             raise ConfigError(f"{n} is not a simulated arm (driver {cfg.arms[n]['driver']!r}): it takes no plant model")
-    path = Path(path).expanduser().resolve()
-    try:
-        load_model(path).plant()
-    except ModelFileError as exc:
-        raise ConfigError(str(exc)) from None
+    checked = _checked_plant_model(Path(path).expanduser())
     new_arms = copy.deepcopy(cfg.arms)
     for n in names:
-        new_arms[n]["plant_model"] = str(path)
+        new_arms[n]["plant_model"] = checked
     effects = {k: v for k, v in cfg.effects.items() if k not in names}
     return dataclasses.replace(cfg, arms=new_arms, effects=effects)
 

@@ -51,8 +51,7 @@ def _model_file(effects, seed, directory):
     rec, _ = generate(case)
     w = Discrepancy(model, base, rec.q, rec.dq, rec.tau, rec.rate, None, Settings())
     res = w.run()
-    pi = w.standard_parameters(res)
-    entries = [{k: e[k] for k in ("name", "joint", "params")} for e in res["effects"]]
+    pi, entries = w.augmented(res)
     path = save_model(Path(directory) / "model.json", standard=pi, names=model.param_names(), slope=w.slope,
                       gravity=model.gravity, extra={"effects": entries})
     return case, rec, load_model(path), res

@@ -1107,16 +1107,8 @@ class Discrepancy:
         levels taken from ``standard`` (a re-identified model's standard parameters)."""
         if coef is None:
             coef, k0 = self.coef, (0 if self.mode == "given_model" else self.Wb.shape[1])
-        for a in self.added:
-            n_cols = a.raw_cols.shape[2]
-            theta = np.zeros(len(a.free))
-            theta[a.free] = coef[k0:k0 + n_cols]
-            k0 += n_cols
-            extra = {k: a.params[k] for k in ("com_determined",) if k in a.params}
-            terms = self._baseline_terms(self.coef, a.joint)
-            if standard is not None:
-                terms["Fc"] = float(standard[70 + 4 * (a.joint - 1)])
-            a.params = CATALOGUE[a.effect].params(theta, a.grid, a.joint, terms) | extra
+        for a, params in zip(self.added, self._effect_params(coef, k0, standard)):
+            a.params = params
 
     def _reidentify(self) -> dict:
         """Identified mode: the loop's fits are already joint. Given model: re-identify the
@@ -1162,56 +1154,111 @@ class Discrepancy:
                 "heldout_rms_before": a.rms_before, "heldout_rms_after": a.rms_after}
 
     # -- the augmented model ------------------------------------------------------------------
-    def standard_parameters(self, result: dict) -> np.ndarray:
-        """82 standard parameters of the augmented model (a payload folded in).
+    def augmented(self, result: dict) -> tuple[np.ndarray, list[dict]]:
+        """The augmented model as a model file holds it: 82 standard parameters (a payload
+        folded in) and the added effects' entries (name, joint, params, units).
 
-        Physically consistent (every body's pseudo-inertia positive semi-definite, masses,
-        Fc, Fv, Ia >= 0), so that a controller's M(q) and a simulated plant built from them
-        are well posed: the fitted base parameters' inverse map when it is consistent, else
-        the consistent vector (an SDP) whose rigid-body torques on the training block are
-        closest to the fitted ones. ``result["standard_consistency"]`` says which, by how
-        much those torques changed on the training block and the held-out RMS of the model
-        as written (per joint, N m, N m, N)."""
+        The standard parameters are physically consistent (every body's pseudo-inertia
+        positive semi-definite, masses, Fc, Fv, Ia >= 0), so that a controller's M(q) and a
+        simulated plant built from them are well posed. When the fit's inverse map is
+        consistent, it and the effects are written as fitted. Otherwise the consistent rigid
+        body and the effects are fitted again together on the training block (`_consistent`),
+        and the effects' parameters are those of that fit, so that each goes with the rigid
+        body it was fitted beside. ``result["standard_consistency"]`` says which, how much the
+        model's training-block torques changed and the held-out RMS of the model as written
+        (per joint, N m, N m, N)."""
         from calibration.effects import payload_standard_delta
         from calibration.estimators import check_physical, model_nominal
 
         reid = result["_reid"]
-        beta = free = None
+        entries = [self._entry(a, a.params) for a in self.added]
         if self.mode == "identified":
-            beta, free = self.coef[:self.Wb.shape[1]], model_nominal(self.model)
+            coef, nominal = self.coef, model_nominal(self.model)
         elif reid["doc"].get("done"):
-            beta, free = reid["coef"][:self.Wb.shape[1]], self.given
-        if beta is None:
+            coef, nominal = reid["coef"], self.given
+        else:
             pi = self.given.copy()
             for a in self.added:
                 if a.effect == "payload":
                     pi = pi + payload_standard_delta(a.params, self.model.body_names)
-            return pi
-        pi = self.base.standard_from_base(beta, free)
-        final = result["final"]["heldout_rms"]
-        doc = {"projected": False, "training_torque_change_rms": [0.0, 0.0, 0.0], "heldout_rms": list(final)}
+            return pi, entries
+        r = self.Wb.shape[1]
+        pi = self.base.standard_from_base(coef[:r], nominal)
+        doc = {"projected": False, "training_torque_change_rms": [0.0, 0.0, 0.0],
+               "heldout_rms": list(result["final"]["heldout_rms"])}
         if not check_physical(pi, self.model)["all_pass"]:
-            pi, beta_c = self._consistent(beta, free)
-            change = (self.Wb @ (beta_c - beta)).reshape(-1, 3)
+            coef_c, pi = self._consistent(nominal)
+            D = self._joint_design()
+            change = (D @ (coef_c - coef)).reshape(-1, 3)
             tr = slice(self.p.train.start, self.p.train.stop)
+            moving = self.moving[tr]
             doc = {"projected": True,
-                   "training_torque_change_rms": [float(v) for v in np.sqrt((change[tr] ** 2).mean(0))],
-                   "heldout_rms": self.heldout_rms(reid["pred"] + change.reshape(-1)).tolist()}
+                   "training_torque_change_rms": [float(np.sqrt(np.mean(change[tr][moving[:, j], j] ** 2)))
+                                                  for j in range(3)],
+                   "heldout_rms": self.heldout_rms(D @ coef_c).tolist(),
+                   "effects_refitted": bool(self.added)}
+            entries = [self._entry(a, prm) for a, prm in zip(self.added, self._effect_params(coef_c, r, pi))]
         result["standard_consistency"] = doc
-        return pi
+        return pi, entries
 
-    def _consistent(self, beta: np.ndarray, nominal) -> tuple[np.ndarray, np.ndarray]:
-        """The physically consistent standard parameters whose rigid-body torques on the
-        training block's samples are closest to those of ``beta`` (`Identification.sdp`
-        on the fitted torques, pulled toward ``nominal`` where the data do not see), and
-        their base parameters."""
+    def _entry(self, a: Added, params: dict) -> dict:
+        entry = {"name": a.effect, "joint": a.joint, "params": params, "units": CATALOGUE[a.effect].units(a.joint)}
+        if a.effect == "payload":
+            entry["applied_to"] = "standard_parameters"
+        return entry
+
+    def _joint_design(self) -> np.ndarray:
+        """(3m, r + k): the base regressor and every added effect's (filtered) columns."""
+        return np.hstack([self.Wb] + [a.raw_cols.reshape(3 * self.m, -1) for a in self.added])
+
+    def _effect_params(self, coef: np.ndarray, k0: int, standard: np.ndarray | None = None) -> list[dict]:
+        """Each added effect's parameters from ``coef`` (its columns from ``k0``); the baseline
+        terms are the current fit's (those its column was built with: a backlash's Fv and
+        inertia), with the Coulomb levels of ``standard`` when given."""
+        out = []
+        for a in self.added:
+            n_cols = a.raw_cols.shape[2]
+            theta = np.zeros(len(a.free))
+            theta[a.free] = coef[k0:k0 + n_cols]
+            k0 += n_cols
+            extra = {k: a.params[k] for k in ("com_determined",) if k in a.params}
+            terms = self._baseline_terms(self.coef, a.joint)
+            if standard is not None:
+                terms["Fc"] = float(standard[70 + 4 * (a.joint - 1)])
+            out.append(CATALOGUE[a.effect].params(theta, a.grid, a.joint, terms) | extra)
+        return out
+
+    def _consistent(self, nominal) -> tuple[np.ndarray, np.ndarray]:
+        """The best physically consistent model on the training block, with the effects:
+        minimise the (weighted, moving-sample) training residual of base parameters and
+        effect coefficients together, the base parameters those of consistent standard ones.
+        The effects' coefficients enter linearly and unconstrained, so they are projected out
+        (Frisch-Waugh): `Identification.sdp` fits the consistent rigid body to what the effect
+        columns cannot explain, pulled toward ``nominal`` where the data do not see, and the
+        effects are then the least-squares fit given that rigid body. Returns the coefficients
+        (base, then effects) and the standard parameters."""
         from calibration.estimators import Identification
 
-        tr = self.p.train
-        Wb = self.Wb[3 * tr.start:3 * tr.stop]
-        fit = Identification(Wb, (Wb @ beta).reshape(-1, 3), self.base, self.model, nominal=nominal,
+        tr = self.rows_tr
+        r = self.Wb.shape[1]
+        rw = self.rw[tr]
+        D = self._joint_design()[tr] * rw[:, None]
+        A, E, t = D[:, :r], D[:, r:], self.y[tr] * rw
+        if E.shape[1]:
+            norms = np.linalg.norm(E, axis=0)
+            norms[norms == 0] = 1.0
+            U, s, _ = np.linalg.svd(E / norms, full_matrices=False)
+            U = U[:, s > s[0] * 1e-10]
+            A_p, t_p = A - U @ (U.T @ A), t - U @ (U.T @ t)
+        else:
+            A_p, t_p = A, t
+        fit = Identification(A_p, t_p[:, None], self.base, self.model, nominal=nominal,
                              max_condition=np.inf).sdp(weighting="none", tol=1e-8)
-        return np.asarray(fit.pi, float), np.asarray(fit.beta, float)
+        beta = np.asarray(fit.beta, float)
+        theta = np.zeros(E.shape[1])
+        if E.shape[1]:
+            theta, *_ = np.linalg.lstsq(E, t - A @ beta, rcond=None)
+        return np.concatenate([beta, theta]), np.asarray(fit.pi, float)
 
     def residual_pairs(self, result: dict) -> list[dict]:
         """For the plots: per added effect, the held-out residual before/after against the

@@ -189,7 +189,8 @@ def report_text(result: dict) -> str:
     sc = result.get("standard_consistency")
     if sc and sc["projected"]:
         lines.append("model file: the fitted rigid-body parameters are not physically consistent; written as the "
-                     "consistent ones closest in torque (training-block change " + ", ".join(
+                     "best consistent ones fitted again with the effects on the training block (the effects' "
+                     "parameters are that fit's; model torque change " + ", ".join(
                          f"{v:.3g}" for v in sc["training_torque_change_rms"]) + "), held-out RMS as written "
                      + ", ".join(f"{v:.4g}" for v in sc["heldout_rms"]))
     lines.append(f"model: {result['model']}")
@@ -232,12 +233,7 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
         with rn.step(STEPS[2]):
             result, w = run_workflow(model, base, q, dq, tau, parameters["rate"], given, settings)
         with rn.step(STEPS[3]):
-            pi = w.standard_parameters(result)
-            effects = [{"name": e["name"], "joint": e["joint"], "params": e["params"], "units": e["units"]}
-                       for e in result["effects"]]
-            for e in effects:
-                if e["name"] == "payload":
-                    e["applied_to"] = "standard_parameters"
+            pi, effects = w.augmented(result)
             model_path = save_model(
                 rn.dir / "model.json", standard=pi, names=model.param_names(), slope=w.slope,
                 gravity=model.gravity, gravity_source="given model" if given is not None else "estimated",

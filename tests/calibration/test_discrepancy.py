@@ -465,9 +465,8 @@ def test_augmented_model_file_as_the_simulated_plant_reproduces_the_recording(wo
     model, _ = sim
     case = HiddenCase((("spring", 1), ("hysteresis", 3)), 0)
     rec, _ = generate(case)
-    pi = w.standard_parameters(res)
+    pi, effects = w.augmented(res)
     assert res["standard_consistency"]["training_torque_change_rms"][0] < 1e-4
-    effects = [{k: e[k] for k in ("name", "joint", "params")} for e in res["effects"]]
     m = load_model(save_model(tmp_path / "model.json", standard=pi, names=model.param_names(), slope=w.slope,
                               gravity=model.gravity, extra={"effects": effects}))
     params, eff = m.plant()
@@ -478,6 +477,41 @@ def test_augmented_model_file_as_the_simulated_plant_reproduces_the_recording(wo
     assert rms["without effects"][0] > 0.1 and rms["without effects"][2] > 0.3, rms
     assert np.all(rms["augmented"][[0, 2]] < 0.02 * rms["without effects"][[0, 2]]), rms
     assert np.all(rms["augmented"] < 0.005), rms
+
+
+def test_inconsistent_fit_is_refitted_consistent_together_with_its_effects(workflow):
+    # The least-squares rigid body of a hidden-effect case is not physically consistent. The
+    # model as written is the best consistent one with the effects refitted beside it: on the
+    # training block its weighted residual is below that of the consistent rigid body fitted
+    # with the effects held at their unconstrained values, and the written effects are the
+    # refit's (still near the truth).
+    from calibration.estimators import Identification, check_physical, model_nominal
+
+    res, w, truth = workflow([("spring", 1), ("hysteresis", 3)], 0)
+    pi, entries = w.augmented(res)
+    sc = res["standard_consistency"]
+    assert sc["projected"] and sc["effects_refitted"]
+    assert check_physical(pi, w.model)["all_pass"]
+    r = w.Wb.shape[1]
+    tr, rw = w.rows_tr, w.rw[w.rows_tr]
+    D = w._joint_design()
+
+    def sse(coef):
+        return float(np.sum(((w.y[tr] - D[tr] @ coef) * rw) ** 2))
+
+    coef_c, pi_c = w._consistent(model_nominal(w.model))
+    assert np.allclose(pi_c, pi)
+    effects_fixed = w.coef[r:]
+    target = (w.y[tr] - D[tr, r:] @ effects_fixed) * rw
+    alt = Identification(w.Wb[tr] * rw[:, None], target[:, None], w.base, w.model, nominal=model_nominal(w.model),
+                         max_condition=np.inf).sdp(weighting="none", tol=1e-8)
+    assert sse(coef_c) < sse(np.concatenate([alt.beta, effects_fixed]))
+    assert sse(w.coef) <= sse(coef_c) <= 1.01 * sse(w.coef)
+    assert np.allclose(sc["heldout_rms"], w.heldout_rms(D @ coef_c))
+    assert sorted((e["name"], e["joint"]) for e in entries) == [("hysteresis", 3), ("spring", 1)]
+    k = next(e["params"]["k"] for e in entries if e["name"] == "spring")
+    assert k == pytest.approx(next(p["size"] for p in truth.params if p["effect"] == "spring"), rel=0.05)
+    assert k != next(e["params"]["k"] for e in res["effects"] if e["name"] == "spring")
 
 
 def test_thresholds_file_records_the_catalogue_it_was_calibrated_with(tmp_path):

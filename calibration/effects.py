@@ -44,7 +44,9 @@ from numba import njit
 #: 1.1: backlash returns the momentum at the contact and has a motor-side inertia (params changed).
 #: 1.2: position_friction's level is a Fourier series of 1-4 harmonics of its period (params
 #: a_sin, a_cos, harmonics added; 1.1 entries, one ripple as amplitude and phase, still evaluate).
-CATALOGUE_VERSION = "1.2"
+#: 1.3: coulomb_asymmetry's levels follow its torque dFc (1 + sigma(dq)) / 2: Fc_pos = Fc + dFc
+#: moving up, Fc_neg = Fc moving down (1.2 wrote Fc -/+ dFc/2; dFc, what is evaluated, unchanged).
+CATALOGUE_VERSION = "1.3"
 
 #: Bodies a payload is attributed to for joint 1, 2, 3 (rig.psm_dynamics.BODY_NAMES).
 PAYLOAD_BODIES = ("yaw_link", "pitch_end", "tool")
@@ -347,9 +349,9 @@ def _coulomb_asymmetry() -> Effect:
 
     def params(th, g, j, base):
         fc = base.get("Fc", 0.0)
-        # Positive-direction level raised by d, the negative one unchanged relative to the
-        # (offset-corrected) baseline.
-        return {"dFc": float(th[0]), "Fc_pos": float(fc + 0.5 * th[0]), "Fc_neg": float(fc - 0.5 * th[0])}
+        # The torque d (1 + sigma) / 2: the level moving up is raised by d, the one moving
+        # down is the baseline's.
+        return {"dFc": float(th[0]), "Fc_pos": float(fc + th[0]), "Fc_neg": float(fc)}
 
     def sanity(p, j):
         if min(p["Fc_pos"], p["Fc_neg"]) < 0:

@@ -56,6 +56,21 @@ def test_sanity_checks_refuse_unphysical_parameters():
     assert CATALOGUE["hysteresis"].sanity({"Fd": -0.1, "travel": 1e-3, "sigma0": -100}, 2) is not None
 
 
+def test_coulomb_asymmetry_levels_are_those_of_its_torque():
+    # The friction magnitude moving up is Fc + the effect's torque there, moving down Fc less
+    # its torque there (the effort is -Fc + torque).
+    eff = CATALOGUE["coulomb_asymmetry"]
+    fc = 0.3
+    for d in (0.2, -0.1):
+        p = eff.params(np.array([d]), None, 3, {"Fc": fc})
+        dq = np.zeros((2, 3))
+        dq[:, 2] = [1.0, -1.0]
+        up, down = eff.torque(p, 3, np.zeros((2, 3)), dq)[:, 2]
+        assert p["Fc_pos"] == pytest.approx(fc + up) and p["Fc_neg"] == pytest.approx(fc - down)
+    assert eff.sanity(eff.params(np.array([0.8]), None, 3, {"Fc": fc}), 3) is None
+    assert eff.sanity(eff.params(np.array([-0.4]), None, 3, {"Fc": fc}), 3) is not None
+
+
 def test_position_friction_profile_matches_its_columns_and_reads_older_entries():
     eff = CATALOGUE["position_friction"]
     t = np.linspace(0.0, 20.0, 400)

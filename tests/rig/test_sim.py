@@ -86,6 +86,33 @@ def test_stiction_holds_below_breakaway_and_slips_above():
     assert w.true_state("A")[0][2] - q0[2] > 1e-3
 
 
+@pytest.mark.parametrize("dt", [1e-3, 1e-4])
+def test_coast_down_friction_follows_the_stribeck_law_at_any_step(dt):
+    # Joint 3 pushed, then left to its friction (gravity and offset held): each step's
+    # deceleration times the mass is Fc + Fv v + (Fs - Fc) exp(-(v/vs)^2) at the velocity
+    # the step ends with, at the dVRK's 1 kHz as at 10 kHz.
+    dyn = PSMDynamics()
+    q0 = np.array([0.0, 0.0, 0.10])
+    excess, vs = 0.8, 0.006
+    effects = HiddenEffects(stiction=np.array([0, 0, dyn.Fc[2] + excess]), stribeck_velocity=np.array([0.01, 0.01, vs]))
+    w = SimWorld([ArmSpec("A", noise=SensorNoise.off(), effects=effects, q0=q0)], dt=dt)
+    hold = dyn.gravity_torque(q0) + dyn.Fo
+    w.servo_jf("A", hold + np.array([0, 0, 3.0]))
+    w.advance(0.03)
+    w.servo_jf("A", hold)
+    v = []
+    for _ in range(int(0.2 / dt)):
+        w.step()
+        v.append(w.true_state("A")[1][2])
+    v = np.array(v)
+    a = np.diff(v) / dt
+    v = v[1:]
+    sel = (v > 0.002) & (v < 0.012)
+    assert sel.sum() >= 10
+    measured = -dyn.mass_matrix(q0)[2, 2] * a[sel] - dyn.Fc[2] - dyn.Fv[2] * v[sel]
+    assert np.abs(measured - excess * np.exp(-(v[sel] / vs) ** 2)).max() < 0.01
+
+
 def test_spring_object_tension_is_stiffness_times_stretch():
     w = _world()
     p1, p2 = w.tip_world("PSM1"), w.tip_world("PSM2")

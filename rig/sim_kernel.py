@@ -196,25 +196,25 @@ def step(h, Mt, nle, G, state, c, modes, edges, rest, obj, bases, r_offset, tens
         level = fc
         excess = Fs[j] - Fc[j]
         if excess > 0.0:
-            # The Stribeck level at the velocity x the joint slides with after this step's
-            # friction impulse: x = |v| - h Minv_jj level(x) (0 if that sticks it). Taken at the
+            # The Stribeck level at the speed the joint slides with after this step's friction
+            # impulse: slip = |v| - h Minv_jj level(slip) (0 if that sticks it). Taken at the
             # predicted |v| instead, the step's own friction (h level / M, a fraction of vs on
             # the insertion axis at 1 kHz) shifted the curve, and the plant's stiction was not
             # the law its parameters state.
             side = fc + (0.5 if v[j] > 0.0 else -0.5) * asym[j]
-            c = h * Minv[j, j]
+            gain = h * Minv[j, j]
             speed = abs(v[j])
-            x = 0.0
-            if speed > c * (side + excess):
+            slip = 0.0
+            if speed > gain * (side + excess):
                 lo, hi = 0.0, speed
                 for _ in range(40):
-                    x = 0.5 * (lo + hi)
-                    s = x / vs[j]
-                    if x - speed + c * (side + excess * np.exp(-s * s)) > 0.0:
-                        hi = x
+                    slip = 0.5 * (lo + hi)
+                    s = slip / vs[j]
+                    if slip - speed + gain * (side + excess * np.exp(-s * s)) > 0.0:
+                        hi = slip
                     else:
-                        lo = x
-            s = x / vs[j]
+                        lo = slip
+            s = slip / vs[j]
             level = fc + excess * np.exp(-s * s)
         up[j] = max(h * (level + 0.5 * asym[j]), 0.0)
         down[j] = max(h * (level - 0.5 * asym[j]), 0.0)

@@ -44,6 +44,12 @@ velocity exceeds the Coulomb level (thesis 5.6; stiction in the simulator): the 
 Fst exp(-(dq3/vs)^2) tanh(a dq3/2) as a column outside the standard parameters, Fst >= 0
 in the SDP, vs the value of STRIBECK_VELOCITIES with the smallest joint-3 least-squares
 residual on the training data. The model file carries it (``friction.stribeck``).
+Fst is the excess of this model's law, in which the Coulomb level and the excess both
+carry the smooth sign: where tanh(a dq3/2) is still short of 1 at the Stribeck speeds
+(the thesis' a = 400 at a few mm/s) Fst also takes up that shortfall, and on the
+simulated rig it then reads above the plant's excess; with a nearly exact sign
+(--friction-slope 3000) it reads below. It is the excess of this smooth law, not the
+breakaway excess Fs - Fc of dry friction, which `rig friction-ramp` measures.
 
 Friction slope. ``--friction-slope auto`` (default) chooses the slope a of the smooth
 Coulomb sign tanh(a dq / 2) on a grid by the training fit; a number fixes it (400 s/rad

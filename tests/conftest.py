@@ -20,11 +20,9 @@ def _sigint_delivered():
     tests would then test a program that rightly ignores Ctrl-C. Give the test process
     Python's own handler for the session; children exec'd from it start with SIGINT at
     its default, which Python turns into KeyboardInterrupt as at a terminal."""
-    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
-        yield
-        return
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        yield
-    finally:
+    ignored = signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    if ignored:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    if ignored:
         signal.signal(signal.SIGINT, signal.SIG_IGN)

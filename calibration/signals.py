@@ -72,7 +72,11 @@ def differentiate(x: np.ndarray, rate: float, method: str = "central", axis: int
     """Time derivative of ``x`` (per second) along ``axis``.
 
     ``method="central"``: second-order central differences (one-sided at the ends), right for
-    an already low-passed signal. ``method="savgol"``: Savitzky-Golay derivative with the
+    an already low-passed signal. ``method="central4"``: fourth-order central differences
+    (x[k-2] - 8 x[k-1] + 8 x[k+1] - x[k+2]) / 12 dt, second-order ones on the two samples at
+    each end; for a raw signal about to be low-passed, whose derivative must keep its gain up
+    to the filter's band: at 10 Hz and 200 Hz central differences read 1.6 % low and 6.5 % low
+    at 20 Hz, these 0.03 % and 0.5 %. ``method="savgol"``: Savitzky-Golay derivative with the
     given odd ``window`` (samples) and ``polyorder``, which also smooths.
     """
     x = np.asarray(x, dtype=float)
@@ -81,6 +85,12 @@ def differentiate(x: np.ndarray, rate: float, method: str = "central", axis: int
         raise SignalError(f"cannot differentiate a signal of {x.shape[axis]} samples (need 3)")
     if method == "central":
         return np.gradient(x, dt, axis=axis, edge_order=2)
+    if method == "central4":
+        d = np.gradient(x, dt, axis=axis, edge_order=2)
+        if x.shape[axis] >= 5:
+            y, e = np.moveaxis(x, axis, 0), np.moveaxis(d, axis, 0)
+            e[2:-2] = (y[:-4] - 8.0 * y[1:-3] + 8.0 * y[3:-1] - y[4:]) / (12.0 * dt)
+        return d
     if method == "savgol":
         if window % 2 == 0 or window <= polyorder:
             raise SignalError(f"Savitzky-Golay window must be odd and > polyorder={polyorder}, got {window}")
@@ -88,7 +98,7 @@ def differentiate(x: np.ndarray, rate: float, method: str = "central", axis: int
             raise SignalError(f"signal of {x.shape[axis]} samples is shorter than the "
                               f"Savitzky-Golay window of {window}")
         return scipy.signal.savgol_filter(x, window, polyorder, deriv=1, delta=dt, axis=axis)
-    raise SignalError(f"unknown differentiation method {method!r} (use 'central' or 'savgol')")
+    raise SignalError(f"unknown differentiation method {method!r} (use 'central', 'central4' or 'savgol')")
 
 
 def settling_samples(rate: float, cutoff: float = DEFAULT_CUTOFF_HZ, order: int = DEFAULT_ORDER,

@@ -41,11 +41,31 @@ def test_passband_and_stopband():
     assert np.abs(y - x)[k:-k].max() < 2e-3
 
 
-@pytest.mark.parametrize("method", ["central", "savgol"])
+@pytest.mark.parametrize("method", ["central", "central4", "savgol"])
 def test_derivative_of_sine(method):
     _, x, dx, _ = sine(0.65)
     d = differentiate(x, RATE, method)
     assert np.abs(d - dx)[10:-10].max() < 1e-3 * np.abs(dx).max()
+
+
+@pytest.mark.parametrize("f, central, central4", [(10.0, 0.0164, 0.0003), (20.0, 0.0645, 0.0050)])
+def test_derivative_gain_in_the_band(f, central, central4):
+    # The relative shortfall of each stencil's gain on a sine at f Hz, sampled at 200 Hz:
+    # 1 - sin(x) / x and 1 - (8 sin(x) - sin(2 x)) / 6 x, x = 2 pi f / 200.
+    t = np.arange(2000) / 200.0
+    x = np.sin(2 * np.pi * f * t)
+    for method, shortfall in (("central", central), ("central4", central4)):
+        d = differentiate(x, 200.0, method)[10:-10]
+        gain = np.sqrt(2.0 * np.mean(d ** 2)) / (2 * np.pi * f)
+        assert abs((1.0 - gain) - shortfall) < 2e-4, (method, gain)
+
+
+def test_central4_on_2d_along_an_axis():
+    _, x, dx, _ = sine(0.65)
+    X = np.stack([x, 2 * x])                    # (2, n): time on axis 1
+    d = differentiate(X, RATE, "central4", axis=1)
+    np.testing.assert_allclose(d[1], 2 * d[0])
+    assert np.abs(d[0] - dx)[10:-10].max() < 1e-3 * np.abs(dx).max()
 
 
 def test_process_gives_accelerations_and_trims():

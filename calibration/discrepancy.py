@@ -15,16 +15,16 @@ discrepancy", and BIC selection):
    computed from the previous servo cycle's state. The regressor comes from the filtered
    state, except its inertial term, whose source is chosen per joint by the training residual
    (again after each added effect): the filtered acceleration (quiet, but filtered twice by
-   the time it meets the effort) or central differences of the measured velocity, filtered
-   once like the effort (as sharp as the effort at a breakaway; the simulated rig's and the
-   WPI PSM's insertion joint, which stick-slips, choose it). The effort, the regressor, the
-   smooth-sign Coulomb column and every effect column are zeroed on the joint's stuck
-   samples and then filtered with the same filter (masked parallel filtering: the
-   equation holds on moving samples, is 0 = 0 on stuck ones, and a linear filter keeps it
-   exact; filtering first and dropping the stuck samples afterwards would leave their
-   effort smeared over ~20 moving samples on each side, a Stribeck- or delay-like pattern
-   on every null run). Train and held-out are contiguous blocks (the held-out one at the
-   end) with a guard of one settling length between them.
+   the time it meets the effort) or fourth-order central differences of the measured
+   velocity, filtered once like the effort (as sharp as the effort at a breakaway; the
+   simulated rig's and the WPI PSM's insertion joint, which stick-slips, choose it). The
+   effort, the regressor, the smooth-sign Coulomb column and every effect column are zeroed
+   on the joint's stuck samples and then filtered with the same filter (masked parallel
+   filtering: the equation holds on moving samples, is 0 = 0 on stuck ones, and a linear
+   filter keeps it exact; filtering first and dropping the stuck samples afterwards would
+   leave their effort smeared over ~20 moving samples on each side, a Stribeck- or
+   delay-like pattern on every null run). Train and held-out are contiguous blocks (the
+   held-out one at the end) with a guard of one settling length between them.
 2. **Baseline.** Without a given model: the thesis model (rigid body + Fc sigma(dq) + Fv dq +
    Fo + Ia ddq) in base parameters, weighted least squares on the training block (weights
    1 / residual std per joint). With a given model: its standard parameters as they are.

@@ -102,6 +102,9 @@ class Truth:
 
     case: HiddenCase
     params: list[dict] = field(default_factory=list)
+    #: The joint side's velocity (n, 3) at the recorded samples (rad/s, m/s): with a play it
+    #: differs from the encoder's (the motor side's) while the play is open.
+    joint_velocity: np.ndarray | None = None
 
 
 def trajectory(seed: int, duration: float, fill: float = 0.55):
@@ -274,6 +277,7 @@ def generate(case: HiddenCase, n_samples: int = N_SAMPLES, rate: float = RATE,
     out_q = np.empty((n_samples, 3))
     out_dq = np.empty((n_samples, 3))
     out_tau = np.empty((n_samples, 3))
+    out_joint = np.empty((n_samples, 3))
     cols = np.arange(3)
     k_out = 0
     for k in range(total):
@@ -295,8 +299,9 @@ def generate(case: HiddenCase, n_samples: int = N_SAMPLES, rate: float = RATE,
             # measured = applied + noise: swap the applied effort for the delayed one.
             tau = tau - ring[slot] + ring[(slot - delay_steps) % len(ring), cols]
             out_q[k_out], out_dq[k_out], out_tau[k_out] = q, dq, tau
+            out_joint[k_out] = world.true_state(ARM)[1]
             k_out += 1
-    return Recorded(out_q, out_dq, out_tau, rate), Truth(case, case_params)
+    return Recorded(out_q, out_dq, out_tau, rate), Truth(case, case_params, out_joint)
 
 
 def catalogue_cases(seeds, joints=(1, 2, 3), effects=CATALOGUE_CASES) -> list[HiddenCase]:

@@ -139,6 +139,19 @@ def test_catalogue_detection_needs_both_null_tests():
     assert det[1]["catalogue"]["effect"] == "backlash"
 
 
+def test_truth_carries_the_joint_side_velocity_the_encoder_misses_while_a_play_is_open():
+    noise = np.array([2e-3, 2e-3, 3e-4])   # SensorNoise's velocity noise (rad/s, rad/s, m/s)
+    null, truth = generate(HiddenCase((), 0), n_samples=1200)
+    gap = truth.joint_velocity - null.dq
+    assert np.allclose(gap.std(0), noise, rtol=0.15)          # without a play: the noise only
+    rec, truth = generate(HiddenCase((("backlash", 1),), 0), n_samples=1200)
+    gap = truth.joint_velocity[:, 0] - rec.dq[:, 0]
+    open_play = np.abs(gap) > 6 * noise[0]
+    assert np.abs(gap).max() > 0.05                                # the joint side coasts behind
+    assert 0.005 < open_play.mean() < 0.2                          # only around a reversal
+    assert (np.abs(truth.joint_velocity[:, 1:] - rec.dq[:, 1:]) < 6 * noise[1:]).all()   # no play there
+
+
 def test_pitch_play_opens_only_on_a_balanced_pitch():
     # The simulated pitch axis carries 0.9-2.5 N m of gravity; a joint-2 backlash case balances
     # it (as the real PSM's is) so that the transmitted torque reverses; its twin does too.

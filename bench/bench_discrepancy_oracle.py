@@ -76,7 +76,6 @@ def _identified(model, base, rec, twin, joint: int, column) -> tuple[float, floa
     from calibration.discrepancy import Added, Discrepancy, Settings
 
     j = joint - 1
-    model.slope = 400.0
     floor = float(Discrepancy(model, base, twin.q, twin.dq, twin.tau, twin.rate, None, Settings()).heldout_rms()[j])
     w = Discrepancy(model, base, rec.q, rec.dq, rec.tau, rec.rate, None, Settings())
     baseline = float(w.heldout_rms()[j])
@@ -148,6 +147,12 @@ def main() -> int:
     ap.add_argument("--cases", default="backlash:1,backlash:2,backlash:3,stiction:3",
                     help="comma-separated effect:joint (default: the cases bench_discrepancy misses)")
     args = ap.parse_args()
+    if args.seeds < 1:
+        ap.error(f"--seeds {args.seeds}: at least 1")
+    for spec in args.cases.split(","):
+        effect, _, joint = spec.partition(":")
+        if effect not in ("backlash", "stiction") or joint not in ("1", "2", "3"):
+            ap.error(f"--cases: {spec!r} is not effect:joint with effect backlash or stiction and joint 1-3")
     t0 = time.perf_counter()
     results = []
     print("case: true model: slope (s/rad or s/m), inertia chain | floor, baseline | oracle: scale -> "

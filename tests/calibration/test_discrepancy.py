@@ -14,6 +14,7 @@ from calibration.effects import (CATALOGUE, IDS, EffectContext, dahl_state, effe
                                  gap_crossings, gap_torque)
 from calibration.hidden_effects import (CATALOGUE_CASES, REFERENCE_EXCITATION_PATH, HiddenCase, generate,
                                         reference_excitation)
+from rig.sim import SensorNoise
 
 
 @pytest.fixture(scope="session")
@@ -140,7 +141,7 @@ def test_catalogue_detection_needs_both_null_tests():
 
 
 def test_truth_carries_the_joint_side_velocity_the_encoder_misses_while_a_play_is_open():
-    noise = np.array([2e-3, 2e-3, 3e-4])   # SensorNoise's velocity noise (rad/s, rad/s, m/s)
+    noise = SensorNoise().velocity_noise   # what the recorded velocity adds (rad/s, rad/s, m/s)
     null, truth = generate(HiddenCase((), 0), n_samples=1200)
     gap = truth.joint_velocity - null.dq
     assert np.allclose(gap.std(0), noise, rtol=0.15)          # without a play: the noise only

@@ -24,10 +24,10 @@ noise floor. For the cases that miss it, this bench asks the question with the t
   fitted scale (1 if the law were exact) on the training block.
 
 The figure per case is the better oracle's held-out RMS over its floor. Where it stays above 1.2,
-bench_discrepancy's target is out of reach for that case whatever the workflow does: the
-200 Hz record does not carry what is missing (for instance the contact of a play, ringing
-at ~100 Hz, and the joint side's stuck spells while it is open; or the friction's variation
-inside a sample during a stick-slip burst). The table's target row is that the oracle reaches
+the effect's law cannot meet bench_discrepancy's target on that case even with the truth in
+hand. What is left is, we think, what a 200 Hz record does not carry: a play's contact ringing
+at ~100 Hz and the joint side's stuck spells while it is open, or the friction's change
+inside one sample during a stick-slip burst. The table's target row is that the oracle reaches
 1.2 x floor; a FAIL there is the finding, not a defect of the workflow.
 """
 

@@ -1,6 +1,6 @@
 """How close to the noise floor can the held-out residual of a hidden case get at all?
 
-    python bench/bench_discrepancy_oracle.py [--seeds 3] [--cases backlash,stiction:3]
+    python bench/bench_discrepancy_oracle.py [--seeds 3] [--cases backlash:1,stiction:3]
 
 bench_discrepancy's held-out target asks the augmented model to come within 1.2 x the case's
 noise floor. For the cases that miss it, this bench asks the question with the truth in hand
@@ -164,7 +164,8 @@ def main() -> int:
     for spec in args.cases.split(","):
         effect, _, joint = spec.partition(":")
         if effect not in ORACLE_EFFECTS or joint not in ("1", "2", "3"):
-            ap.error(f"--cases: {spec!r} is not effect:joint with effect backlash or stiction and joint 1-3")
+            ap.error(f"--cases: {spec!r} is not effect:joint with effect one of {', '.join(ORACLE_EFFECTS)} "
+                     "and joint 1-3")
     t0 = time.perf_counter()
     results = []
     print("case: true model: slope (s/rad or s/m), inertia chain | floor, baseline | oracle: scale -> "

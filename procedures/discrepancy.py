@@ -92,6 +92,21 @@ def _save(fig, path_dir: Path, name: str, out: dict) -> None:
     out[name] = str(path_dir / name)
 
 
+#: Units of the workflow's explaining variables (`calibration.discrepancy._variable`), rotary
+#: joints 1-2 and the insertion joint 3.
+_VARIABLE_UNITS = {"q": ("rad", "m"), "dq": ("rad/s", "m/s"), "ddq": ("rad/s^2", "m/s^2"),
+                   "u": ("N m", "N"), "travel since reversal ": ("rad", "m")}
+
+
+def variable_label(name: str) -> str:
+    """Axis label of an explaining variable ("q2", "u3", "travel since reversal 1") with its
+    unit: "q2 [rad]", "u3 (model effort) [N]"."""
+    kind, joint = name[:-1], int(name[-1])
+    unit = _VARIABLE_UNITS[kind][joint == 3]
+    what = " (model effort)" if kind == "u" else ""
+    return f"{name}{what} [{unit}]"
+
+
 def plot_residuals(pairs: list[dict], structured: list[dict], w, path_dir: Path) -> dict:
     import matplotlib
 
@@ -117,7 +132,7 @@ def plot_residuals(pairs: list[dict], structured: list[dict], w, path_dir: Path)
             ax2.grid(alpha=0.3)
         ax.plot(pr["x"], pr["before"], ".", ms=2, alpha=0.5, label="before (baseline)")
         ax.plot(pr["x"], pr["after"], ".", ms=2, alpha=0.5, label=f"after (+ {pr['effect']})")
-        ax.set_xlabel(pr["variable"])
+        ax.set_xlabel(variable_label(pr["variable"]))
         ax.set_ylabel(f"held-out residual joint {pr['joint']} [{unit}]")
         ax.set_title(f"{pr['effect']} on joint {pr['joint']}: residual against {pr['variable']}")
         ax.legend(markerscale=4)
@@ -134,8 +149,8 @@ def plot_residuals(pairs: list[dict], structured: list[dict], w, path_dir: Path)
         ho = w.mov_ho[j - 1]
         fig, ax = plt.subplots(figsize=(7, 4.2))
         ax.plot(x[ho], r[ho], ".", ms=2, alpha=0.5)
-        ax.set_xlabel(att["variable"])
-        ax.set_ylabel(f"held-out residual joint {j}")
+        ax.set_xlabel(variable_label(att["variable"]))
+        ax.set_ylabel(f"held-out residual joint {j} [{'N' if j == 3 else 'N m'}]")
         ax.set_title(f"joint {j}: structured residual no catalogue effect explains")
         ax.grid(alpha=0.3)
         _save(fig, path_dir, f"residual_unexplained_joint{j}.png", out)

@@ -9,7 +9,11 @@ from click.testing import CliRunner
 from rig.cli import main
 from rig.model_file import load_model
 
-REAL = Path("/work/shared/data/wpi-psm/one_results.csv")
+# The shared data sit beside the repository (../shared); a clone elsewhere on the lab machine
+# finds them at /work/shared.
+REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "wpi-psm" / "one_results.csv"
+if not REAL.exists():
+    REAL = Path("/work/shared/data/wpi-psm/one_results.csv")
 
 
 @pytest.mark.skipif(not REAL.exists(), reason="the WPI data are not available")
@@ -58,3 +62,17 @@ def test_cli_truncated_csv_is_a_clear_error(tmp_path):
     res = CliRunner().invoke(main, ["discrepancy", "--csv", str(bad)])
     assert res.exit_code == 1
     assert "line 2" in res.output
+
+
+def test_plot_labels_carry_the_unit_of_each_joint_kind():
+    from procedures.discrepancy import variable_label
+
+    assert variable_label("q2") == "q2 [rad]"
+    assert variable_label("q3") == "q3 [m]"
+    assert variable_label("dq1") == "dq1 [rad/s]"
+    assert variable_label("ddq3") == "ddq3 [m/s^2]"
+    assert variable_label("u1") == "u1 (model effort) [N m]"
+    assert variable_label("u3") == "u3 (model effort) [N]"
+    assert variable_label("travel since reversal 3") == "travel since reversal 3 [m]"
+    with pytest.raises(KeyError):
+        variable_label("tau2")

@@ -262,8 +262,10 @@ def gap_crossings(transmitted, link_inertia, rate: float, width: float, dq=None,
 
 #: Time constant (s) over which the measured effort returns a contact's momentum after a
 #: crossing: the position loop catching the joint side up with the path. The workflow does
-#: not know the loop; at its 10 Hz analysis bandwidth the shape of a 10-40 ms return barely
-#: matters, its area (the momentum) does.
+#: not know the loop. Its shape is not negligible even at the 10 Hz analysis bandwidth: on
+#: the nine backlash cases of bench_discrepancy (3 seeds, workflow as of 2026-11) 5 ms left
+#: 7 of them and 40 ms 8 of them further from the noise floor than 20 ms (e.g. 3.8 x floor
+#: at 20 ms, 4.1 at 5 ms, 8.0 at 40 ms on the pitch axis, seed 2).
 GAP_RETURN = 0.02
 
 

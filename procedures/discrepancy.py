@@ -115,13 +115,13 @@ def plot_residuals(pairs: list[dict], structured: list[dict], w, path_dir: Path)
 
     out = {}
     for k, pr in enumerate(pairs, 1):
-        unit = "N" if pr["joint"] == 3 else "N m"
+        unit = _VARIABLE_UNITS["u"][pr["joint"] == 3]
         prof = pr.get("profile")
         if prof is None:
             fig, ax = plt.subplots(figsize=(7, 4.2))
         else:
             fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 4.2))
-            qu = "m" if pr["joint"] == 3 else "rad"
+            qu = _VARIABLE_UNITS["q"][pr["joint"] == 3]
             ax2.plot(prof["q"], prof["direction"] * pr["before"], ".", ms=2, alpha=0.5, label="before (baseline)")
             ax2.plot(prof["q"], prof["direction"] * pr["after"], ".", ms=2, alpha=0.5, label="after")
             ax2.plot(prof["grid"], prof["f"], "k-", lw=1.5, label="fitted f(q) - mean")
@@ -150,7 +150,7 @@ def plot_residuals(pairs: list[dict], structured: list[dict], w, path_dir: Path)
         fig, ax = plt.subplots(figsize=(7, 4.2))
         ax.plot(x[ho], r[ho], ".", ms=2, alpha=0.5)
         ax.set_xlabel(variable_label(att["variable"]))
-        ax.set_ylabel(f"held-out residual joint {j} [{'N' if j == 3 else 'N m'}]")
+        ax.set_ylabel(f"held-out residual joint {j} [{_VARIABLE_UNITS['u'][j == 3]}]")
         ax.set_title(f"joint {j}: structured residual no catalogue effect explains")
         ax.grid(alpha=0.3)
         _save(fig, path_dir, f"residual_unexplained_joint{j}.png", out)

@@ -73,9 +73,9 @@ def _track(plant, m, feed_effects: bool, effects=None) -> float:
 
 
 def _true_entries(m, truth) -> list[dict] | None:
-    """The model file's stiction entries with the generator's true excess and Stribeck
-    velocity (the scorer's side; the workflow never sees them), or None when the case is not
-    stiction alone (the only effect this bench has an oracle for)."""
+    """The model file's effect entries, its stiction entry carrying the generator's true
+    excess and Stribeck velocity (the scorer's side; the workflow never sees them), or None
+    when the case is not stiction alone (the only effect this bench has an oracle for)."""
     if len(truth.params) != 1 or truth.params[0]["effect"] != "stiction":
         return None
     tp = truth.params[0]
@@ -154,7 +154,7 @@ def main() -> int:
          replay_ok == len(named)),
         ("tip error with the effects fed forward <= without", f"{track_ok}/{len(fed)}", "all", track_ok == len(fed)),
         ("tip error without / with (median, min)", f"{np.median(gains):.1f}x, {min(gains):.2f}x", "report", True),
-        ("  the misses where the true law fed forward is no better (stiction only)", f"{beyond}/{len(misses)}",
+        ("  the misses where the true law fed forward is also worse than none (stiction only)", f"{beyond}/{len(misses)}",
          "report", True),
         ("bench wall time", f"{time.perf_counter() - t0:.0f} s", "report", True),
     ]

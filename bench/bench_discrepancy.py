@@ -216,9 +216,9 @@ def main(argv=None) -> int:
         ("real data: held-out RMS baseline -> final (N m, N m, N)", real["gap"], "report", True),
     ]
     print()
-    print_table("Discrepancy workflow (issue 7)", rows)
+    ok = print_table("Discrepancy workflow (issue 7)", rows)
     print(f"\nbench wall time {wall:.0f} s on {a.workers} workers; {len(results)} cases")
-    return 0
+    return 0 if ok else 1
 
 
 def _oracle_job(args) -> float:

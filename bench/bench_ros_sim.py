@@ -3,7 +3,11 @@
 Starts `rig sim` (own ROS_DOMAIN_ID, localhost discovery), subscribes to every arm's
 measured_js with a best-effort QoS for `--seconds` (default 10 s) and prints a table:
 messages per second per arm, the largest gap between two messages, and the gap
-percentiles, against the 1 kHz target and the 50 ms watchdog.
+percentiles, against the 1 kHz target and the 50 ms watchdog. Targets: each arm's
+measured_js published at >= 98 % of `--rate` (rig sim's own count, its "held" criterion),
+and no gap a subscriber sees as long as the driver's stale-data watchdog (which would stop
+a run). The share a best-effort Python subscriber receives is reported: on a loaded
+2-core machine it is the subscriber's limit as much as the server's.
 
     .venv/bin/python bench/bench_ros_sim.py [--seconds 10] [--arms PSM1,PSM2]
 """
@@ -11,7 +15,9 @@ percentiles, against the 1 kHz target and the 50 ms watchdog.
 from __future__ import annotations
 
 import argparse
+import inspect
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -19,6 +25,14 @@ import threading
 import time
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _table import print_table  # noqa: E402
+
+from drivers.dvrk_arm import RosArm  # noqa: E402
+
+#: RosArm's default stale-data watchdog, s.
+WATCHDOG = inspect.signature(RosArm).parameters["watchdog"].default
 
 
 def main() -> int:
@@ -71,13 +85,21 @@ def main() -> int:
     ex.shutdown()
     node.destroy_node()
     rclpy.shutdown(context=ctx)
-    print(f"{'arm':>6} {'msgs/s':>9} {'target':>7} {'max gap ms':>11} {'p99 gap ms':>11} {'gaps>50ms':>10}")
+    said = tail.strip().splitlines()[-1] if tail.strip() else "(nothing)"
+    print("rig sim says:", said)
+    published = {m[1]: float(m[2]) for m in re.finditer(r"(\w+) ([\d.]+) Hz", said.split("(target")[0])}
+    rows = []
     for a, ts in arrivals.items():
-        gaps = np.diff(ts) * 1e3 if len(ts) > 1 else np.array([np.inf])
-        print(f"{a:>6} {len(ts) / wall:9.1f} {args.rate:7.0f} {gaps.max():11.2f} "
-              f"{np.percentile(gaps, 99):11.2f} {int(np.sum(gaps > 50)):10d}")
-    print("rig sim says:", tail.strip().splitlines()[-1] if tail.strip() else "(nothing)")
-    return 0
+        gaps = np.diff(ts) if len(ts) > 1 else np.array([np.inf])
+        pub = published.get(a, float("nan"))
+        rows += [(f"{a} measured_js published by rig sim [Hz]", f"{pub:.1f}", f">= {0.98 * args.rate:.0f}",
+                  bool(pub >= 0.98 * args.rate)),
+                 (f"{a} received by a best-effort subscriber in another process [msgs/s]", f"{len(ts) / wall:.1f}",
+                  "report", True),
+                 (f"{a} largest gap between messages [ms] (p99 {1e3 * np.percentile(gaps, 99):.2f})",
+                  f"{1e3 * gaps.max():.2f}", f"< {1e3 * WATCHDOG:.0f} (watchdog)", bool(gaps.max() < WATCHDOG))]
+    ok = print_table(f"rig sim over ROS 2 ({args.seconds:.0f} s, {args.arms}, loopback)", rows)
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":

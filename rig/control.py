@@ -47,6 +47,10 @@ class KalmanDifferentiator:
         self.gains = np.empty((n, 3, self.m))
         for i in range(n):
             self.gains[i] = self._converged_gain(r[i], qn[i], None if rv is None else rv[i])
+        # the per-step forms: F transposed for row states, each measurement's gain column
+        self._Ft = self.F.T.copy()
+        self._g0 = self.gains[:, :, 0].copy()
+        self._g1 = self.gains[:, :, 1].copy() if self.m == 2 else None
         self.x = np.zeros((n, 3))
         self.initialised = False
 
@@ -78,14 +82,14 @@ class KalmanDifferentiator:
         if not self.initialised:
             self.reset(value, rate)
         x = self.x
-        dt = self.dt
-        x[:, 0] += dt * x[:, 1] + 0.5 * dt * dt * x[:, 2]
-        x[:, 1] += dt * x[:, 2]
+        # Predict in place: a caller may pass a view of x[:, 0] as `value` to coast on the
+        # prediction alone (zero innovation), as the cooperative force filter does between
+        # load-cell samples.
+        x[:] = x @ self._Ft
         if self.m == 1:
-            x += self.gains[:, :, 0] * (value - x[:, 0])[:, None]
+            x += self._g0 * (value - x[:, 0])[:, None]
         else:
-            x += (self.gains[:, :, 0] * (value - x[:, 0])[:, None]
-                  + self.gains[:, :, 1] * (rate - x[:, 1])[:, None])
+            x += self._g0 * (value - x[:, 0])[:, None] + self._g1 * (rate - x[:, 1])[:, None]
         return x[:, 0].copy(), x[:, 1].copy()
 
     def frequency_response(self, frequency: float, channel: int = 0) -> np.ndarray:
@@ -258,6 +262,10 @@ class Impedance:
         eps = 1e-6
         Js = K.tip_jacobian_rcm(np.stack([q, q + eps * dq, q - eps * dq]))
         J = Js[0]
+        # One inverse serves the three solves with J and the Cartesian inertia below (a 3x3
+        # inverse costs what one solve does; the tip Jacobian is far from singular wherever
+        # the tool is inserted past the RCM).
+        Jinv = np.linalg.inv(J)
         Jdot_dq = (Js[1] - Js[2]) @ dq / (2 * eps)
         x = K.tip_in_rcm(q)
         xd = J @ dq
@@ -265,8 +273,7 @@ class Impedance:
             D = np.diag(2.0 * self.damping_ratio * np.sqrt(self.Md * self.design_stiffness))
             spring = self._stiffness(x_d - x) + D @ (xd_d - xd)
         elif self.Md is None and self.damping_ratio is not None:
-            Minv = np.linalg.inv(self.model.mass_matrix(q))
-            Lam = np.linalg.inv(J @ Minv @ J.T)
+            Lam = Jinv.T @ self.model.mass_matrix(q) @ Jinv
             w, V = np.linalg.eigh(Lam)
             Lam_half = (V * np.sqrt(np.maximum(w, 0.0))) @ V.T
             D = 2.0 * self.damping_ratio * np.sqrt(self.design_stiffness) * Lam_half
@@ -282,12 +289,12 @@ class Impedance:
         # q3 - L_RCC + L_TOOL from the RCM.
         rest = x_d - (np.linalg.solve(self.Kp, h_e) if np.ndim(self.Kp) == 2 else h_e / self.Kp)
         q_target3 = float(np.sqrt(rest @ rest)) + K.L_RCC - K.L_TOOL
-        fric = self.friction(dq, q_target3 - q[2], np.linalg.solve(J, xd_d))
+        fric = self.friction(dq, q_target3 - q[2], Jinv @ xd_d)
         if self.Md is None:
-            y = np.linalg.solve(J, xdd_d - Jdot_dq)
+            y = Jinv @ (xdd_d - Jdot_dq)
             return self.model(q, dq, y) + fric + J.T @ spring
         a = xdd_d + (spring - h_e) / self.Md
-        y = np.linalg.solve(J, a - Jdot_dq)
+        y = Jinv @ (a - Jdot_dq)
         return self.model(q, dq, y) + fric + J.T @ h_e
 
 

@@ -37,6 +37,12 @@ from rig import psm_kinematics as K
 from rig.control import FeedforwardModel, Impedance, KalmanDifferentiator, StickSlipCompensation
 
 
+def _mean_of(values: np.ndarray, indices: list[int]) -> float:
+    """Mean of values[indices] (0 for none): np.mean's dispatch costs more than the sum of the
+    one or two elements a control step averages."""
+    return float(sum(values[k] for k in indices) / len(indices)) if indices else 0.0
+
+
 def min_jerk(s: float) -> tuple[float, float, float]:
     """Minimum-jerk profile on [0, 1]: (position, d/ds, d2/ds2)."""
     s = min(max(s, 0.0), 1.0)
@@ -331,10 +337,12 @@ class CooperativeController:
         else:
             R, dR = np.eye(3), np.zeros((3, 3))
         xd, vd, ad = {}, {}, {}
+        rotated = angles.any()
         for arm in self.arms:
             r0 = self.x0[arm] - self.centroid0
-            xd[arm] = self.centroid0 + shift + R @ r0
-            vd[arm] = v * m.translation + dR @ r0 + (0.0 if targets else self._offset_velocity)
+            # without a rotation R r0 = r0 and dR r0 = 0 exactly: the products are skipped
+            xd[arm] = self.centroid0 + shift + (R @ r0 if rotated else r0)
+            vd[arm] = v * m.translation + (dR @ r0 if rotated else 0.0) + (0.0 if targets else self._offset_velocity)
             ad[arm] = a * m.translation
         return xd, vd, ad
 
@@ -351,6 +359,12 @@ class CooperativeController:
 
     def _slew_offsets(self) -> None:
         """Move the applied user offsets toward their targets at the slew rates."""
+        if (self.applied_force_offset == self.force_offset and (self.applied_translation == self.offset_translation).all()
+                and (self.applied_rotation == self.offset_rotation).all()):
+            # nothing left to slew (the usual case): the same result as below, without its cost
+            self._offset_velocity = np.zeros(3)
+            return
+
         def toward(applied, target, rate):
             d = np.asarray(target, float) - applied
             n = float(np.linalg.norm(d))
@@ -407,8 +421,8 @@ class CooperativeController:
             # Which elements this slave holds, and its outward direction.
             mine = [k for k, e in enumerate(self.elements) if s in e]
             tracked = [k for k in mine if m in self.elements[k]]
-            h_e = float(np.mean(self.tension[tracked])) if tracked else 0.0
-            h_rate = float(np.mean(self.tension_rate[tracked])) if tracked else 0.0
+            h_e = _mean_of(self.tension, tracked)
+            h_rate = _mean_of(self.tension_rate, tracked)
             u = self._outward(s, tips)
             error = self.force_setpoint - h_e
             if self.mode == "position":
@@ -427,7 +441,7 @@ class CooperativeController:
                 rate = self.k_i[s] * (error - np.sign(error) * self.loop.deadband) - self.loop.k_damp * h_rate
             else:
                 rate = -self.loop.k_damp * h_rate
-            self.x_f[s] = float(np.clip(self.x_f[s] + self.dt * rate, -self.x_f_limit, self.x_f_limit))
+            self.x_f[s] = min(max(float(self.x_f[s] + self.dt * rate), -self.x_f_limit), self.x_f_limit)
             x_t = xd[s] + u * self.x_f[s]
             if self.kp_across is not None:
                 u_r = self.R[s].T @ u
@@ -448,8 +462,8 @@ class CooperativeController:
                         g = 0.5 * self.k_i[s] * (e_k - np.sign(e_k) * self.loop.deadband) \
                             if abs(e_k) > self.loop.deadband else 0.0
                         r_k = g - 0.5 * self.loop.k_damp * float(self.tension_rate[k])
-                        self.x_g[(s, k)] = float(np.clip(self.x_g.get((s, k), 0.0) + self.dt * r_k,
-                                                         -self.x_f_limit, self.x_f_limit))
+                        self.x_g[(s, k)] = min(max(float(self.x_g.get((s, k), 0.0) + self.dt * r_k),
+                                                   -self.x_f_limit), self.x_f_limit)
                     x_t = x_t + w * (self.tension[k] / kp_mean + self.x_g.get((s, k), 0.0))
             # The force the tip exerts on the object: each element's tension, pointing from
             # the neighbour to this tip (outward).
@@ -464,7 +478,7 @@ class CooperativeController:
             if self.k_fp and tracked and not self.slack[s]:
                 # on the newest raw sample: the Kalman filter's lag, not the sensor noise
                 # (0.02 N times k_fp, filtered by the arm's inertia), limits this gain
-                error_fb = self.force_setpoint - float(np.mean(self.raw_tension[tracked]))
+                error_fb = self.force_setpoint - _mean_of(self.raw_tension, tracked)
                 f_extra = R.T @ (self.k_fp * error_fb * u)
             tau = self.impedance[s](qf[s], dqf[s], R.T @ (x_t - self.p[s]), R.T @ vd[s], R.T @ ad[s], R.T @ h_world,
                                     f_extra)

@@ -154,8 +154,8 @@ def main() -> int:
          replay_ok == len(named)),
         ("tip error with the effects fed forward <= without", f"{track_ok}/{len(fed)}", "all", track_ok == len(fed)),
         ("tip error without / with (median, min)", f"{np.median(gains):.1f}x, {min(gains):.2f}x", "report", True),
-        ("  the misses where the true law fed forward is also worse than none (stiction only)", f"{beyond}/{len(misses)}",
-         "report", True),
+        ("  the misses where the true law fed forward is also worse than none (stiction only)",
+         f"{beyond}/{len(misses)}", "report", True),
         ("bench wall time", f"{time.perf_counter() - t0:.0f} s", "report", True),
     ]
     ok = print_table("The augmented model in the simulated rig and the controllers (issue 7)", rows)

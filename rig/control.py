@@ -262,9 +262,9 @@ class Impedance:
         eps = 1e-6
         Js = K.tip_jacobian_rcm(np.stack([q, q + eps * dq, q - eps * dq]))
         J = Js[0]
-        # One inverse serves the three solves with J and the Cartesian inertia below (a 3x3
-        # inverse costs what one solve does; the tip Jacobian is far from singular wherever
-        # the tool is inserted past the RCM).
+        # One inverse serves the three solves with J and the Cartesian inertia below: a 3x3
+        # inverse costs what one solve does, and both fail alike only where J is singular
+        # (the tip at the RCM).
         Jinv = np.linalg.inv(J)
         Jdot_dq = (Js[1] - Js[2]) @ dq / (2 * eps)
         x = K.tip_in_rcm(q)

@@ -359,7 +359,8 @@ class CooperativeController:
 
     def _slew_offsets(self) -> None:
         """Move the applied user offsets toward their targets at the slew rates."""
-        if (self.applied_force_offset == self.force_offset and (self.applied_translation == self.offset_translation).all()
+        if (self.applied_force_offset == self.force_offset
+                and (self.applied_translation == self.offset_translation).all()
                 and (self.applied_rotation == self.offset_rotation).all()):
             # nothing left to slew (the usual case): the same result as below, without its cost
             self._offset_velocity = np.zeros(3)

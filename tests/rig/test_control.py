@@ -33,6 +33,31 @@ def test_kalman_differentiator_recovers_a_ramp_and_reports_its_lag():
     assert abs(lag_value) < 1e-3 and 0.0 < lag_rate < 0.05   # the rate lags, the value hardly
 
 
+def test_kalman_step_matches_filterpy_and_coasts_on_a_view_of_its_own_state():
+    from filterpy.kalman import KalmanFilter
+
+    f = KalmanDifferentiator(2, 1e-3, [1e-4, 2e-4], [5.0, 50.0], rate_noise=[1e-2, 3e-2])
+    f.reset(np.array([0.1, -0.2]), np.array([0.5, 0.0]))
+    f.x[:, 2] = [1.0, -3.0]
+    # one step is filterpy's predict and update with the converged gain
+    kf = KalmanFilter(dim_x=3, dim_z=2)
+    kf.F, kf.H = f.F, np.eye(3)[:2]
+    z = np.array([[0.1006, 0.52], [-0.1999, 0.01]])
+    expect = []
+    for i in range(2):
+        kf.x = f.x[i].copy()
+        kf.predict()
+        expect.append(kf.x + f.gains[i] @ (z[i] - kf.H @ kf.x))
+    value, rate = f.update(z[:, 0], z[:, 1])
+    np.testing.assert_allclose(f.x, expect, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(np.c_[value, rate], np.array(expect)[:, :2], rtol=1e-12, atol=1e-15)
+    # fed a view of its own value (no new sample: the cooperative force filter), the step
+    # is the prediction alone: the innovation it sees is zero
+    before = f.x.copy()
+    value, rate = f.update(f.x[:, 0], f.x[:, 1])
+    np.testing.assert_allclose(f.x, before @ f.F.T, rtol=1e-12, atol=1e-15)
+
+
 def test_moving_joints_get_coulomb_and_viscous_and_still_ones_only_the_offset():
     c = _comp()
     dq = np.array([0.05, -0.02, 0.0])

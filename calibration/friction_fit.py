@@ -8,7 +8,11 @@ Forces in N (insertion joint) or N m, velocities in m/s or rad/s.
 * :func:`fit_viscous_coulomb`: linear least squares of f = Fo + Fv v + Fc sign(v).
 * :func:`fit_stribeck`: f = Fo + Fv v + sign(v) (Fc + (Fs - Fc) exp(-(|v|/vs)^2)) by
   bounded non-linear least squares (scipy ``least_squares``), started from the
-  viscous-Coulomb fit; one-sigma parameter uncertainties from the Jacobian.
+  viscous-Coulomb fit; one-sigma parameter uncertainties from the Jacobian. The excess
+  Fs - Fc is a parameter bounded at 0: a Stribeck effect is a static level above the
+  Coulomb one (Fs >= Fc >= 0). Friction that dips below Fc + Fv v at low speed (a
+  smooth zero crossing, as the simulated plant's sigmoid has) is then no Stribeck excess,
+  not a negative one.
 """
 
 from __future__ import annotations
@@ -72,13 +76,31 @@ def stribeck_curve(p, v):
     return fo + fv * v + _sign(v) * (fc + (fs - fc) * np.exp(-(np.abs(v) / vs) ** 2))
 
 
+def _sd(jac: np.ndarray, r: np.ndarray, dof: int, mix: np.ndarray, rel_tol: float = 1e-8) -> np.ndarray:
+    """One-sigma uncertainties of ``mix @ x`` at a least-squares solution x (Jacobian
+    ``jac``, residual ``r``): inf for a combination that loads on a direction the data do
+    not determine (a singular value of the column-scaled Jacobian below ``rel_tol`` of
+    the largest), where a pseudo-inverse would report 0."""
+    scale = np.linalg.norm(jac, axis=0)
+    scale = np.where(scale > 0, scale, 1.0)
+    _, sv, Vt = np.linalg.svd(jac / scale, full_matrices=False)
+    good = sv > rel_tol * sv.max() if sv.size and sv.max() > 0 else np.zeros(sv.shape, bool)
+    V = Vt[good].T / sv[good] / scale[:, None]
+    sd = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", mix, V @ V.T, mix), 0.0) * float(r @ r) / dof)
+    free = np.any(np.abs(Vt[~good]) > 1e-6, axis=0)   # parameters with a part left undetermined
+    sd[(np.abs(mix) > 0) @ free] = np.inf
+    return sd
+
+
 def fit_stribeck(v, f, fs_guess: float | None = None, vs_bounds=(1e-4, 1.0)) -> dict:
-    """Stribeck fit (module docstring); Fc, Fs, Fv >= 0, vs within ``vs_bounds``.
+    """Stribeck fit (module docstring); Fv >= 0, Fs >= Fc >= 0, vs within ``vs_bounds``.
 
     ``fs_guess`` (e.g. the ramp's breakaway level) starts Fs; else 1.5 Fc of the
     viscous-Coulomb fit. ``success`` is False when the solver failed or the Stribeck
-    term is not resolved (its uncertainty exceeds its size): the thesis found exactly
-    that on the real joint 3 (5.6).
+    excess Fs - Fc is not resolved (not above its own one-sigma uncertainty, or not
+    determined by these speeds at all): the thesis found exactly that on the real joint 3
+    (5.6). ``std`` gives one sigma of each parameter and of the excess ``dFs`` (None where
+    the data do not determine it; an undetermined excess is reported as 0, Fs = Fc).
     """
     v, f = np.asarray(v, float), np.asarray(f, float)
     if v.size < 6:
@@ -87,23 +109,32 @@ def fit_stribeck(v, f, fs_guess: float | None = None, vs_bounds=(1e-4, 1.0)) -> 
     fc0 = max(vc["Fc"], 1e-3)
     fs0 = max(fs_guess if fs_guess is not None else 1.5 * fc0, fc0)
     vmin = max(np.min(np.abs(v[v != 0])) if np.any(v != 0) else 1e-3, vs_bounds[0])
-    x0 = np.array([vc["Fo"], max(vc["Fv"], 0.0), fc0, fs0, np.clip(2 * vmin, *vs_bounds)])
+    # solved in (Fo, Fv, Fc, dFs = Fs - Fc, vs), the excess bounded at 0
+    x0 = np.array([vc["Fo"], max(vc["Fv"], 0.0), fc0, fs0 - fc0, np.clip(2 * vmin, *vs_bounds)])
     lo = np.array([-np.inf, 0.0, 0.0, 0.0, vs_bounds[0]])
     hi = np.array([np.inf, np.inf, np.inf, np.inf, vs_bounds[1]])
     x0 = np.clip(x0, lo + 1e-12, hi - 1e-12)
-    res = scipy.optimize.least_squares(lambda p: stribeck_curve(p, v) - f, x0, bounds=(lo, hi), x_scale="jac")
+    as_curve = np.array([[1.0, 0, 0, 0, 0], [0, 1.0, 0, 0, 0], [0, 0, 1.0, 0, 0], [0, 0, 1.0, 1.0, 0],
+                         [0, 0, 0, 0, 1.0]])   # (Fo, Fv, Fc, dFs, vs) -> (Fo, Fv, Fc, Fs, vs)
+    res = scipy.optimize.least_squares(lambda x: stribeck_curve(as_curve @ x, v) - f, x0, bounds=(lo, hi),
+                                       x_scale="jac")
     r = res.fun
-    dof = max(v.size - 5, 1)
-    try:
-        cov = np.linalg.pinv(res.jac.T @ res.jac) * float(r @ r) / dof
-        sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    except np.linalg.LinAlgError:
-        sd = np.full(5, np.inf)
+    # one sigma of (Fo, Fv, Fc, Fs, vs) and of the excess; inf where these data do not
+    # determine it (a Stribeck velocity below every swept speed leaves the excess and vs
+    # without a trace in the data)
+    sd_all = _sd(res.jac, r, max(v.size - 5, 1), np.vstack([as_curve, [0.0, 0, 0, 1.0, 0]]))
+    sd, sd_excess = sd_all[:5], float(sd_all[5])
+    p = as_curve @ res.x
+    if not np.isfinite(sd_excess):
+        # the data carry no trace of the excess (its curve is 0 at every swept speed): any
+        # value fits them equally, and the one reported is none, Fs = Fc
+        p[3] = p[2]
     names = ("Fo", "Fv", "Fc", "Fs", "vs")
     out = {"model": "Fo + Fv v + sign(v) (Fc + (Fs - Fc) exp(-(|v|/vs)^2))",
-           **{n: float(x) for n, x in zip(names, res.x)}, "std": {n: float(s) for n, s in zip(names, sd)},
+           **{n: float(x) for n, x in zip(names, p)},
+           "std": {n: (float(s) if np.isfinite(s) else None) for n, s in zip(names + ("dFs",), sd_all)},
            "rms": float(np.sqrt(np.mean(r ** 2))), "n": int(v.size), "solver": res.message}
-    resolved = bool(abs(res.x[3] - res.x[2]) > sd[3]) if np.isfinite(sd[3]) else False
+    resolved = bool(res.x[3] > sd_excess) if np.isfinite(sd_excess) else False
     out["success"] = bool(res.success and resolved)
     out["stribeck_resolved"] = resolved
     return out

@@ -378,8 +378,10 @@ def report_text(r: dict) -> str:
                  f"(rms {vc['rms']:.3f} N)")
     st = r["fits"].get("stribeck")
     if st:
+        vs = ("vs not determined by the swept speeds" if (st.get("std") or {}).get("vs", 0.0) is None
+              else f"vs {st['vs'] * 1e3:.2f} mm/s")
         lines.append(f"Stribeck: Fo {st['Fo']:+.3f} N, Fv {st['Fv']:.3f} N s/m, Fc {st['Fc']:.3f} N, Fs {st['Fs']:.3f} N, "
-                     f"vs {st['vs'] * 1e3:.2f} mm/s (rms {st['rms']:.3f} N){'' if st['success'] else ' - NOT resolved'}")
+                     f"{vs} (rms {st['rms']:.3f} N){'' if st['success'] else ' - NOT resolved'}")
     if r.get("truth"):
         t = r["truth"]
         lines.append(f"simulated rig truth: Fs = {t['Fs']:.3f} N; expected Fs+ {t['expected_Fs_pos']:+.3f} N, "

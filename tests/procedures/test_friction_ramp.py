@@ -106,6 +106,28 @@ def test_stribeck_fit_recovers_parameters():
     assert vc["rms"] > 5 * st["rms"]
 
 
+def test_stribeck_fit_reports_no_excess_where_friction_dips_below_coulomb_at_low_speed():
+    """Friction a little below Fc + Fv v at low speed (0.011 N, as the simulated plant's
+    joint 3 shows on the default sweep) is no static level above Coulomb: the fit keeps
+    Fs >= Fc, and calls the excess unresolved. Where the excess leaves no trace in the
+    swept speeds, it is reported as none (Fs = Fc) with no uncertainty, not as a number."""
+    from calibration.friction_fit import fit_stribeck, stribeck_curve
+
+    speeds = np.array([0.0025, 0.005, 0.01, 0.02, 0.04, 0.08])   # the procedure's default sweep
+    v = np.repeat(np.concatenate([-speeds, speeds]), 3)
+    dip = 0.15 + 0.6 * v + np.sign(v) * (0.536 - 0.011 * np.exp(-(np.abs(v) / 0.027) ** 2))
+    flat = 0.15 + 0.6 * v + 0.536 * np.sign(v)
+    for seed, f in enumerate((dip, flat)):
+        f = f + np.random.default_rng(seed).normal(0, 0.001, v.size)
+        st = fit_stribeck(v, f)
+        assert not st["success"] and not st["stribeck_resolved"]
+        assert st["Fs"] == st["Fc"] and abs(st["Fc"] - 0.536) < 0.015
+        assert st["std"]["dFs"] is None and st["std"]["Fc"] < 0.002
+        # reporting no excess does not change the fitted curve on the data
+        p = [st[k] for k in ("Fo", "Fv", "Fc", "Fs", "vs")]
+        assert np.sqrt(np.mean((stribeck_curve(p, v) - f) ** 2)) == pytest.approx(st["rms"], rel=1e-6)
+
+
 def test_model_file_round_trip_and_errors(tmp_path):
     from rig.model_file import (ModelFileError, StickSlip, latest_model, load_model, save_model,
                                 update_stick_slip)

@@ -66,7 +66,8 @@ def load_run_arrays(run_dir, arm: str, rate: float):
 
 
 def estimate_gravity(q, dq, tau, rate: float, settings) -> np.ndarray:
-    """Gravity in frame 0 from the data (least-squares scan of the sphere, best direction)."""
+    """Gravity in frame 0 from the data (least-squares scan of the sphere on the moving training
+    samples, best direction)."""
     from calibration.discrepancy import prepare
     from calibration.model_selection import GravitySlopeSearch
     from rig.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
@@ -77,7 +78,11 @@ def estimate_gravity(q, dq, tau, rate: float, settings) -> np.ndarray:
         return PSMDynamics(PSMParameters(drive=DriveParameters(slope=float(slope))), gravity=np.asarray(g, float))
 
     sl = p.train
-    search = GravitySlopeSearch(make, p.qf[sl], p.dqf[sl], p.ddqf[sl], p.tauf[sl], n_inertial=70)
+    # Only where the joint moves: the prepared effort is zero on stuck samples (masked before
+    # its filter), and a regressor that still predicts gravity there pulled the direction
+    # far off on a run whose insertion joint sticks (145 deg on a simulated identify run).
+    moving = p.moving_raw[p.kept][sl] > 0
+    search = GravitySlopeSearch(make, p.qf[sl], p.dqf[sl], p.ddqf[sl], p.tauf[sl], n_inertial=70, mask=moving)
     res = search.search((400.0,), n_directions=200)
     return res.gravity(0)
 

@@ -9,8 +9,9 @@ configuration snapshot and any simulated effects are never read.
 
 Baseline: with --model, that identified model as it is; without, the thesis model
 (rigid body + Fc tanh(a dq/2) + Fv dq + Fo + Ia ddq) identified on the training block, the
-gravity direction in frame 0 estimated from the data (`calibration.model_selection`),
-since the arm's tilt is unknown. Train and held-out are contiguous blocks (held-out at the
+gravity direction in frame 0 estimated from the data as `rig identify --csv` does (moving
+samples; the physically consistent fit decides the hemisphere), since the arm's tilt is
+unknown. Train and held-out are contiguous blocks (held-out at the
 end). Writes result.json, model.json (the model with an "effects" section: each effect's
 name, joint, parameters with units; a payload is also folded into the standard
 parameters) and PNGs of the held-out residual against the variable that explains it,
@@ -66,25 +67,24 @@ def load_run_arrays(run_dir, arm: str, rate: float):
 
 
 def estimate_gravity(q, dq, tau, rate: float, settings) -> np.ndarray:
-    """Gravity in frame 0 from the data (least-squares scan of the sphere on the moving training
-    samples, best direction)."""
-    from calibration.discrepancy import prepare
-    from calibration.model_selection import GravitySlopeSearch
-    from rig.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
+    """Gravity in frame 0 as `rig identify --csv` finds it on the training block: the sphere
+    scanned by least squares on the moving samples (a stuck joint's effort is no function of
+    the motion), and the best direction of each hemisphere fitted by the physically
+    consistent SDP, the better fit deciding the sign (a mirrored direction fits the data
+    almost as well by least squares alone)."""
+    from calibration.datasets import JointData, processed, split_blocks
+    from procedures.identify import DEADBAND as ID_DEADBAND
+    from procedures.identify import PARAMETERS as ID_PARAMETERS
+    from procedures.identify import fit_identification
+    from rig.params import resolve
 
-    p = prepare(q, dq, tau, rate, settings)
-
-    def make(g, slope):
-        return PSMDynamics(PSMParameters(drive=DriveParameters(slope=float(slope))), gravity=np.asarray(g, float))
-
-    sl = p.train
-    # Only where the joint moves: the prepared effort is zero on stuck samples (masked before
-    # its filter), and a regressor that still predicts gravity there pulled the direction
-    # far off on a run whose insertion joint sticks (145 deg on a simulated identify run).
-    moving = p.moving_raw[p.kept][sl] > 0
-    search = GravitySlopeSearch(make, p.qf[sl], p.dqf[sl], p.ddqf[sl], p.tauf[sl], n_inertial=70, mask=moving)
-    res = search.search((400.0,), n_directions=200)
-    return res.gravity(0)
+    d = resolve(ID_PARAMETERS, {})
+    data = JointData(np.arange(len(q)) / rate, np.asarray(q, float), np.asarray(dq, float), np.asarray(tau, float),
+                     rate, "the training block")
+    train, _ = split_blocks(processed(data, d["cutoff"], d["filter_order"]), settings.heldout)
+    outcome = fit_identification(train, "auto", 400.0, deadband=ID_DEADBAND, parallel=d["parallel_filter"],
+                                 stribeck=False)
+    return np.asarray(outcome.gravity, float)
 
 
 def _save(fig, path_dir: Path, name: str, out: dict) -> None:

@@ -271,7 +271,11 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
             pairs = w.residual_pairs(result) if parameters["plots"] else []
             result.pop("_reid")
             result.update({"model": str(model_path), "baseline_kind": kind,
-                           "data": {"source": source, "samples": int(q.shape[0]), "rate_hz": parameters["rate"]}})
+                           "data": {"source": source, "samples": int(q.shape[0]), "rate_hz": parameters["rate"]},
+                           # what `rig runs` lists for this run
+                           "summary": {"verdict": result["verdict"],
+                                       "effects": " ".join(f"{e['name']}@{e['joint']}" for e in result["effects"])
+                                       or "none"}})
             if parameters["plots"]:
                 structured = [d for d in result["detection"]["final"] if d["structured"]]
                 result["plots"] = plot_residuals(pairs, structured, w, rn.dir)

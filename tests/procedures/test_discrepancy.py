@@ -24,6 +24,9 @@ def test_cli_on_real_csv_json(tmp_path):
     assert set(doc["baseline"]) >= {"heldout_rms", "heldout_rel_error"}
     assert len(doc["baseline"]["heldout_rms"]) == 3
     assert doc["verdict"] in ("none", "explained", "unexplained")
+    # `rig runs` lists the verdict and the effects named
+    assert doc["summary"] == {"verdict": doc["verdict"],
+                              "effects": " ".join(f"{e['name']}@{e['joint']}" for e in doc["effects"]) or "none"}
     for e in doc["effects"]:
         assert set(e) >= {"name", "joint", "params", "evidence", "heldout_rms_before", "heldout_rms_after"}
     m = load_model(doc["model"])

@@ -66,24 +66,36 @@ def load_run_arrays(run_dir, arm: str, rate: float):
     return table[:, :3], table[:, 3:6], table[:, 6:9], f"{d / 'run.mcap'} {topic}"
 
 
-def estimate_gravity(q, dq, tau, rate: float, settings) -> np.ndarray:
+def estimate_gravity(q, dq, tau, rate: float, settings, source: str = "the data") -> np.ndarray:
     """Gravity in frame 0 as `rig identify --csv` finds it on the training block: the sphere
     scanned by least squares on the moving samples (a stuck joint's effort is no function of
     the motion), and the best direction of each hemisphere fitted by the physically
     consistent SDP, the better fit deciding the sign (a mirrored direction fits the data
     almost as well by least squares alone)."""
+    from calibration.base_params import RankDeficientError
     from calibration.datasets import JointData, processed, split_blocks
+    from calibration.discrepancy import DiscrepancyError
     from procedures.identify import DEADBAND as ID_DEADBAND
     from procedures.identify import PARAMETERS as ID_PARAMETERS
-    from procedures.identify import fit_identification
+    from procedures.identify import fit_identification, moving_mask
     from rig.params import resolve
 
     d = resolve(ID_PARAMETERS, {})
     data = JointData(np.arange(len(q)) / rate, np.asarray(q, float), np.asarray(dq, float), np.asarray(tau, float),
                      rate, "the training block")
     train, _ = split_blocks(processed(data, d["cutoff"], d["filter_order"]), settings.heldout)
-    outcome = fit_identification(train, "auto", 400.0, deadband=ID_DEADBAND, parallel=d["parallel_filter"],
-                                 stribeck=False)
+    moving = moving_mask(train.dq, ID_DEADBAND).mean(axis=0)
+    for j in np.flatnonzero(moving < 0.1):
+        raise DiscrepancyError(
+            f"{source}: joint {j + 1} moves faster than {ID_DEADBAND[j]:g} {'m/s' if j == 2 else 'rad/s'} in only "
+            f"{moving[j] * 100:.1f} % of the training block: too little motion to estimate the gravity direction "
+            "from; give an identified model with --model (its gravity is used)")
+    try:
+        outcome = fit_identification(train, "auto", 400.0, deadband=ID_DEADBAND, parallel=d["parallel_filter"],
+                                     stribeck=False)
+    except RankDeficientError as exc:
+        raise DiscrepancyError(f"{source}: the gravity direction cannot be estimated ({exc}); give an identified model "
+                               "with --model (its gravity is used)") from None
     return np.asarray(outcome.gravity, float)
 
 
@@ -245,7 +257,7 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
                 given = m.standard
                 kind = f"given model {m.path}"
             else:
-                g = estimate_gravity(q, dq, tau, parameters["rate"], settings)
+                g = estimate_gravity(q, dq, tau, parameters["rate"], settings, source)
                 model = PSMDynamics(PSMParameters(drive=DriveParameters()), gravity=g)
                 kind = ("thesis model identified on the training block (gravity estimated: "
                         + ", ".join(f"{v:.3f}" for v in g) + " m/s^2)")

@@ -102,3 +102,21 @@ def test_gravity_is_estimated_on_the_moving_samples_and_its_sign_by_the_consiste
         assert np.linalg.norm(g) == pytest.approx(9.81)
         cos = g @ true / (np.linalg.norm(g) * np.linalg.norm(true))
         assert cos > np.cos(np.radians(2.0)), (seed, g)
+
+
+@pytest.mark.skipif(not REAL.exists(), reason="the WPI data are not available")
+def test_cli_too_little_motion_for_gravity_is_a_clear_error(tmp_path):
+    """Joint 3 of the real record slowed 300-fold: it never leaves the deadband, so no
+    gravity direction can be estimated; the error names the file and the way out."""
+    import numpy as np
+
+    d = np.loadtxt(REAL, delimiter=",")
+    n = d.shape[1] // 3
+    d[:, 2] = d[:, 2].mean() + (d[:, 2] - d[:, 2].mean()) / 300.0
+    d[:, n + 2] /= 300.0
+    path = tmp_path / "slow.csv"
+    np.savetxt(path, d, delimiter=",")
+    res = CliRunner().invoke(main, ["discrepancy", "--csv", str(path), "--no-plots"])
+    assert res.exit_code == 1
+    assert f"{path}: joint 3 moves faster than 0.005 m/s in only 0.0 %" in res.output
+    assert "--model" in res.output

@@ -77,18 +77,17 @@ def estimate_gravity(q, dq, tau, rate: float, settings, source: str = "the data"
     from calibration.discrepancy import DiscrepancyError
     from procedures.identify import DEADBAND as ID_DEADBAND
     from procedures.identify import PARAMETERS as ID_PARAMETERS
-    from procedures.identify import fit_identification, moving_mask
+    from procedures.identify import fit_identification, slow_joints
     from rig.params import resolve
 
     d = resolve(ID_PARAMETERS, {})
     data = JointData(np.arange(len(q)) / rate, np.asarray(q, float), np.asarray(dq, float), np.asarray(tau, float),
                      rate, "the training block")
     train, _ = split_blocks(processed(data, d["cutoff"], d["filter_order"]), settings.heldout)
-    moving = moving_mask(train.dq, ID_DEADBAND).mean(axis=0)
-    for j in np.flatnonzero(moving < 0.1):
+    for j, share in slow_joints(train.dq, ID_DEADBAND):
         raise DiscrepancyError(
             f"{source}: joint {j + 1} moves faster than {ID_DEADBAND[j]:g} {'m/s' if j == 2 else 'rad/s'} in only "
-            f"{moving[j] * 100:.1f} % of the training block: too little motion to estimate the gravity direction "
+            f"{share * 100:.1f} % of the training block: too little motion to estimate the gravity direction "
             "from; give an identified model with --model (its gravity is used)")
     try:
         outcome = fit_identification(train, "auto", 400.0, deadband=ID_DEADBAND, parallel=d["parallel_filter"],

@@ -222,6 +222,13 @@ def moving_mask(dq: np.ndarray, deadband=DEADBAND) -> np.ndarray:
     return np.abs(np.asarray(dq, float)) >= np.asarray(deadband, float)
 
 
+def slow_joints(dq: np.ndarray, deadband=DEADBAND, least: float = 0.1) -> list[tuple[int, float]]:
+    """(joint index, share of moving samples) of each joint that moves faster than its
+    ``deadband`` in less than ``least`` of the samples: too little motion to fit it."""
+    moving = moving_mask(dq, deadband).mean(axis=0)
+    return [(int(j), float(moving[j])) for j in np.flatnonzero(moving < least)]
+
+
 def equation_rows(data, parallel: bool):
     """``rows(fn)``: a function of the motion ``fn(q, dq, ddq) -> (n*3, p)`` (a regressor)
     as the equation rows of processed ``data``.
@@ -321,11 +328,10 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
                        "parallel_filter": bool(parallel)}
     slopes = DEFAULT_SLOPES if slope_mode == "auto" else (float(slope_mode),)
     if deadband is not None:
-        moving = moving_mask(train.dq, deadband).mean(axis=0)
-        for j in np.flatnonzero(moving < 0.1):
+        for j, share in slow_joints(train.dq, deadband):
             raise RankDeficientError(
                 f"{train.source}: joint {j + 1} moves faster than its deadband ({deadband[j]:g} "
-                f"{'m/s' if j == 2 else 'rad/s'}) in only {moving[j] * 100:.1f} % of the samples: the trajectory "
+                f"{'m/s' if j == 2 else 'rad/s'}) in only {share * 100:.1f} % of the samples: the trajectory "
                 "does not excite it (or use --no-fit-deadband)")
     need_search = isinstance(gravity_mode, str) or slope_mode == "auto"
     candidates = []

@@ -674,8 +674,9 @@ def report_text(result: dict) -> str:
         lines.append(f"Coulomb sigmoid slope: {result['friction_slope']:g} s/rad")
     st = result.get("stribeck")
     if st:
-        lines.append(f"joint 3 Stribeck excess: Fst {st['Fst'][2]:.3f} N, vs {st['vs'][2] * 1e3:g} mm/s "
-                     f"(Fs = Fc + Fst at rest)")
+        lines.append(f"joint 3 Stribeck excess of the smooth-sign law: Fst {st['Fst'][2]:.3f} N, vs "
+                     f"{st['vs'][2] * 1e3:g} mm/s (it includes the sigmoid's shortfall below 1 at low speed; the "
+                     "dry-friction breakaway level is what rig friction-ramp measures)")
     t = result.get("table_5_1")
     if t:
         oc = t.get("optimisation_condition")

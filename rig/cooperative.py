@@ -260,7 +260,7 @@ class CooperativeController:
             # switching the slave to effort control does not let the object pull it in.
             for s in self.slaves:
                 tracked = [k for k, e in enumerate(self.elements) if s in e and self.master in e]
-                held = float(np.mean(self.initial_element_tension[tracked])) if tracked else 0.0
+                held = _mean_of(self.initial_element_tension, tracked)
                 self.x_f[s] = held / self.kp_along
 
     def _position_slave(self, s: str, t: float, error: float, x_d: np.ndarray, v_d: np.ndarray,
@@ -348,7 +348,7 @@ class CooperativeController:
 
     def _tracked_tension(self, slave: str, tension: np.ndarray) -> float:
         tracked = [k for k, e in enumerate(self.elements) if slave in e and self.master in e]
-        return float(np.mean(np.asarray(tension)[tracked])) if tracked else 0.0
+        return _mean_of(np.asarray(tension), tracked)
 
     def force_target(self, t: float) -> float:
         if self.ramp_start is None:      # still taking up slack

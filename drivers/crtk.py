@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rig import psm_kinematics as K
+from rig.faults import DeviceFault
 
 # dVRK PSM joint names (sensor_msgs/JointState.name), joints 1-6; the jaw is separate.
 PSM_JOINT_NAMES = ("outer_yaw", "outer_pitch", "outer_insertion",
@@ -24,7 +25,7 @@ ARRIVAL_TOLERANCE = np.array([2e-3, 2e-3, 1e-3])
 REST_VELOCITY = np.array([0.02, 0.02, 0.004])
 
 
-class StaleStream(RuntimeError):
+class StaleStream(DeviceFault):
     """An arm's measured_js stopped arriving for longer than the watchdog interval.
 
     `topic` names the stream and `age` is seconds since its last message (inf if none).

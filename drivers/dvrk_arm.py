@@ -6,7 +6,8 @@ Topics under the arm's namespace (e.g. /PSM1), as the dVRK 2.3 ROS 2 bridge name
                measured_cp, local/measured_cp    geometry_msgs/PoseStamped
                body/measured_cf                  geometry_msgs/WrenchStamped
   published    servo_jp, servo_jf, move_jp       sensor_msgs/JointState (servo_jf: effort)
-  console      /console/power_on, /console/home  std_msgs/Empty
+  console      /console/power_on, /console/home  std_msgs/Empty (dVRK 2.3; 2.4 names them
+               /system/power_on, /system/home; console="auto" finds which from the graph)
 
 `crtk_msgs` is not on PyPI, so operating states are not read; move_jp(wait=True) waits on
 the measured joints instead (goal within `ARRIVAL_TOLERANCE` and at rest).
@@ -43,6 +44,9 @@ from drivers.quaternion import quat_xyzw_to_matrix
 
 StaleCallback = Callable[[StaleStream], None]
 
+#: the arm's state topics RosArm can subscribe (measured_js is always subscribed)
+ALL_STREAMS = ("measured_js", "setpoint_js", "measured_cp", "local/measured_cp", "body/measured_cf")
+
 
 def _stamp_seconds(header) -> float:
     return header.stamp.sec + header.stamp.nanosec * 1e-9
@@ -63,11 +67,17 @@ class RosArm:
     node: an rclpy Node; namespace: the arm's topic namespace ("/PSM1"); watchdog: s of
     measured_js silence before the stream is stale; spin: run an executor thread for the
     node here; on_stale: callback(StaleStream) fired from the watchdog thread once per
-    outage (more with `add_stale_callback`); console: the console's namespace.
+    outage (more with `add_stale_callback`); console: the console's namespace
+    ("/console", "/system", or "auto": the one the running system shows in the ROS graph);
+    streams: which of `ALL_STREAMS` to subscribe (measured_js always: every fewer topic is
+    less work for the executor); clock: monotonic seconds for the staleness age (the
+    executor's time from `rig.ros_session.RosSession.executor_time`, so that a starved
+    process never mistakes a healthy stream for a stale one).
     """
 
     def __init__(self, node, namespace: str, watchdog: float = 0.05, *, spin: bool = True,
-                 on_stale: StaleCallback | None = None, console: str = "/console", qos_depth: int = 10):
+                 on_stale: StaleCallback | None = None, console: str = "/console", qos_depth: int = 10,
+                 streams: tuple[str, ...] = ALL_STREAMS, clock: Callable[[], float] = time.monotonic):
         from geometry_msgs.msg import PoseStamped, WrenchStamped
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState as JointStateMsg
@@ -79,6 +89,7 @@ class RosArm:
         self.namespace = "/" + namespace.strip("/")
         self.name = self.namespace.strip("/").split("/")[-1]
         self.watchdog = float(watchdog)
+        self._clock = clock
         self._JointState = JointStateMsg
         self._Empty = Empty
         self._lock = threading.Lock()
@@ -93,9 +104,10 @@ class RosArm:
         self.topic = {k: f"{self.namespace}/{k}" for k in
                       ("measured_js", "setpoint_js", "measured_cp", "local/measured_cp",
                        "body/measured_cf", "servo_jp", "servo_jf", "move_jp")}
-        console = "/" + console.strip("/")
-        self.topic["power_on"] = f"{console}/power_on"
-        self.topic["home"] = f"{console}/home"
+        self._command_qos = None
+        self._console = console if console == "auto" else "/" + console.strip("/")
+        if self._console != "auto":
+            self._set_console(self._console)
 
         # Best effort matches both reliable (the dVRK's default) and best-effort publishers,
         # and never lets a slow reader hold up a 1 kHz stream with retransmissions.
@@ -104,21 +116,22 @@ class RosArm:
         command_qos = QoSProfile(depth=qos_depth, history=HistoryPolicy.KEEP_LAST,
                                  reliability=ReliabilityPolicy.RELIABLE)
         t = self.topic
-        self._subs = [
-            node.create_subscription(JointStateMsg, t["measured_js"], self._on_measured_js, sensor_qos),
-            node.create_subscription(JointStateMsg, t["setpoint_js"],
-                                     lambda m: self._store("setpoint_js", self._joint_state(m)), sensor_qos),
-            node.create_subscription(PoseStamped, t["measured_cp"],
-                                     lambda m: self._store("measured_cp", self._pose(m)), sensor_qos),
-            node.create_subscription(PoseStamped, t["local/measured_cp"],
-                                     lambda m: self._store("local/measured_cp", self._pose(m)), sensor_qos),
-            node.create_subscription(WrenchStamped, t["body/measured_cf"],
-                                     lambda m: self._store("body/measured_cf", self._wrench(m)), sensor_qos),
-        ]
+        store = {"setpoint_js": (JointStateMsg, self._joint_state), "measured_cp": (PoseStamped, self._pose),
+                 "local/measured_cp": (PoseStamped, self._pose), "body/measured_cf": (WrenchStamped, self._wrench)}
+        unknown = set(streams) - set(ALL_STREAMS)
+        if unknown:
+            raise ValueError(f"unknown arm streams {sorted(unknown)}; known: {', '.join(ALL_STREAMS)}")
+        self.streams = ("measured_js",) + tuple(k for k in streams if k != "measured_js")
+        self._subs = [node.create_subscription(JointStateMsg, t["measured_js"], self._on_measured_js, sensor_qos)]
+        for key in self.streams[1:]:
+            msg_type, convert = store[key]
+            self._subs.append(node.create_subscription(
+                msg_type, t[key], lambda m, key=key, convert=convert: self._store(key, convert(m)), sensor_qos))
         self._pubs = {k: node.create_publisher(JointStateMsg, t[k], command_qos)
                       for k in ("servo_jp", "servo_jf", "move_jp")}
-        self._pubs["power_on"] = node.create_publisher(Empty, t["power_on"], command_qos)
-        self._pubs["home"] = node.create_publisher(Empty, t["home"], command_qos)
+        self._command_qos = command_qos
+        if self._console != "auto":
+            self._console_publishers()
 
         self._closing = threading.Event()
         self._executor = None
@@ -163,7 +176,7 @@ class RosArm:
         js = self._joint_state(m)
         with self._cond:
             self._js = js
-            self._js_rx = time.monotonic()
+            self._js_rx = self._clock()
             self._stale_fired = False
             self.received += 1
             self._cond.notify_all()
@@ -179,7 +192,7 @@ class RosArm:
                 rx, fired, js = self._js_rx, self._stale_fired, self._js
             if rx is None or fired:
                 continue  # not armed before the first sample; once per outage
-            age = time.monotonic() - rx
+            age = self._clock() - rx
             if age <= self.watchdog:
                 continue
             with self._lock:
@@ -205,7 +218,7 @@ class RosArm:
         """Seconds since the last measured_js (inf before the first)."""
         with self._lock:
             rx = self._js_rx
-        return float("inf") if rx is None else time.monotonic() - rx
+        return float("inf") if rx is None else self._clock() - rx
 
     def wait_for_data(self, timeout: float = 5.0) -> bool:
         """Block until a measured_js arrived (True) or `timeout` s passed (False)."""
@@ -225,12 +238,14 @@ class RosArm:
         """
         with self._lock:
             js, rx = self._js, self._js_rx
-        age = float("inf") if rx is None else time.monotonic() - rx
+        age = float("inf") if rx is None else self._clock() - rx
         if js is None or age > self.watchdog:
             raise StaleStream(self.topic["measured_js"], age, self.watchdog)
         return js
 
     def _get(self, key: str):
+        if key not in self.streams:
+            raise RuntimeError(f"{self.topic[key]}: not subscribed (RosArm streams={self.streams})")
         with self._lock:
             value = self._latest.get(key)
         if value is None:
@@ -306,11 +321,31 @@ class RosArm:
         self._publish("servo_jp", position=js.position)
 
     # -- console ------------------------------------------------------------------------
+    def _set_console(self, namespace: str) -> None:
+        self._console = namespace
+        self.topic["power_on"] = f"{namespace}/power_on"
+        self.topic["home"] = f"{namespace}/home"
+
+    def _console_publishers(self) -> None:
+        for key in ("power_on", "home"):
+            self._pubs[key] = self.node.create_publisher(self._Empty, self.topic[key], self._command_qos)
+
+    def console_namespace(self) -> str:
+        """The console's namespace; with console="auto", found from the ROS graph: "/system"
+        when any /system/ topic exists (dVRK 2.4), else "/console" (dVRK 2.3)."""
+        if self._console == "auto":
+            names = [n for n, _ in self.node.get_topic_names_and_types()]
+            self._set_console("/system" if any(n.startswith("/system/") for n in names) else "/console")
+            self._console_publishers()
+        return self._console
+
     def power_on(self) -> None:
+        self.console_namespace()
         self._pubs["power_on"].publish(self._Empty())
 
     def home(self) -> None:
         """Ask the console to home the arms (asynchronous, as on the dVRK)."""
+        self.console_namespace()
         self._pubs["home"].publish(self._Empty())
 
     def wait_for_subscribers(self, timeout: float = 5.0) -> bool:

@@ -1,4 +1,4 @@
-"""The three device interfaces that procedures use (DESIGN.md, "Devices and fakes").
+"""The device interfaces that procedures use (DESIGN.md, "Devices and fakes").
 
 A procedure only ever sees these. A driver takes its transport (a ROS 2 node, a pyserial
 port, a python-can bus) and implements one of them; its fake sits next to it and behaves
@@ -108,3 +108,30 @@ class Tracker(Protocol):
     def latest(self) -> TrackerFrame: ...
 
     def close(self) -> None: ...
+
+
+@runtime_checkable
+class Operator(Protocol):
+    """Who does the steps of a procedure that need hands (drivers.operator): a person at the
+    console on the real rig, the simulation on the simulated one. Each call returns when done."""
+
+    def confirm(self, message: str) -> None:
+        """Do what `message` asks (mount bodies, clear the workspace)."""
+        ...
+
+    def detach_object(self) -> None:
+        """Take the object (spring, suture) and the load cell off the tool tips."""
+        ...
+
+    def attach_object(self, kind: str | None = None) -> None:
+        """Attach the object (`kind`: "spring" or "string"; None: the rig's) and the load cell
+        between the tool tips."""
+        ...
+
+    def hang_mass(self, kg: float) -> None:
+        """Hang `kg` kilograms from the load cell (0: take everything off it)."""
+        ...
+
+    def touch(self, arms: dict, point_index: int, goal_world: np.ndarray) -> None:
+        """Bring every arm's tool tip to one common physical point (the index-th)."""
+        ...

@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Callable
 
 from drivers.interfaces import ForceSample
+from rig.faults import DeviceFault
 
 # --------------------------------------------------------------------------- protocol
 
@@ -451,7 +452,7 @@ STANDARD_GRAVITY = 9.80665  # m/s^2
 CALIBRATION_PROCEDURE = "loadcell-calibrate"
 
 
-class LoadCellError(RuntimeError):
+class LoadCellError(DeviceFault):
     """Anything wrong with the load cell that a procedure should stop on."""
 
 
@@ -551,6 +552,19 @@ class LoadCellCalibration:
         return cls.from_dict(data.get("calibration", data), source=str(path))
 
 
+def open_serial_port(path: str, baudrate: int):
+    """The load cell's serial port opened with pyserial; a port that cannot be opened is a
+    LoadCellDisconnected naming it and what to check."""
+    import serial
+
+    try:
+        return serial.Serial(path, baudrate, timeout=0.005)
+    except (serial.SerialException, OSError, ValueError) as exc:
+        why = getattr(exc, "strerror", None) or str(exc)
+        raise LoadCellDisconnected(f"load cell port {path}: cannot open ({why}); check the cable, the "
+                                   "port in rig.toml [loadcell] (or `rig sim`'s printed pty)") from None
+
+
 def load_latest_calibration() -> LoadCellCalibration:
     """The calibration of the newest completed `rig loadcell-calibrate` run."""
     from rig.paths import latest_result, runs_root
@@ -612,6 +626,7 @@ class _StreamingLoadCell(abc.ABC):
         self._buffer_size = buffer_size
         self._latest: ForceSample | None = None
         self._last_rx: float | None = None
+        self._last_poll: float | None = None  # clock() when the reader last looked at the transport
         self._streaming = False
         self._error: LoadCellError | None = None
         self._replies: queue.Queue[tuple[int, bytes]] = queue.Queue()
@@ -683,9 +698,21 @@ class _StreamingLoadCell(abc.ABC):
             raise self._error
         if not self._streaming:
             raise LoadCellError(f"load cell on {self.name} is not streaming; call start()")
-        self._check_stale(self.clock())
+        self._check_stale(self._polled_now())
         if self._error is not None:
             raise self._error
+
+    def _polled_now(self) -> float:
+        """Now, as far as the reader thread has looked: a starved reader (the process busy)
+        has not seen the samples waiting in the port, which must not count as silence."""
+        now = self.clock()
+        poll = self._last_poll
+        return now if poll is None else min(now, poll)
+
+    def stream_age(self) -> float:
+        """Seconds since the last sample as of the reader's last look (inf before the first)."""
+        rx = self._last_rx
+        return float("inf") if rx is None else self._polled_now() - rx
 
     def read(self) -> ForceSample:
         """The newest sample (N, host seconds). Raises if disconnected, stale or uncalibrated."""
@@ -915,7 +942,7 @@ class LoadCell(_StreamingLoadCell):
             except Exception as exc:  # noqa: BLE001 - pyserial raises SerialException/OSError/TypeError on hangup
                 self._lost_port(f"port read failed: {exc}")
                 return
-            rx = self.clock()
+            rx = self._last_poll = self.clock()
             if data is None:
                 self._lost_port("port returned EOF")
                 return

@@ -106,7 +106,7 @@ class CanLoadCell(_StreamingLoadCell):
             except (can.CanError, OSError, ValueError) as exc:
                 self._fail(LoadCellDisconnected(f"load cell on {self.name}: bus failed: {exc}"))
                 return
-            rx = self.clock()
+            rx = self._last_poll = self.clock()
             if msg is not None and not msg.is_error_frame and not msg.is_remote_frame:
                 if msg.arbitration_id == sample_id:
                     if msg.dlc == 8:

@@ -76,6 +76,10 @@ class SimForceSensor:
             raise RuntimeError("simulated load cell: no sample yet; tick the clock first")
         return self._latest
 
+    def stream_age(self) -> float:
+        """Seconds of rig time since the newest sample (inf before the first)."""
+        return float("inf") if self._latest is None else self.clock.now() - self._latest.t
+
     def samples(self) -> list[ForceSample]:
         """Every sample since the last call, oldest first."""
         out = list(self._buffer)

@@ -29,9 +29,10 @@ import numpy as np
 
 from drivers.interfaces import Pose, TrackerFrame
 from drivers.quaternion import quat_xyzw_to_matrix
+from rig.faults import DeviceFault
 
 
-class MocapStaleError(RuntimeError):
+class MocapStaleError(DeviceFault):
     """A body's pose stream stopped for longer than the tracker's stale timeout."""
 
 

@@ -38,7 +38,7 @@ from procedures.link_lengths import _joint_sign
 from procedures.mocap_sweep import Capture, _Collector, body_points, concatenate, move_capture, open_devices, servo_capture
 from rig import psm_kinematics as K
 from rig.params import Parameter, with_parameters
-from rig.run import Run, config_from_context, emit_result, exit_on_abort, json_option
+from rig.run import Run, config_from_context, emit_result, exit_on_abort, json_option, yes_option
 
 PROCEDURE = "calibrate-rcm"
 STEPS = (
@@ -340,6 +340,7 @@ def run_from_csv(path: str, body: str, parameters: dict, run_root=None, progress
               help="Calibrate offline from an OptiTrack Motive CSV export (m or mm, quaternions).")
 @click.option("--body", default=None, help="Rigid body of the tool in the --from-csv file.")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
+@yes_option
 @json_option
 @click.pass_context
 @exit_on_abort

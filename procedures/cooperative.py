@@ -22,7 +22,7 @@ import click
 import numpy as np
 
 from rig.params import Parameter, with_parameters
-from rig.run import AbortRun, Run, config_from_context, emit_result, exit_on_abort, json_option
+from rig.run import AbortRun, Run, config_from_context, emit_result, exit_on_abort, json_option, yes_option
 
 #: Live increments: per key press, and the slew rates the controller ramps them in at
 KEY_STEP_M, KEY_STEP_RAD, KEY_STEP_N = 0.002, 0.05, 0.5      # m, rad, N
@@ -88,6 +88,7 @@ def _vector(text: str | None, what: str) -> np.ndarray:
                    f"rotate {KEY_STEP_RAD:g} rad, +/- change the tension by {KEY_STEP_N:g} N (ramped in like "
                    "--ros-commands).")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
+@yes_option
 @json_option
 @click.pass_context
 @exit_on_abort
@@ -114,8 +115,7 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
         raise click.BadParameter(f"{master!r} is not one of {names}", param_hint="--master")
     translation, rotation = _vector(move, "--move"), _vector(rotate, "--rotate")
     if object_kind is not None:
-        if not cfg.simulated:
-            raise click.BadParameter("chooses the simulated object; the real rig holds what is mounted", param_hint="--object")
+        # on the real rig the operator is asked to attach this object (the gains follow it)
         cfg.object["kind"] = object_kind
         cfg.object["stiffness"] = 2450.0 if object_kind == "spring" else 20000.0
     cfg.object["arms"] = names
@@ -216,7 +216,7 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
     if params["force"] >= limits.tension_ceiling:
         raise click.BadParameter(f"{params['force']} N is not below the tension ceiling "
                                  f"{limits.tension_ceiling} N", param_hint="--force")
-    rig = open_rig(cfg, names, seed=seed)
+    rig = open_rig(cfg, names, seed=seed, uses=("loadcell",))
     try:
         return _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
                     model_note, registration_note, limits, dry_run, ros_commands, interactive,
@@ -244,10 +244,16 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                 arm = rig.arms[n]
                 if hasattr(arm, "power_on"):
                     arm.power_on()
-        with run.step(STEPS[1]):
             if rig.world is None:
-                click.pause(f"Attach the {kind} and the load cell between the tool tips of "
-                            f"{' and '.join(names)}, then press a key")
+                # a real (or served) rig is wherever the last procedure left it: bring every
+                # arm to its configured start q0, where the object fits between the tips
+                # (the simulated rig starts there)
+                for n in names:
+                    run.claim(rig.arms[n])
+                    if not rig.arms[n].move_jp(np.array(cfg.arms[n]["q0"]), wait=True, timeout=15.0):
+                        raise AbortRun(f"{n} did not reach its start q0 = {cfg.arms[n]['q0']} (rad, rad, m) in 15 s")
+        with run.step(STEPS[1]):
+            rig.operator.attach_object(kind)
             # the simulated object is attached at construction; let it settle under the PIDs
             for _ in range(int(0.5 * clock.rate)):
                 clock.tick()
@@ -292,7 +298,6 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         for n in names:
             log[f"{n}.x"] = np.empty((n_ticks, 3))
             log[f"{n}.xd"] = np.empty((n_ticks, 3))
-        last_force_t = min(s.t for s in first)
         t_start = clock.now()
         # the ROS 2 context and the keyboard are released however the loop ends
         with live, run.step(STEPS[3], total=n_ticks) as step:
@@ -309,11 +314,15 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                         rec.tension(topic, s.t, s.force)
                     newest.append(new[-1] if new else None)
                 if all(s is not None for s in newest):
-                    last_force_t = min(s.t for s in newest)
                     tension = np.array([s.force for s in newest])
                     fresh = tension
-                elif t - last_force_t > cfg.loadcell["stale_timeout"]:
-                    raise AbortRun(f"load cell stale: no sample for {1000 * (t - last_force_t):.0f} ms")
+                else:
+                    # the sensors' own age: a reader that could not run (the process busy)
+                    # has samples waiting in the port, which is no silence of the cell
+                    age = max(s.stream_age() for s in sensors)
+                    if age > cfg.loadcell["stale_timeout"]:
+                        raise AbortRun(f"load cell stale: no sample for {1000 * age:.0f} ms "
+                                       f"(stale timeout {1000 * cfg.loadcell['stale_timeout']:.0f} ms)")
                 live.poll(t)
                 c0 = time.perf_counter()
                 q = {n: js[n].position[:3] for n in names}

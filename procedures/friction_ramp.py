@@ -31,7 +31,7 @@ import click
 import numpy as np
 
 from rig.params import Parameter, with_parameters
-from rig.run import AbortRun, Run, config_from_context, emit_result, exit_on_abort, json_option
+from rig.run import AbortRun, Run, config_from_context, emit_result, exit_on_abort, json_option, yes_option
 
 PROCEDURE = "friction-ramp"
 JOINT = 2  # joint 3, 0-based
@@ -264,11 +264,13 @@ def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = Tru
     speeds = parse_speeds(parameters["speeds"])
     seed = None if parameters["seed"] < 0 else parameters["seed"]
     dyn, comp_info, prior = compensation_model(cfg, arm_name)
-    dev = open_rig(cfg, [arm_name], seed=seed)
+    # the force is applied and read through the arm's own effort: no load cell, no mocap
+    dev = open_rig(cfg, [arm_name], seed=seed, uses=())
     try:
         with Run(PROCEDURE, parameters=parameters, config=cfg.snapshot(), seed=seed, steps=list(STEPS),
                  root=run_root, progress=progress) as run:
             clock = dev.clock
+            dev.operator.detach_object()  # joint 3 alone: nothing may pull on the tool
             arm = run.claim(dev.arms[arm_name])
             q_ref = np.array([0.0, 0.0, parameters["q3"]])
             with run.step(STEPS[0]):
@@ -394,6 +396,7 @@ def report_text(r: dict) -> str:
 @click.command(name=PROCEDURE)
 @with_parameters(PARAMETERS)
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
+@yes_option
 @json_option
 @click.pass_context
 @exit_on_abort

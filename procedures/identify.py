@@ -73,7 +73,7 @@ import click
 import numpy as np
 
 from rig.params import Parameter, with_parameters
-from rig.run import AbortRun, Run, config_from_context, emit_result, exit_on_abort, json_option
+from rig.run import AbortRun, Run, config_from_context, emit_result, exit_on_abort, json_option, yes_option
 
 PROCEDURE = "identify"
 
@@ -885,17 +885,22 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
     smode = parse_slope(parameters["friction_slope"])
     seed = None if parameters["seed"] < 0 else parameters["seed"]
     limits = JointLimits()
-    dev = open_rig(cfg, [arm_name], seed=seed)
+    dev = None
     try:
         with Run(PROCEDURE, parameters=parameters, config=cfg.snapshot(), seed=seed, steps=list(STEPS_LIVE),
                  root=run_root, progress=progress) as run:
             say = _sayer(progress)
-            clock = dev.clock
+            # The design is computed before the devices are opened: it takes seconds of CPU
+            # that a connected driver would otherwise have to share.
             with run.step(STEPS_LIVE[0], total=parameters["starts"]) as st:
                 exc = design_excitation(parameters, g_config,
                                         progress=lambda k, n, c: (st.update(k), say(f"start {k}/{n}: cond {c:.1f}")))
                 say(("reused the cached design " if exc["cached"] else "designed and cached ") + exc["path"])
                 st.update(parameters["starts"])
+            dev = open_rig(cfg, [arm_name], seed=seed, uses=())
+            clock = dev.clock
+            # one arm moves alone: nothing may tie it to another (the object is taken off)
+            dev.operator.detach_object()
             traj = exc["trajectory"]
             vtraj = validation_trajectory(parameters["validation_frequency"], parameters["duration"],
                                           parameters["harmonics"], parameters["design_seed"], parameters["fill"])
@@ -939,7 +944,8 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
                     result["truth"] = simulated_truth(world, arm_name, outcome, val)
                 run.finish(result)
     finally:
-        dev.close()
+        if dev is not None:  # after the run's exit has held the arm
+            dev.close()
     return run.result
 
 
@@ -992,6 +998,7 @@ def _data_errors():
 @click.command(name=PROCEDURE)
 @with_parameters(PARAMETERS)
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
+@yes_option
 @json_option
 @click.pass_context
 @exit_on_abort

@@ -67,7 +67,7 @@ from calibration.registration import invert, mean_pose
 from procedures.mocap_sweep import (Capture, _Collector, body_points, move_capture, open_devices, settle)
 from rig import psm_kinematics as K
 from rig.params import Parameter, with_parameters
-from rig.run import Run, config_from_context, emit_result, exit_on_abort, json_option
+from rig.run import Run, config_from_context, emit_result, exit_on_abort, json_option, yes_option
 
 PROCEDURE = "link-lengths"
 STEPS = (
@@ -592,6 +592,7 @@ def _tracker_stats(tracker) -> dict:
 @click.command(name=PROCEDURE)
 @with_parameters(PARAMETERS)
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
+@yes_option
 @json_option
 @click.pass_context
 @exit_on_abort

@@ -4,7 +4,10 @@ Hang mass 1 (usually nothing), average the counts; hang mass 2, average again; t
 through the two points (force = m g, g = 9.80665 m/s^2) is the calibration. It is saved as
 `result.json` of a run folder, where `drivers.loadcell.load_latest_calibration()` finds it.
 On the simulated rig the firmware fake is loaded with the masses by the procedure itself,
-and the result also reports the fake's true gain so the fit can be judged.
+and the result also reports the fake's true gain so the fit can be judged. On a rig.toml
+with `[loadcell] driver = "serial"` the configured port is calibrated and the rig's
+operator (drivers.operator) hangs the masses: the person at the console, or `rig sim`'s
+simulated operator.
 """
 
 from __future__ import annotations
@@ -26,7 +29,9 @@ from drivers.loadcell import (
     LoadCellCalibration,
     LoadCellError,
 )
+from drivers.operator import OperatorError
 from rig.paths import run_dir_name, runs_root
+from rig.run import config_from_context, yes_option
 
 STEPS = (
     "connect to the load cell",
@@ -63,9 +68,10 @@ def _point(mass_kg: float, counts: list[int]) -> dict:
 @click.option("--mass2", type=float, default=0.5, show_default=True,
               help="Second known mass (kg); pick one near the working tension (0.5 kg = 4.9 N).")
 @click.option("--port", type=click.Path(dir_okay=False), default=None,
-              help="Serial port of the load-cell Arduino, e.g. /dev/ttyACM0. Default: the simulated cell.")
-@click.option("--sim", is_flag=True, help="Use the simulated load cell (the default when no --port is given).")
-@click.option("--baud", type=int, default=250000, show_default=True, help="Serial speed (baud).")
+              help="Serial port of the load-cell Arduino, e.g. /dev/ttyACM0. Default: rig.toml's [loadcell] port when "
+                   "its driver is 'serial', else the simulated cell.")
+@click.option("--sim", is_flag=True, help="Use the in-process simulated load cell, whatever rig.toml says.")
+@click.option("--baud", type=int, default=None, help="Serial speed (baud). Default: rig.toml's [loadcell] baudrate (115200).")
 @click.option("--seconds", type=click.FloatRange(0.1, 60), default=2.0, show_default=True,
               help="Averaging time at each mass (s).")
 @click.option("--rate", "rate_hz", type=click.IntRange(1, 1000), default=500, show_default=True,
@@ -73,7 +79,9 @@ def _point(mass_kg: float, counts: list[int]) -> dict:
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without running.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the result (result.json) on stdout and the report on stderr.")
-def command(mass1: float, mass2: float, port: str | None, sim: bool, baud: int, seconds: float,
+@yes_option
+@click.pass_context
+def command(ctx, mass1: float, mass2: float, port: str | None, sim: bool, baud: int | None, seconds: float,
             rate_hz: int, list_steps: bool, as_json: bool) -> None:
     """Two-point load-cell calibration with known masses (kg), stored for later runs.
 
@@ -89,6 +97,14 @@ def command(mass1: float, mass2: float, port: str | None, sim: bool, baud: int, 
     if mass1 < 0 or mass2 < 0 or mass1 == mass2:
         raise click.UsageError("--mass1 and --mass2 must be non-negative and different (kg)")
     report = (lambda m: click.echo(m, err=True)) if as_json else click.echo
+    cfg = config_from_context(ctx)
+    if port is None and not sim and cfg.loadcell["driver"] == "serial":
+        port = cfg.loadcell["port"]
+    elif port is None and not sim and cfg.loadcell["driver"] == "can":
+        raise click.ClickException(f"{cfg.source}: loadcell.driver = 'can': this command calibrates a serial cell; "
+                                   "give --port, or --sim")
+    if baud is None:
+        baud = cfg.loadcell["baudrate"]
     simulated = port is None
     params = {"mass1_kg": mass1, "mass2_kg": mass2, "port": port, "sim": simulated, "baud": baud,
               "seconds": seconds, "rate_hz": rate_hz}
@@ -101,14 +117,15 @@ def command(mass1: float, mass2: float, port: str | None, sim: bool, baud: int, 
         report(f"[{next(step_no)}/{len(STEPS)}] {name}")
 
     weights = HangingMass()
-    fake = ser = lc = None
+    fake = ser = lc = session = None
+    operator = None
 
     def hang(kg: float) -> None:
         if simulated:
             weights.kg = kg  # collect_counts() only takes samples converted from now on
         else:
-            click.prompt(f"Hang {kg:.3f} kg from the load cell, let it settle, then press Enter",
-                         default="", show_default=False, err=True)
+            operator.hang_mass(kg)
+            time.sleep(0.1)  # let it settle: the first conversions may still swing
 
     try:
         import serial
@@ -118,7 +135,17 @@ def command(mass1: float, mass2: float, port: str | None, sim: bool, baud: int, 
             fake = FakeLoadCellFirmware(weights, noise=0.005).start()  # 5 mN rms, like a good bridge
             ser = serial.Serial(fake.port_path, baudrate=baud)
         else:
-            ser = serial.Serial(port, baudrate=baud)
+            from drivers.loadcell import open_serial_port
+            from rig.devices import open_operator
+
+            if cfg.operator["driver"] == "ros":
+                from rig.ros_session import RosSession
+
+                session = RosSession("rig_loadcell_calibrate")
+            operator = open_operator(cfg, session)
+            if session is not None:
+                session.start()
+            ser = open_serial_port(port, baud)
         # static loads: a 200 ms scheduling hiccup is harmless here, a dead cable still stops us
         lc = LoadCell(ser, None, rate_hz=rate_hz, stale_timeout=0.2)
         ident = lc.identity
@@ -162,7 +189,7 @@ def command(mass1: float, mass2: float, port: str | None, sim: bool, baud: int, 
             result["truth"] = {"newtons_per_count": true_k, "zero_counts": fake.model.offset,
                                "gain_error_rel": cal.newtons_per_count / true_k - 1.0,
                                "zero_error_counts": cal.zero_counts - fake.model.offset}
-    except (LoadCellError, ValueError, OSError) as exc:
+    except (LoadCellError, OperatorError, ValueError, OSError) as exc:
         result["error"] = str(exc)
     except Exception as exc:  # noqa: BLE001 - serial.SerialException and the like: record, then fail
         result["error"] = f"{type(exc).__name__}: {exc}"
@@ -173,6 +200,8 @@ def command(mass1: float, mass2: float, port: str | None, sim: bool, baud: int, 
             ser.close()
         if fake is not None:
             fake.unplug()
+        if session is not None:
+            session.close()
 
     report(f"[{len(STEPS)}/{len(STEPS)}] {STEPS[-1]}")
     result["finished"] = datetime.now(timezone.utc).isoformat()

@@ -13,9 +13,9 @@ Tracker, and a Clock), so the same code drives the real rig and the simulated on
 * `body_points`: a body's markers (N, P, 3), or, when the tracker gives poses only (ROS
   bridges publish PoseStamped per body), three virtual points rigidly attached to the
   pose, so the thesis's three-marker fits run on either;
-* `Person`: the steps a person does on the real rig (mount bodies, touch a point),
-  prompted on the console there and done by the simulation on the simulated rig;
-* `open_devices`: the clock, arms, tracker and person of a configuration.
+* `open_devices`: the clock, arms, tracker and operator of a configuration (the operator,
+  drivers.operator, does the steps a person does on the real rig: mount bodies, touch a
+  point).
 
 Units: m, rad (joint 3 in m), s.
 """
@@ -172,7 +172,7 @@ class Rig(Protocol):
     clock: object
     arms: dict
     tracker: object
-    person: "Person"
+    person: object  # drivers.interfaces.Operator
 
 
 def _record_frames(run, collector: _Collector, frames: list[TrackerFrame]) -> None:
@@ -257,67 +257,8 @@ def settle(rig, run, collector: _Collector, arms: list, duration: float) -> None
 
 
 # ------------------------------------------------------------------------------ people
-
-class Person(Protocol):
-    """The steps of a procedure that need a person on the real rig."""
-
-    def confirm(self, message: str) -> None:
-        """Do what `message` asks (mount bodies, clear the workspace) before continuing."""
-        ...
-
-    def detach_object(self) -> None:
-        """Take the object (spring, suture) off the tool tips: calibration moves arms alone."""
-        ...
-
-    def touch(self, arms: dict, point_index: int, goal_world: np.ndarray) -> None:
-        """Bring every arm's tool tip to one common physical point (the index-th)."""
-        ...
-
-
-class ConsolePerson:
-    """The real rig: print the request and wait for Enter (stderr, so --json stays clean)."""
-
-    def confirm(self, message: str) -> None:
-        click.prompt(f"{message}; press Enter when done", default="", show_default=False, err=True)
-
-    def detach_object(self) -> None:
-        self.confirm("Take the object (spring or suture) and the load cell off the tool tips")
-
-    def touch(self, arms: dict, point_index: int, goal_world: np.ndarray) -> None:
-        names = " and ".join(arms)
-        click.prompt(f"Touch point {point_index + 1}: bring the tool tips of {names} together on one "
-                     "point of the fixture (hand-guide or jog them), hold still, press Enter",
-                     default="", show_default=False, err=True)
-
-
-class SimPerson:
-    """The simulated rig does the person's steps itself.
-
-    Markers are mounted by construction; the object is detached from the world; a touch
-    puts every arm's tip on the same world point with inverse kinematics on the *true*
-    arm placement (what a person guiding the tips together achieves physically, whatever
-    the calibration believes).
-    """
-
-    def __init__(self, world, clock):
-        self.world = world
-        self.clock = clock
-
-    def confirm(self, message: str) -> None:
-        return None
-
-    def detach_object(self) -> None:
-        self.world.detach_object()
-
-    def touch(self, arms: dict, point_index: int, goal_world: np.ndarray) -> None:
-        # A person hand-guides the tips onto the point: the arms end exactly at the
-        # inverse kinematics of the true placement (world.set_state), then hold there.
-        from rig import psm_kinematics as K
-        for name, arm in arms.items():
-            T = np.linalg.inv(self.world.arms[name].rcm_world)
-            q = K.ik_rcm((T @ np.append(goal_world, 1.0))[:3])
-            self.world.set_state(name, q)
-            arm.hold()
+# The steps that need a person are asked of the rig's operator (drivers.operator): the
+# console on the real rig, `rig sim`'s operator over ROS 2, or the in-process simulation.
 
 
 @dataclass
@@ -328,7 +269,7 @@ class Devices:
     clock: object
     arms: dict
     tracker: object
-    person: Person
+    person: object  # drivers.interfaces.Operator
     world: object = None
     rig: object = None
 
@@ -338,15 +279,15 @@ class Devices:
 
 
 def open_devices(cfg, seed: int | None = None, arms: list[str] | None = None) -> Devices:
-    """The configuration's clock, arms and tracker (`rig.devices.open_rig`) and the person
-    for the manual steps: the simulation itself on the simulated rig, the console on the
-    real one."""
+    """The configuration's clock, arms, tracker and operator (`rig.devices.open_rig`; no
+    load cell): the operator does the manual steps (the simulation itself on the simulated
+    rig, `rig sim`'s operator or the person at the console on a ROS rig; `yes` answers the
+    console's requests)."""
     from rig.devices import open_rig
 
-    rig = open_rig(cfg, arms, seed=seed)
+    rig = open_rig(cfg, arms, seed=seed, uses=("mocap",))
     if rig.tracker is None:
         rig.close()
         raise click.ClickException(f"{cfg.source}: no motion-capture system ([mocap] driver = 'none'); "
                                    "this procedure tracks marker bodies")
-    person = SimPerson(rig.world, rig.clock) if rig.world is not None else ConsolePerson()
-    return Devices(rig.clock, dict(rig.arms), rig.tracker, person, rig.world, rig)
+    return Devices(rig.clock, dict(rig.arms), rig.tracker, rig.operator, rig.world, rig)

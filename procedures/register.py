@@ -35,7 +35,7 @@ from procedures.mocap_sweep import _Collector, open_devices, settle
 from rig import psm_kinematics as K
 from rig.params import Parameter, with_parameters
 from rig.paths import latest_result
-from rig.run import Run, config_from_context, emit_result, exit_on_abort, json_option
+from rig.run import Run, config_from_context, emit_result, exit_on_abort, json_option, yes_option
 
 PROCEDURE = "register"
 STEPS = ("open the rig and take the object off", "measure", "fit the transforms", "save")
@@ -195,6 +195,7 @@ def report(result: dict) -> str:
 @click.command(name=PROCEDURE)
 @with_parameters(PARAMETERS)
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
+@yes_option
 @json_option
 @click.pass_context
 @exit_on_abort

@@ -33,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 from array import array
 import os
+from pathlib import Path
 import signal
 import sys
 import threading
@@ -55,11 +56,13 @@ class SimServer:
     world: a `rig.sim.SimWorld` (its own pacing is turned off: the server paces);
     node: an rclpy Node, spun here on an executor thread; arms: names to serve;
     cp_rate: Hz of the slower arm topics; mocap: a dict with prefix, rate, noise, latency,
-    occlusion (or None for no mocap).
+    occlusion (or None for no mocap); console: the console's namespace ("/console" as in
+    dVRK 2.3, "/system" as in 2.4); cells: the `CellLoad`s of the served load cells, the
+    configured one first (the operator hangs masses from it).
     """
 
     def __init__(self, world, node, arms: list[str], cp_rate: float = 100.0, mocap: dict | None = None,
-                 seed: int = 0):
+                 seed: int = 0, console: str = "/console", cells: list | None = None):
         from geometry_msgs.msg import PoseStamped, WrenchStamped
         from rclpy.qos import QoSProfile
         from sensor_msgs.msg import JointState
@@ -100,9 +103,13 @@ class SimServer:
             node.create_subscription(JointState, f"{ns}/servo_jp", self._queued(self._servo_jp, arm), qos)
             node.create_subscription(JointState, f"{ns}/servo_jf", self._queued(self._servo_jf, arm), qos)
             node.create_subscription(JointState, f"{ns}/move_jp", self._queued(self._move_jp, arm), qos)
-        node.create_subscription(Empty, "/console/power_on", self._queued(self._console, "power_on"), qos)
-        node.create_subscription(Empty, "/console/power_off", self._queued(self._console, "power_off"), qos)
-        node.create_subscription(Empty, "/console/home", self._queued(self._console, "home"), qos)
+        self.console = "/" + console.strip("/")
+        for what in ("power_on", "power_off", "home"):
+            node.create_subscription(Empty, f"{self.console}/{what}", self._queued(self._console, what), qos)
+        from drivers.operator_sim import OperatorServer, SimOperator
+
+        # the operator's side channel: what a person does by hand, done by the simulation
+        self.operator = OperatorServer(SimOperator(world, self.arms, cell=(cells or [None])[0]), node)
         self.tracker = None
         if mocap is not None:
             from drivers.mocap import pose_topic
@@ -158,6 +165,7 @@ class SimServer:
                 arm.home(wait=False)
 
     def _apply_commands(self) -> None:
+        self.operator.apply()
         while self._commands:
             fn, arg, msg = self._commands.popleft()
             try:
@@ -282,24 +290,58 @@ class SimServer:
             self._spin_thread.join(timeout=1.0)
 
 
+def served_config(cfg):
+    """`cfg` with every arm simulated: `rig sim` stands in for the arms whatever driver the
+    file gives them, so the lab's own rig.toml (ROS arms, a serial load cell, ROS mocap)
+    describes what it serves and what the procedures open."""
+    arms = {n: dict(a, driver="sim") for n, a in cfg.arms.items()}
+    return dataclasses.replace(cfg, arms=arms, loadcell=dict(cfg.loadcell), mocap=dict(cfg.mocap))
+
+
+def _link_port(path: str, pty: str) -> str | None:
+    """Make the configured serial port `path` a symlink to the served pty, so the same
+    rig.toml opens it. Only where nothing is, or a link to a pty is (an earlier rig sim):
+    a real device is never replaced. Returns the link made, or None."""
+    p = Path(path)
+    if p.is_symlink():
+        if not os.readlink(p).startswith("/dev/pts/"):
+            return None
+        p.unlink()
+    elif p.exists() or not p.parent.is_dir():
+        return None
+    p.symlink_to(pty)
+    return str(p)
+
+
 @click.command(name="sim")
-@click.option("--arms", default=None, help="Comma-separated arms to serve (default: every simulated arm, e.g. PSM1,PSM2).")
+@click.option("--arms", default=None, help="Comma-separated arms to serve (default: every arm of the configuration, e.g. PSM1,PSM2).")
 @click.option("--duration", type=float, default=None, help="Stop after this many seconds (default: until Ctrl-C or SIGTERM).")
-@click.option("--rate", type=float, default=1000.0, show_default=True, help="Rig (servo) and measured_js rate, Hz.")
+@click.option("--rate", type=float, default=None,
+              help="Rig (servo) and measured_js rate, Hz (default: the configuration's [rig] rate, 1000).")
 @click.option("--cp-rate", type=float, default=100.0, show_default=True,
               help="Rate of setpoint_js, measured_cp, local/measured_cp and body/measured_cf, Hz.")
 @click.option("--seed", type=int, default=None, help="Seed of the simulated rig (default: the configuration's).")
 @click.option("--loadcell-pty/--no-loadcell", "loadcell", default=True, show_default=True,
-              help="Serve the load cell (firmware fake) on a pseudo-terminal and print its path.")
+              help="Serve a load cell (firmware fake) per object element on a pseudo-terminal and print the paths; "
+                   "the configured [loadcell] port, if free, becomes a link to the first.")
 @click.option("--mocap/--no-mocap", default=True, show_default=True, help="Publish mocap rigid-body poses.")
+@click.option("--console", "console", type=click.Choice(["/console", "/system"]), default=None,
+              help="Namespace of the console topics (power_on, power_off, home): /console as dVRK 2.3, /system as "
+                   "dVRK 2.4 (default: the configuration's [ros] console, else /console).")
 @click.option("--plant-model", type=click.Path(dir_okay=False), default=None,
               help="Model file (model.json of `rig identify` or `rig discrepancy`) the served arms' plants take: "
                    "its parameters and added effects (default: each arm's plant_model, else the nominal PSM).")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit.")
 @click.pass_context
-def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, plant_model, list_steps):
+def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, console, plant_model, list_steps):
     """Serve the simulated rig as the dVRK's ROS 2 topics (/<ARM>/measured_js ... at RATE Hz),
     mocap poses on /mocap/<body>/pose and the load cell on a pty, paced to the wall clock.
+
+    Every arm of the configuration is served, whatever its driver, so one rig.toml (ROS
+    arms, a serial load cell, ROS mocap, [operator] driver = "ros") serves here and drives
+    the procedures in another process. The manual steps of a procedure (take the object
+    off, attach it, hang masses on the load cell, touch a point) are done by the
+    simulation when asked on /rig_sim/operator/request.
 
     Prints 'loadcell: <pty>' and then 'ready' when serving; prints the achieved
     measured_js rate at exit. Use ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE to choose
@@ -312,16 +354,16 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, plant_mod
     from rig.run import config_from_context
     from rig.sim import world_from_config
 
-    cfg = config_from_context(ctx)
+    cfg = served_config(config_from_context(ctx))
+    rate = cfg.rig["rate"] if rate is None else rate
     if rate <= 0 or cp_rate <= 0:
         raise click.BadParameter("rates must be > 0 Hz")
     cfg = dataclasses.replace(cfg, rig=dict(cfg.rig, rate=float(rate)))
-    names = [a.strip() for a in arms.split(",")] if arms else None
-    if names:
-        for n in names:
-            if n not in cfg.arms:
-                raise click.BadParameter(f"no arm {n!r} in {cfg.source}; arms: {', '.join(cfg.arms)}",
-                                         param_hint="--arms")
+    names = [a.strip() for a in arms.split(",")] if arms else list(cfg.arms)
+    for n in names:
+        if n not in cfg.arms:
+            raise click.BadParameter(f"no arm {n!r} in {cfg.source}; arms: {', '.join(cfg.arms)}",
+                                     param_hint="--arms")
     if plant_model:
         from rig.config import ConfigError, with_plant_model
 
@@ -329,6 +371,8 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, plant_mod
             cfg = with_plant_model(cfg, plant_model, names)
         except ConfigError as exc:
             raise click.BadParameter(str(exc), param_hint="--plant-model") from None
+    if console is None:
+        console = cfg.ros["console"] if cfg.ros["console"] != "auto" else "/console"
     world = world_from_config(cfg, arms=names, seed=seed)
 
     stop = threading.Event()
@@ -336,19 +380,28 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, plant_mod
     def on_signal(signum, _frame):
         stop.set()
 
+    from drivers.operator_sim import CellLoad
 
-    firmware = None
-    if loadcell and cfg.object["arms"] and world.object is not None:
-        try:
-            from drivers.loadcell import FakeLoadCellFirmware
-        except ImportError:  # the load-cell module is not part of this build
-            FakeLoadCellFirmware = None
-        if FakeLoadCellFirmware is not None:
-            element = cfg.loadcell["element"]
-            firmware = FakeLoadCellFirmware(lambda: world.tension(element), noise=cfg.loadcell["noise"],
-                                            rate_hz=int(round(cfg.loadcell["rate"])), seed=world.seed)
-            firmware.start()
-            _say(f"loadcell: {firmware.port_path}")
+    firmwares, cells, links = [], [], []
+    if loadcell and cfg.loadcell["driver"] != "none" and world.object is not None:
+        from drivers.loadcell import FakeLoadCellFirmware
+
+        first = min(cfg.loadcell["element"], len(world.object_elements) - 1)
+        order = [first] + [k for k in range(len(world.object_elements)) if k != first]
+        for k in order:
+            cell = CellLoad(world, k)
+            fw = FakeLoadCellFirmware(cell, noise=cfg.loadcell["noise"], rate_hz=int(round(cfg.loadcell["rate"])),
+                                      seed=world.seed + 7 * k)
+            fw.start()
+            firmwares.append(fw)
+            cells.append(cell)
+            a, b = world.object_elements[k]
+            _say(f"loadcell: {fw.port_path}" if k == first else f"loadcell {a}-{b}: {fw.port_path}")
+        if cfg.loadcell["driver"] == "serial" and cfg.loadcell["port"]:
+            link = _link_port(cfg.loadcell["port"], firmwares[0].port_path)
+            if link:
+                links.append(link)
+                _say(f"loadcell link: {link} -> {firmwares[0].port_path}")
 
     import rclpy
     from rclpy.context import Context
@@ -357,26 +410,37 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, plant_mod
     context = Context()
     # Our own handlers stop the loop cleanly; rclpy's would shut the context under it.
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
-    node = rclpy.create_node("rig_sim", context=context)
-    mocap_cfg = dict(cfg.mocap) if mocap and cfg.mocap["driver"] != "none" else None
-    server = SimServer(world, node, list(world.names), cp_rate=cp_rate, mocap=mocap_cfg, seed=world.seed)
-    server.stop = stop
-    # Installed after rclpy is up: its initialisation replaces SIGINT/SIGTERM handlers.
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    print(f"rig sim: serving {', '.join(world.names)} at {rate:g} Hz on ROS_DOMAIN_ID="
-          f"{os.environ.get('ROS_DOMAIN_ID', '0')}", file=sys.stderr, flush=True)
+    node = server = None
     try:
+        node = rclpy.create_node("rig_sim", context=context)
+        mocap_cfg = dict(cfg.mocap) if mocap and cfg.mocap["driver"] != "none" else None
+        server = SimServer(world, node, list(world.names), cp_rate=cp_rate, mocap=mocap_cfg, seed=world.seed,
+                           console=console, cells=cells)
+        server.stop = stop
+        # Installed after rclpy is up: its initialisation replaces SIGINT/SIGTERM handlers.
+        signal.signal(signal.SIGINT, on_signal)
+        signal.signal(signal.SIGTERM, on_signal)
+        print(f"rig sim: serving {', '.join(world.names)} at {rate:g} Hz on ROS_DOMAIN_ID="
+              f"{os.environ.get('ROS_DOMAIN_ID', '0')}, console {console}, operator on /rig_sim/operator",
+              file=sys.stderr, flush=True)
         stats = server.serve(duration, on_ready=lambda: _say("ready"))
     finally:
-        server.close()
-        if firmware is not None:
-            firmware.close()
-        node.destroy_node()
+        if server is not None:
+            server.close()
+        for fw in firmwares:
+            fw.close()
+        for link in links:
+            try:
+                os.unlink(link)
+            except OSError:
+                pass
+        if node is not None:
+            node.destroy_node()
         rclpy.shutdown(context=context)
     hz = stats["measured_js_hz"]
     rates = ", ".join(f"{n} {v:.1f} Hz" for n, v in hz.items())
     held = all(v >= 0.98 * rate for v in hz.values())
     _say(f"measured_js achieved: {rates} (target {rate:g} Hz{'' if held else ', NOT held'}); "
          f"{stats['sim_s']:.3f} s simulated in {stats['wall_s']:.3f} s wall; late ticks {stats['late_ticks']}, "
-         f"re-anchored {stats['slips']}, refused commands {stats['command_errors']}")
+         f"re-anchored {stats['slips']}, refused commands {stats['command_errors']}, "
+         f"operator requests {sum(server.operator.served.values())}")

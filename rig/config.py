@@ -85,6 +85,10 @@ _DRIVER_ARM = _choice("sim", "ros")
 _DRIVER_LOADCELL = _choice("sim", "serial", "can", "none")
 _DRIVER_MOCAP = _choice("sim", "ros", "none")
 _OBJECT_KIND = _choice("spring", "string")
+_OPERATOR = _choice("console", "ros")
+
+#: Hz: the servo rate of ROS arms when the file gives none (bench_hil measures why)
+ROS_DEFAULT_RATE = 1000.0
 
 SCHEMA: dict[str, dict[str, Key]] = {
     "rig": {
@@ -127,6 +131,22 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "occlusion": Key("float", 0.0, "probability that a simulated body is occluded in a frame",
                          lambda x: 0 <= x < 1, "a probability in [0, 1)"),
     },
+    "ros": {
+        "console": Key("str", "auto", "namespace of the dVRK console's topics: '/console' (dVRK 2.3), '/system' "
+                       "(dVRK 2.4), or 'auto' (whichever the running system publishes)",
+                       lambda x: x == "auto" or (x.startswith("/") and len(x) > 1), "'auto' or a namespace like '/system'"),
+        "connect_timeout": Key("float", 5.0, "wait this long for the first message of every stream, s",
+                               _positive, "an interval > 0 s"),
+    },
+    "operator": {
+        "driver": Key("str", "console", "who does the manual steps (mount bodies, hang masses, attach the object): "
+                      "'console' = a person at this terminal; 'ros' = `rig sim`'s simulated operator over ROS 2",
+                      *_OPERATOR),
+        "timeout": Key("float", 30.0, "wait this long for the simulated operator to answer, s", _positive,
+                       "an interval > 0 s"),
+        "yes": Key("bool", False, "console operator: take every request as done without waiting for Enter "
+                   "(the rig is prepared beforehand); the --yes flag of a command sets it"),
+    },
     "object": {
         "kind": Key("str", "spring", "simulated object between the tool tips", *_OBJECT_KIND),
         "stiffness": Key("float", 2450.0, "object stiffness, N/m (thesis springs: 2450)", _positive, "a stiffness > 0 N/m"),
@@ -154,7 +174,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
     },
 }
 
-SECTIONS = ("rig", "arms", "loadcell", "mocap", "object", "effects")
+SECTIONS = ("rig", "arms", "loadcell", "mocap", "object", "effects", "ros", "operator")
 
 
 @dataclass
@@ -168,6 +188,9 @@ class RigConfig:
     mocap: dict[str, Any]
     object: dict[str, Any]
     effects: dict[str, dict[str, Any]]
+    ros: dict[str, Any] = dataclasses.field(default_factory=lambda: {k: v.default for k, v in SCHEMA["ros"].items()})
+    operator: dict[str, Any] = dataclasses.field(
+        default_factory=lambda: {k: v.default for k, v in SCHEMA["operator"].items()})
 
     @property
     def simulated(self) -> bool:
@@ -178,7 +201,8 @@ class RigConfig:
     def snapshot(self) -> dict[str, Any]:
         """Plain data for a run's start record."""
         return {"source": self.source, "rig": self.rig, "arms": self.arms, "loadcell": self.loadcell,
-                "mocap": self.mocap, "object": self.object, "effects": self.effects}
+                "mocap": self.mocap, "object": self.object, "effects": self.effects, "ros": self.ros,
+                "operator": self.operator}
 
     def base_matrix(self, arm: str) -> np.ndarray:
         a = self.arms[arm]
@@ -301,7 +325,9 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
             raise ConfigError(f"{source}: effects.{name}: the arm's plant is arms.{name}.plant_model, effects "
                               "included; give one or the other")
         effects[name] = _section(source, f"effects.{name}", SCHEMA["effects"], e)
-    return RigConfig(source, rig, arms, loadcell, mocap, obj, effects)
+    ros = _section(source, "ros", SCHEMA["ros"], document.get("ros", {}))
+    operator = _section(source, "operator", SCHEMA["operator"], document.get("operator", {}))
+    return RigConfig(source, rig, arms, loadcell, mocap, obj, effects, ros, operator)
 
 
 def _plant_model(source: str, name: str, arm: dict) -> str:

@@ -16,11 +16,13 @@ Mixing simulated and real arms in one rig is refused: they would live on differe
 
 from __future__ import annotations
 
-import threading
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
 from rig.clock import SimClock, WallClock
+from rig.config import ConfigError
+from rig.faults import DeviceFault
 
 
 @dataclass
@@ -36,6 +38,8 @@ class Rig:
     forces: dict = field(default_factory=dict)
     tracker: Any | None = None
     world: Any | None = None
+    session: Any | None = None  # the RosSession of ROS arms
+    operator: Any | None = None  # who does the manual steps (drivers.operator)
     _closers: list = field(default_factory=list, repr=False)
 
     @property
@@ -61,32 +65,73 @@ class Rig:
         self.close()
 
 
-def open_rig(cfg, arms: list[str] | None = None, *, seed: int | None = None) -> Rig:
-    """Open the devices of `cfg` (a `rig.config.RigConfig`); `arms` limits which arms."""
+#: the devices besides the arms that a procedure may use (`open_rig(uses=...)`)
+DEVICES = ("loadcell", "mocap")
+
+
+class ConnectError(DeviceFault):
+    """A device the procedure needs never answered: one line naming the stream and what to check."""
+
+
+def open_rig(cfg, arms: list[str] | None = None, *, seed: int | None = None,
+             uses: tuple[str, ...] = DEVICES, connect_timeout: float | None = None,
+             say=None, arm_streams: tuple[str, ...] = ("measured_js",)) -> Rig:
+    """Open the devices of `cfg` (a `rig.config.RigConfig`); `arms` limits which arms.
+
+    uses: the devices besides the arms the procedure uses ("loadcell", "mocap"); the
+    others are not opened (no port taken, no subscription made). On ROS arms the rig
+    connects before it returns: it waits up to `connect_timeout` s (default
+    `[ros] connect_timeout`) for the first message of every stream and reports what it
+    found through `say(line)` (default: stderr); `arm_streams` are the arm topics to
+    subscribe besides measured_js. `rig.operator` does the manual steps: the simulation
+    on the simulated rig, `rig sim`'s operator with `[operator] driver = "ros"`, else the
+    person at the console (`[operator] yes`: every request taken as done, for a prepared rig).
+    """
+    unknown = set(uses) - set(DEVICES)
+    if unknown:
+        raise ValueError(f"unknown devices {sorted(unknown)}; known: {', '.join(DEVICES)}")
     names = list(arms) if arms else list(cfg.arms)
     for n in names:
         if n not in cfg.arms:
-            raise ValueError(f"{cfg.source}: no arm {n!r}; arms: {', '.join(cfg.arms)}")
+            raise ConfigError(f"{cfg.source}: no arm {n!r}; arms: {', '.join(cfg.arms)}")
     drivers = {cfg.arms[n]["driver"] for n in names}
     if len(drivers) > 1:
-        raise ValueError(f"{cfg.source}: arms {names} mix simulated and ROS drivers; "
+        raise ConfigError(f"{cfg.source}: arms {names} mix simulated and ROS drivers; "
                          "run `rig sim` to serve the simulated ones over ROS 2 instead")
     if drivers == {"sim"}:
-        return _open_simulated(cfg, names, seed)
-    return _open_ros(cfg, names)
+        rig = _open_simulated(cfg, names, seed, uses)
+        from drivers.operator_sim import SimOperator
+
+        rig.operator = SimOperator(rig.world, rig.arms)
+        return rig
+    rig = _open_ros(cfg, names, uses, arm_streams)
+    try:
+        connect(rig, cfg, names, connect_timeout if connect_timeout is not None else cfg.ros["connect_timeout"],
+                say or _stderr)
+    except BaseException:
+        rig.close()
+        raise
+    return rig
 
 
-def _open_simulated(cfg, names: list[str], seed: int | None) -> Rig:
+def _stderr(line: str) -> None:
+    import sys
+
+    print(line, file=sys.stderr, flush=True)
+
+
+def _open_simulated(cfg, names: list[str], seed: int | None, uses) -> Rig:
     from drivers.loadcell_sim import SimForceSensor
     from drivers.mocap_sim import SimTracker
-    from drivers.sim_arm import SimArm
     from rig.sim import world_from_config
+
+    from drivers.sim_arm import SimArm
 
     world = world_from_config(cfg, arms=names, seed=seed)
     clock = SimClock(world)
     rig = Rig(clock=clock, arms={n: SimArm(world, n, clock) for n in names}, world=world)
     lc = cfg.loadcell
-    if lc["driver"] != "none" and world.object is not None:
+    if "loadcell" in uses and lc["driver"] != "none" and world.object is not None:
         for k in range(len(world.object_elements)):
             sensor = SimForceSensor(world, clock, element=k, rate=lc["rate"], noise=lc["noise"],
                                     seed=world.seed + 2 + 7 * k)
@@ -94,69 +139,125 @@ def _open_simulated(cfg, names: list[str], seed: int | None) -> Rig:
             rig._closers.append(sensor.close)
         rig.force = rig.forces[min(lc["element"], len(rig.forces) - 1)]
     m = cfg.mocap
-    if m["driver"] != "none":
+    if "mocap" in uses and m["driver"] != "none":
         rig.tracker = SimTracker(world, clock, noise=m["noise"], latency=m["latency"],
                                  occlusion=m["occlusion"], rate=m["rate"], seed=world.seed + 1)
         rig._closers.append(rig.tracker.close)
     return rig
 
 
-def _open_ros(cfg, names: list[str]) -> Rig:
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
+def open_operator(cfg, session=None):
+    """The operator of a rig with real (or `rig sim`) devices: `rig sim`'s over ROS 2 when
+    `[operator] driver = "ros"` (on `session`'s node), else the person at the console."""
+    from drivers.operator import ConsoleOperator, RosOperator
 
+    if cfg.operator["driver"] == "ros":
+        if session is None:
+            raise ValueError("the ROS operator needs a ROS session")
+        return RosOperator(session.node, timeout=cfg.operator["timeout"])
+    return ConsoleOperator(yes=cfg.operator["yes"])
+
+
+def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
     from drivers.dvrk_arm import RosArm
+    from rig.ros_session import RosSession
 
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("rig", context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
+    session = RosSession("rig")
     rig = Rig(clock=WallClock(cfg.rig["rate"]), arms={})
-
-    def stop_ros() -> None:
-        executor.shutdown(timeout_sec=1.0)
-        node.destroy_node()
-        if context.ok():
-            rclpy.shutdown(context=context)
-
-    rig._closers.append(stop_ros)
+    rig.session = session
+    rig._closers.append(session.close)
     try:
         for n in names:
             a = cfg.arms[n]
-            arm = RosArm(node, a["namespace"], watchdog=a["watchdog"], spin=False)
+            arm = RosArm(session.node, a["namespace"], watchdog=a["watchdog"], spin=False,
+                         console=cfg.ros["console"], streams=arm_streams, clock=session.executor_time)
             rig.arms[n] = arm
             rig._closers.append(arm.close)
         lc = cfg.loadcell
-        if lc["driver"] in ("serial", "can"):
-            rig.force = _open_loadcell(lc, rig)
-            rig.forces = {lc["element"]: rig.force}
-        elif lc["driver"] == "sim":
-            raise ValueError(f"{cfg.source}: loadcell.driver = 'sim' needs simulated arms; with ROS arms "
-                             "use 'serial' with the pty that `rig sim` prints (or 'none')")
+        if "loadcell" in uses:
+            if lc["driver"] in ("serial", "can"):
+                rig.force = _open_loadcell(lc, rig)
+                rig.forces = {lc["element"]: rig.force}
+            elif lc["driver"] == "sim":
+                raise ConfigError(f"{cfg.source}: loadcell.driver = 'sim' needs simulated arms; with ROS arms "
+                                 "use 'serial' with the pty that `rig sim` prints (or 'none')")
         m = cfg.mocap
-        if m["driver"] == "ros":
+        if "mocap" in uses and m["driver"] == "ros":
             from drivers.mocap import RosMocapTracker
             from rig.sim import default_marker_bodies
 
             bodies = [mb.name for n in names for mb in default_marker_bodies(n)] + ["world"]
-            rig.tracker = RosMocapTracker(node, bodies, prefix=m["prefix"])
+            rig.tracker = RosMocapTracker(session.node, bodies, prefix=m["prefix"], clock=session.executor_time)
             rig._closers.append(rig.tracker.close)
-        # One executor thread for the node every driver shares (drivers only copy messages).
-        thread = threading.Thread(target=_spin, args=(executor,), name="rig-ros", daemon=True)
-        thread.start()
+        rig.operator = open_operator(cfg, session)
+        session.start()
     except BaseException:
         rig.close()
         raise
     return rig
 
 
-def _spin(executor) -> None:
-    try:
-        executor.spin()
-    except Exception:  # noqa: BLE001 - the context is shut down by Rig.close()
-        pass
+def connect(rig: Rig, cfg, names: list[str], timeout: float, say) -> dict:
+    """Wait for the first message of every stream the rig opened, then report what it found.
+
+    Arms: measured_js; the load cell: a sample; mocap: a pose of every body. Progress is
+    reported once a second; a stream that never arrives raises ConnectError naming its
+    topic, the ROS domain and what to check. Returns {stream: rate in Hz} measured over a
+    short window after the first messages.
+    """
+    from rig.ros_session import domain_text
+
+    deadline = time.monotonic() + timeout
+    shown = time.monotonic()
+    waiting = {f"{rig.arms[n].topic['measured_js']}": rig.arms[n] for n in names}
+    say(f"connecting on {domain_text()}: waiting for {', '.join(waiting)}"
+        + (", the load cell" if rig.force is not None else "")
+        + (", mocap" if rig.tracker is not None else "") + f" (up to {timeout:g} s)")
+    while True:
+        missing = [topic for topic, arm in waiting.items() if arm.stream_age() == float("inf")]
+        if rig.tracker is not None:
+            missing += [rig.tracker.topics[b] for b, n in rig.tracker.stats.received.items() if n == 0]
+        if not missing:
+            break
+        now = time.monotonic()
+        if now > deadline:
+            first = missing[0]
+            more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+            raise ConnectError(
+                f"{first}: no message within {timeout:g} s on {domain_text()}{more}; check that the dVRK "
+                "(or `rig sim`) is running and publishing it, and that ROS_DOMAIN_ID and "
+                "ROS_AUTOMATIC_DISCOVERY_RANGE match")
+        if now - shown >= 1.0:
+            shown = now
+            say(f"  still waiting for {', '.join(missing[:4])}{' ...' if len(missing) > 4 else ''} "
+                f"({deadline - now:.0f} s left)")
+        time.sleep(0.01)
+    op_wait = getattr(rig.operator, "wait_for_server", None)
+    if op_wait is not None and not op_wait(max(0.0, deadline - time.monotonic())):
+        from drivers.operator import REQUEST_TOPIC
+
+        raise ConnectError(f"{REQUEST_TOPIC}: nobody serves the simulated operator on {domain_text()}; start "
+                           "`rig sim`, or set [operator] driver = 'console' in rig.toml for a person at this terminal")
+    # rates over a short window, for the report
+    window = 0.25
+    arm0 = {n: rig.arms[n].received for n in names}
+    mocap0 = dict(rig.tracker.stats.received) if rig.tracker is not None else {}
+    lc0 = rig.force.stats().samples if rig.force is not None else 0
+    time.sleep(window)
+    rates = {rig.arms[n].topic["measured_js"]: (rig.arms[n].received - arm0[n]) / window for n in names}
+    parts = [f"{n} {rates[rig.arms[n].topic['measured_js']]:.0f} Hz" for n in names]
+    if rig.force is not None:
+        lc_rate = (rig.force.stats().samples - lc0) / window
+        rates["loadcell"] = lc_rate
+        ident = getattr(rig.force, "identity", None)
+        parts.append(f"load cell {rig.force.name} {lc_rate:.0f} Hz"
+                     + (f" (firmware {'.'.join(map(str, ident.firmware))})" if ident else ""))
+    if rig.tracker is not None:
+        body_rates = [(rig.tracker.stats.received[b] - mocap0[b]) / window for b in rig.tracker.bodies]
+        rates["mocap"] = min(body_rates)
+        parts.append(f"mocap {len(rig.tracker.bodies)} bodies {min(body_rates):.0f}-{max(body_rates):.0f} Hz")
+    say("connected: " + "; ".join(parts))
+    return rates
 
 
 def _open_loadcell(lc: dict, rig: Rig):
@@ -164,11 +265,13 @@ def _open_loadcell(lc: dict, rig: Rig):
 
     calibration = load_latest_calibration()
     if lc["driver"] == "serial":
-        import serial
+        from drivers.loadcell import open_serial_port
 
-        port = serial.Serial(lc["port"], lc["baudrate"], timeout=0.005)
+        port = open_serial_port(lc["port"], lc["baudrate"])
         rig._closers.append(port.close)
-        cell = LoadCell(port, calibration, rate_hz=int(round(lc["rate"])), stale_timeout=lc["stale_timeout"])
+        # sample times on the rig's clock, so the run compares them with its own time
+        cell = LoadCell(port, calibration, rate_hz=int(round(lc["rate"])), stale_timeout=lc["stale_timeout"],
+                        clock=rig.clock.now)
     else:
         import can
 
@@ -176,6 +279,7 @@ def _open_loadcell(lc: dict, rig: Rig):
 
         bus = can.Bus(interface=lc["interface"], channel=lc["channel"])
         rig._closers.append(bus.shutdown)
-        cell = CanLoadCell(bus, calibration, rate_hz=int(round(lc["rate"])), stale_timeout=lc["stale_timeout"])
+        cell = CanLoadCell(bus, calibration, rate_hz=int(round(lc["rate"])), stale_timeout=lc["stale_timeout"],
+                           clock=rig.clock.now)
     rig._closers.append(cell.close)
     return cell

@@ -41,6 +41,8 @@ from typing import Any, Callable, Iterator, TextIO
 
 import click
 
+from rig.config import ConfigError
+from rig.faults import DeviceFault
 from rig.paths import run_dir_name, runs_root
 from rig.records import Recorder, to_json
 
@@ -364,6 +366,8 @@ def classify(exc: BaseException | None) -> tuple[str, str | None]:
         return "aborted", "interrupted (Ctrl-C)"
     if isinstance(exc, SystemExit):
         return "aborted", f"exit requested (code {exc.code})"
+    if isinstance(exc, DeviceFault):
+        return "aborted", str(exc)
     text = str(exc)
     return "failed", f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
@@ -431,20 +435,41 @@ def _short(value: Any) -> str:
     return str(value)
 
 
+def _remember_yes(ctx: click.Context, _param, value: bool) -> bool:
+    if value:
+        root = ctx.find_root()
+        root.obj = dict(root.obj or {}, yes=True)
+    return value
+
+
+yes_option = click.option(
+    "--yes", is_flag=True, expose_value=False, callback=_remember_yes,
+    help="Take every request for a person (mount marker bodies, attach or take off the object, hang masses) "
+         "as done without waiting for Enter: for a rig prepared beforehand. Without it, each request waits "
+         "for Enter on stdin (a script can answer with newlines). No effect on the simulated rig.")
+
+
 def config_from_context(ctx: click.Context):
     """The rig configuration of a command: `rig --config FILE`, else ./rig.toml, else the
-    built-in simulated rig; a bad file is a one-line click error naming the file and key."""
+    built-in simulated rig; a bad file is a one-line click error naming the file and key.
+    A command's `--yes` sets `[operator] yes`."""
     from rig import config
 
+    obj = ctx.find_root().obj or {}
     try:
-        return config.load((ctx.obj or {}).get("config_path"))
+        cfg = config.load(obj.get("config_path"))
     except config.ConfigError as exc:
         raise click.ClickException(str(exc)) from None
+    if obj.get("yes"):
+        cfg.operator["yes"] = True
+    return cfg
 
 
 def exit_on_abort(fn: Callable) -> Callable:
-    """Decorator for a procedure's click command: an AbortRun or Ctrl-C becomes one line
-    on stderr and a non-zero exit (3 aborted, 130 interrupted); other errors propagate."""
+    """Decorator for a procedure's click command: an AbortRun, a device fault
+    (rig.faults.DeviceFault) or Ctrl-C becomes one line on stderr and a non-zero exit (3
+    aborted, 130 interrupted); click's own errors pass; anything else is one line naming
+    it as a bug, exit 1 (RIG_DEBUG=1 re-raises it for the traceback)."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
@@ -465,5 +490,23 @@ def exit_on_abort(fn: Callable) -> Callable:
             where = f" (run folder {run_dir})" if run_dir else ""
             click.echo(f"rig {name}: aborted: interrupted (Ctrl-C){where}", err=True)
             sys.exit(EXIT_INTERRUPTED)
+        except DeviceFault as exc:
+            run_dir = getattr(exc, "run_dir", None)
+            where = f" (run folder {run_dir})" if run_dir else ""
+            click.echo(f"rig {name}: aborted: {exc}{where}", err=True)
+            sys.exit(EXIT_ABORTED)
+        except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort):
+            raise
+        except ConfigError as exc:
+            raise click.ClickException(str(exc)) from None
+        except Exception as exc:  # noqa: BLE001 - a traceback is for developers (RIG_DEBUG=1)
+            if os.environ.get("RIG_DEBUG"):
+                raise
+            run_dir = getattr(exc, "run_dir", None)
+            where = f" (run folder {run_dir})" if run_dir else ""
+            text = str(exc).splitlines()[0] if str(exc) else ""
+            click.echo(f"rig {name}: failed: {type(exc).__name__}: {text}{where}; this is a bug of rig, please "
+                       "report it (RIG_DEBUG=1 shows where)", err=True)
+            sys.exit(EXIT_FAILED)
 
     return wrapper

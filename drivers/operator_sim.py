@@ -1,0 +1,160 @@
+"""The simulated operator: what a person does by hand on the real rig, done by the simulation.
+
+* `SimOperator`: in-process, on the simulated world a procedure drives itself.
+* `OperatorServer`: the same, served by `rig sim` on the side channel of
+  `drivers.operator` (request / reply topics), so a procedure in another process gets its
+  manual steps done unattended. Requests arrive on the executor thread and are queued;
+  `rig sim`'s main thread, the only one that touches the world, calls `apply()` between
+  steps and publishes the replies.
+
+The actions (drivers.operator.ACTIONS): markers are mounted by construction, so confirm
+does nothing; detach/attach take the object off the tool tips or put it back; hang_mass
+loads a load cell with the weight of a mass instead of the object's tension (0 kg: an
+empty cell); touch puts every named arm's tip on a world point by inverse kinematics on
+the *true* arm placement (what a person guiding the tips together achieves physically,
+whatever the calibration believes) and holds it there.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import deque
+
+import numpy as np
+
+from drivers.loadcell import STANDARD_GRAVITY
+from drivers.operator import ACTIONS, REPLY_TOPIC, REQUEST_TOPIC, OperatorError
+
+
+#: N/m, the thesis's objects: the compliant spring and the stiff suture string
+OBJECT_STIFFNESS = {"spring": 2450.0, "string": 20000.0}
+
+
+class CellLoad:
+    """What pulls on a simulated load cell: the object's tension on `element`, or, once a
+    mass hangs from it, that mass's weight (N)."""
+
+    def __init__(self, world, element: int = 0):
+        self.world = world
+        self.element = element
+        self.kg: float | None = None
+
+    def __call__(self) -> float:
+        if self.kg is not None:
+            return self.kg * STANDARD_GRAVITY
+        world = self.world
+        return world.tension(self.element) if self.element < len(world.object_elements) else 0.0
+
+
+class SimOperator:
+    """The operator of the in-process simulated rig (see the module docstring).
+
+    world: the SimWorld; arms: name -> SimArm (for touch's hold); cell: the CellLoad of
+    the load cell masses hang from (None: no cell to hang them on); object_spec: what
+    attach_object attaches (default: the object the world was built with).
+    """
+
+    def __init__(self, world, arms: dict | None = None, cell: CellLoad | None = None, object_spec=None):
+        self.world = world
+        self.arms = arms or {}
+        self.cell = cell
+        self.object_spec = object_spec if object_spec is not None else world.object
+
+    def confirm(self, message: str) -> None:
+        return None
+
+    def detach_object(self) -> None:
+        self.world.detach_object()
+
+    def attach_object(self, kind: str | None = None) -> None:
+        import dataclasses
+
+        spec = self.object_spec
+        if spec is None:
+            raise OperatorError("the simulated rig has no object to attach")
+        if kind is not None and kind != spec.kind:
+            if kind not in OBJECT_STIFFNESS:
+                raise OperatorError(f"no simulated object {kind!r}; objects: {', '.join(OBJECT_STIFFNESS)}")
+            spec = dataclasses.replace(spec, kind=kind, stiffness=OBJECT_STIFFNESS[kind])
+        current = self.world.object
+        if current is None or current.kind != spec.kind:
+            if current is not None:
+                self.world.detach_object()
+            self.world.attach_object(spec)
+        if self.cell is not None:
+            self.cell.kg = None
+
+    def hang_mass(self, kg: float) -> None:
+        if self.cell is None:
+            raise OperatorError("the simulated rig serves no load cell to hang a mass from")
+        if not (np.isfinite(kg) and kg >= 0):
+            raise OperatorError(f"a mass must be >= 0 kg, got {kg}")
+        self.cell.kg = float(kg)
+
+    def touch(self, arms, point_index: int, goal_world) -> None:
+        from rig import psm_kinematics as K
+
+        goal = np.asarray(goal_world, float)
+        if goal.shape != (3,) or not np.all(np.isfinite(goal)):
+            raise OperatorError(f"a touch point is three finite coordinates (m), got {goal_world!r}")
+        for name in arms:
+            if name not in self.world.arms:
+                raise OperatorError(f"no simulated arm {name!r}; arms: {', '.join(self.world.arms)}")
+        for name in arms:
+            T = np.linalg.inv(self.world.arms[name].rcm_world)
+            q = K.ik_rcm((T @ np.append(goal, 1.0))[:3])
+            self.world.set_state(name, q)
+            arm = self.arms.get(name) if isinstance(arms, (list, tuple)) else arms[name]
+            if arm is not None:
+                arm.hold()
+
+
+class OperatorServer:
+    """`SimOperator` on the ROS 2 side channel (see the module docstring); node: rig sim's node."""
+
+    def __init__(self, operator: SimOperator, node):
+        from rclpy.qos import QoSProfile
+        from std_msgs.msg import String
+
+        self.operator = operator
+        self.node = node
+        self._String = String
+        self._queue: deque = deque()
+        qos = QoSProfile(depth=10)
+        self._pub = node.create_publisher(String, REPLY_TOPIC, qos)
+        self._sub = node.create_subscription(String, REQUEST_TOPIC, lambda m: self._queue.append(m), qos)
+        self.served: dict[str, int] = {}
+
+    def apply(self) -> None:
+        """Carry out the queued requests and reply to each (main thread, between steps)."""
+        while self._queue:
+            msg = self._queue.popleft()
+            try:
+                doc = json.loads(msg.data)
+                key = doc["id"]
+                action = doc["action"]
+            except (ValueError, KeyError, TypeError):
+                self.node.get_logger().warning(f"operator: malformed request ignored: {msg.data[:200]!r}")
+                continue
+            ok, detail = True, "done"
+            try:
+                self._do(action, doc)
+            except (OperatorError, ValueError, TypeError, KeyError) as exc:
+                ok, detail = False, str(exc)
+            self.served[action] = self.served.get(action, 0) + 1
+            self._pub.publish(self._String(data=json.dumps({"id": key, "ok": ok, "detail": detail})))
+
+    def _do(self, action: str, doc: dict) -> None:
+        op = self.operator
+        if action not in ACTIONS:
+            raise OperatorError(f"unknown action {action!r}; known: {', '.join(ACTIONS)}")
+        if action == "confirm":
+            op.confirm(str(doc.get("message", "")))
+        elif action == "detach_object":
+            op.detach_object()
+        elif action == "attach_object":
+            op.attach_object(doc.get("kind"))
+        elif action == "hang_mass":
+            op.hang_mass(float(doc["kg"]))
+        else:
+            op.touch(list(doc["arms"]), int(doc.get("index", 0)), doc["goal"])

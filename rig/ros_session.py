@@ -1,0 +1,95 @@
+"""One rclpy context, node and executor thread for a procedure's ROS 2 devices.
+
+Every ROS driver of a run (arms, mocap, the simulated operator) shares this node; one
+executor thread spins it. The thread also keeps `executor_time()`: the monotonic time at
+which the executor last came back from waiting for work. Drivers judge staleness on that
+time instead of `time.monotonic()`:
+
+    age = executor_time() - time of the last message
+
+so a stream only counts as stale when the executor has been polling and found nothing for
+longer than the timeout. If the process itself is starved (a fit or a plot holding the
+GIL, other programs holding the CPUs) the executor cannot poll, `executor_time()` stands
+still, and a healthy stream never looks stale. When the publisher really stops (the dVRK
+or `rig sim` killed), the executor keeps waking every `POLL` s and the age grows at once:
+detection takes the timeout plus at most `POLL` plus the watchdog's own period.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+#: s, longest wait of the executor before it notes the time again (no message arrived)
+POLL = 0.005
+
+
+def domain_text() -> str:
+    """The ROS 2 domain and discovery range this process uses, for messages."""
+    domain = os.environ.get("ROS_DOMAIN_ID", "0") or "0"
+    scope = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "")
+    return f"ROS_DOMAIN_ID={domain}" + (f", discovery {scope}" if scope else "")
+
+
+class RosSession:
+    """rclpy context + node + executor thread (see the module docstring).
+
+    name: the node's name. Use `node` to create drivers, then `start()`; `close()` stops
+    the thread and shuts the context down.
+    """
+
+    def __init__(self, name: str = "rig"):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+
+        self.context = Context()
+        # The run engine owns SIGINT/SIGTERM: rclpy's handlers would shut the context
+        # under a procedure instead of letting it hold the arms and close its recording.
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        try:
+            self.node = rclpy.create_node(name, context=self.context)
+            self.executor = SingleThreadedExecutor(context=self.context)
+            self.executor.add_node(self.node)
+        except BaseException:
+            rclpy.shutdown(context=self.context)
+            raise
+        self._t = time.monotonic()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, name=f"ros-{name}", daemon=True)
+        self.spins = 0
+
+    def executor_time(self) -> float:
+        """Monotonic s at which the executor last finished a wait (see the module docstring)."""
+        return self._t
+
+    def start(self) -> None:
+        self._t = time.monotonic()
+        self._thread.start()
+
+    def _spin(self) -> None:
+        executor = self.executor
+        while not self._stop.is_set():
+            try:
+                executor.spin_once(timeout_sec=POLL)
+            except Exception:  # noqa: BLE001 - the context is shut down by close()
+                if self._stop.is_set() or not self.context.ok():
+                    return
+                raise
+            self._t = time.monotonic()
+            self.spins += 1
+
+    def close(self) -> None:
+        import rclpy
+
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=1.0)
+        try:
+            self.executor.shutdown(timeout_sec=1.0)
+            self.node.destroy_node()
+        finally:
+            if self.context.ok():
+                rclpy.shutdown(context=self.context)

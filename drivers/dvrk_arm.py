@@ -70,14 +70,15 @@ class RosArm:
     outage (more with `add_stale_callback`); console: the console's namespace
     ("/console", "/system", or "auto": the one the running system shows in the ROS graph);
     streams: which of `ALL_STREAMS` to subscribe (measured_js always: every fewer topic is
-    less work for the executor); clock: monotonic seconds for the staleness age (the
-    executor's time from `rig.ros_session.RosSession.executor_time`, so that a starved
-    process never mistakes a healthy stream for a stale one).
+    less work for the executor); polled: the monotonic time at which the executor last
+    looked for messages (`rig.ros_session.RosSession.executor_time`): the staleness age is
+    counted up to then, so that a starved process never takes a healthy stream for a stale
+    one (None: up to now, for an executor that is never starved).
     """
 
     def __init__(self, node, namespace: str, watchdog: float = 0.05, *, spin: bool = True,
                  on_stale: StaleCallback | None = None, console: str = "/console", qos_depth: int = 10,
-                 streams: tuple[str, ...] = ALL_STREAMS, clock: Callable[[], float] = time.monotonic):
+                 streams: tuple[str, ...] = ALL_STREAMS, polled: Callable[[], float] | None = None):
         from geometry_msgs.msg import PoseStamped, WrenchStamped
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState as JointStateMsg
@@ -89,7 +90,7 @@ class RosArm:
         self.namespace = "/" + namespace.strip("/")
         self.name = self.namespace.strip("/").split("/")[-1]
         self.watchdog = float(watchdog)
-        self._clock = clock
+        self._polled = polled
         self._JointState = JointStateMsg
         self._Empty = Empty
         self._lock = threading.Lock()
@@ -176,7 +177,7 @@ class RosArm:
         js = self._joint_state(m)
         with self._cond:
             self._js = js
-            self._js_rx = self._clock()
+            self._js_rx = time.monotonic()
             self._stale_fired = False
             self.received += 1
             self._cond.notify_all()
@@ -192,7 +193,7 @@ class RosArm:
                 rx, fired, js = self._js_rx, self._stale_fired, self._js
             if rx is None or fired:
                 continue  # not armed before the first sample; once per outage
-            age = self._clock() - rx
+            age = self._age(rx)
             if age <= self.watchdog:
                 continue
             with self._lock:
@@ -209,6 +210,13 @@ class RosArm:
                 except Exception as exc:  # noqa: BLE001 - report, and still call the others
                     self.node.get_logger().error(f"{self.name}: stale callback failed: {exc}")
 
+    def _age(self, rx: float) -> float:
+        """Seconds the executor has been looking for measured_js since the last one came."""
+        now = time.monotonic()
+        if self._polled is not None:
+            now = min(now, self._polled())
+        return max(0.0, now - rx)
+
     def add_stale_callback(self, fn: StaleCallback) -> None:
         """Call `fn(StaleStream)` from the watchdog thread when measured_js goes stale."""
         self._stale_callbacks.append(fn)
@@ -218,7 +226,7 @@ class RosArm:
         """Seconds since the last measured_js (inf before the first)."""
         with self._lock:
             rx = self._js_rx
-        return float("inf") if rx is None else self._clock() - rx
+        return float("inf") if rx is None else self._age(rx)
 
     def wait_for_data(self, timeout: float = 5.0) -> bool:
         """Block until a measured_js arrived (True) or `timeout` s passed (False)."""
@@ -238,7 +246,7 @@ class RosArm:
         """
         with self._lock:
             js, rx = self._js, self._js_rx
-        age = float("inf") if rx is None else self._clock() - rx
+        age = float("inf") if rx is None else self._age(rx)
         if js is None or age > self.watchdog:
             raise StaleStream(self.topic["measured_js"], age, self.watchdog)
         return js

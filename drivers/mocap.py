@@ -77,14 +77,16 @@ class RosMocapTracker:
     assembly_window: s of stamp time after which an incomplete frame is emitted.
     reliable: subscribe RELIABLE (only matches reliable publishers) instead of the
     default BEST_EFFORT (matches both kinds, what bridges such as vrpn use).
-    clock: monotonic seconds for the stale check (injectable for tests).
+    clock: monotonic seconds for the stale check (injectable for tests); polled: when the
+    executor last looked for messages (`rig.ros_session.RosSession.executor_time`): ages
+    are counted up to then, so a starved process does not take healthy streams for stale.
     Times in TrackerFrame.t are the header stamps in s; positions in m.
     """
 
     def __init__(self, node, bodies: Sequence[str], *, prefix: str = "mocap",
                  stale_timeout: float = 0.5, assembly_window: float = 0.05,
                  max_buffer: int = 100_000, qos_depth: int = 100, reliable: bool = False,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic, polled: Callable[[], float] | None = None):
         from geometry_msgs.msg import PoseStamped
         from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy
 
@@ -99,6 +101,7 @@ class RosMocapTracker:
         self.stale_timeout = float(stale_timeout)
         self.assembly_window_ns = int(round(assembly_window * 1e9))
         self._clock = clock
+        self._polled = polled
         self._lock = threading.Lock()
         self._cond = threading.Condition(self._lock)
         self._pending: dict[int, dict[str, Pose]] = {}
@@ -205,6 +208,8 @@ class RosMocapTracker:
     def stale_ages(self) -> dict[str, float]:
         """Seconds since each body's last message (since construction if none yet)."""
         now = self._clock()
+        if self._polled is not None:
+            now = min(now, self._polled())
         with self._lock:
             return {b: now - self._last_rx[b] for b in self.bodies}
 

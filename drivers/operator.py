@@ -18,7 +18,7 @@ The side channel (served by `drivers.operator_sim.OperatorServer` in `rig sim`):
 
 ACTION is one of ACTIONS, with its fields: confirm {message}; detach_object {};
 attach_object {kind (optional): "spring" or "string"}; hang_mass {kg}; touch {arms: [names], index, goal: [x, y, z] m in the
-world}. Both topics are reliable with depth 10; the client matches a reply by its id and
+world}; unplug {device: "loadcell"} (a person pulling a cable: fault injection). Both topics are reliable with depth 10; the client matches a reply by its id and
 ignores the others (several clients may share the channel).
 """
 
@@ -37,7 +37,7 @@ from rig.faults import DeviceFault
 
 REQUEST_TOPIC = "/rig_sim/operator/request"
 REPLY_TOPIC = "/rig_sim/operator/reply"
-ACTIONS = ("confirm", "detach_object", "attach_object", "hang_mass", "touch")
+ACTIONS = ("confirm", "detach_object", "attach_object", "hang_mass", "touch", "unplug")
 
 
 class OperatorError(DeviceFault):
@@ -152,6 +152,9 @@ class RosOperator:
 
     def hang_mass(self, kg: float) -> None:
         self.request("hang_mass", kg=float(kg))
+
+    def unplug(self, device: str) -> None:
+        self.request("unplug", device=device)
 
     def touch(self, arms: dict, point_index: int, goal_world: np.ndarray) -> None:
         self.request("touch", arms=list(arms), index=int(point_index),

@@ -12,7 +12,8 @@ does nothing; detach/attach take the object off the tool tips or put it back; ha
 loads a load cell with the weight of a mass instead of the object's tension (0 kg: an
 empty cell); touch puts every named arm's tip on a world point by inverse kinematics on
 the *true* arm placement (what a person guiding the tips together achieves physically,
-whatever the calibration believes) and holds it there.
+whatever the calibration believes) and holds it there; unplug pulls the load cell's cable
+(a fault for tests: its pty closes).
 """
 
 from __future__ import annotations
@@ -32,12 +33,20 @@ OBJECT_STIFFNESS = {"spring": 2450.0, "string": 20000.0}
 
 class CellLoad:
     """What pulls on a simulated load cell: the object's tension on `element`, or, once a
-    mass hangs from it, that mass's weight (N)."""
+    mass hangs from it, that mass's weight (N). `sink(newtons)`, if given, is where
+    `update()` delivers it (the firmware process's shared tension); `cable`, if given, is
+    pulled by the operator's unplug."""
 
-    def __init__(self, world, element: int = 0):
+    def __init__(self, world, element: int = 0, sink=None, cable=None):
         self.world = world
         self.element = element
         self.kg: float | None = None
+        self.sink = sink
+        self.cable = cable
+
+    def update(self) -> None:
+        if self.sink is not None:
+            self.sink(self())
 
     def __call__(self) -> float:
         if self.kg is not None:
@@ -90,6 +99,14 @@ class SimOperator:
         if not (np.isfinite(kg) and kg >= 0):
             raise OperatorError(f"a mass must be >= 0 kg, got {kg}")
         self.cell.kg = float(kg)
+
+    def unplug(self, device: str) -> None:
+        """Pull a cable out (a fault a person can cause): "loadcell"."""
+        if device != "loadcell":
+            raise OperatorError(f"can only unplug the 'loadcell', not {device!r}")
+        if self.cell is None or self.cell.cable is None:
+            raise OperatorError("the simulated rig serves no load cell to unplug")
+        self.cell.cable()
 
     def touch(self, arms, point_index: int, goal_world) -> None:
         from rig import psm_kinematics as K
@@ -156,5 +173,7 @@ class OperatorServer:
             op.attach_object(doc.get("kind"))
         elif action == "hang_mass":
             op.hang_mass(float(doc["kg"]))
+        elif action == "unplug":
+            op.unplug(str(doc.get("device", "")))
         else:
             op.touch(list(doc["arms"]), int(doc.get("index", 0)), doc["goal"])

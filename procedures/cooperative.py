@@ -245,9 +245,10 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                 if hasattr(arm, "power_on"):
                     arm.power_on()
             if rig.world is None:
-                # a real (or served) rig is wherever the last procedure left it: bring every
-                # arm to its configured start q0, where the object fits between the tips
-                # (the simulated rig starts there)
+                # a real (or served) rig is wherever the last procedure left it: with the
+                # object off, bring every arm to its configured start q0, where the object
+                # fits between the tips (the simulated rig starts there, object attached)
+                rig.operator.detach_object()
                 for n in names:
                     run.claim(rig.arms[n])
                     if not rig.arms[n].move_jp(np.array(cfg.arms[n]["q0"]), wait=True, timeout=15.0):
@@ -299,12 +300,18 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             log[f"{n}.x"] = np.empty((n_ticks, 3))
             log[f"{n}.xd"] = np.empty((n_ticks, 3))
         t_start = clock.now()
+        overruns0, skipped0 = getattr(clock, "overruns", 0), getattr(clock, "skipped", 0)
+        last_js_t = {n: None for n in names}
+        repeated_js = 0  # ticks that found an arm's measured_js not renewed since the last one
         # the ROS 2 context and the keyboard are released however the loop ends
         with live, run.step(STEPS[3], total=n_ticks) as step:
             for k in range(n_ticks):
                 clock.tick()
                 t = clock.now()
                 js = {n: rig.arms[n].measured_js() for n in names}
+                for n in names:
+                    repeated_js += js[n].t == last_js_t[n]
+                    last_js_t[n] = js[n].t
                 fresh = None
                 newest = []
                 for k_el, sensor in enumerate(sensors):
@@ -361,6 +368,8 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         with run.step(STEPS[4]):
             result = _figures(log, params, names, master, mode, kind, controller,
                               last_live=None if live.last_applied is None else live.last_applied - t_start)
+            result["loop_timing"] = _loop_timing(log["t"], clock.rate, getattr(clock, "overruns", 0) - overruns0,
+                                                 getattr(clock, "skipped", 0) - skipped0, repeated_js, len(names))
             if ros_commands or interactive:
                 result["live_commands"] = live.summary(t_start)
             result.update({"model": model_note, "model_effects": model_effects, "registration": registration_note, "arms": names,
@@ -447,6 +456,30 @@ def _figures(log, params, names, master, mode, kind, controller, last_live: floa
             "force": force, "motion_duration": params["duration"]}
 
 
+def _timing_line(lt: dict | None) -> str:
+    if not lt or lt.get("period_ms_median") is None:
+        return ""
+    return (f"  loop at {lt['rate_hz']:g} Hz: period median {lt['period_ms_median']:.3f} ms, p99 "
+            f"{lt['period_ms_p99']:.3f} ms, max {lt['period_ms_max']:.1f} ms; overruns {lt['overruns_per_10k']:.0f} "
+            f"and skipped {lt['skipped_per_10k']:.0f} per 10 000 ticks; measured_js not renewed in "
+            f"{lt['repeated_measured_js_per_10k']:.0f} of 10 000 reads")
+
+
+def _loop_timing(t: np.ndarray, rate: float, overruns: int, skipped: int, repeated_js: int, arms: int) -> dict:
+    """The control loop's timing: tick periods (ms; on the simulated rig exactly 1/rate),
+    ticks that began late (overruns) or were skipped, per 10 000 ticks, and the share of
+    arm reads that found no new measured_js since the tick before (per 10 000 reads)."""
+    n = len(t)
+    period = np.diff(t) * 1e3
+    per10k = 1e4 / max(n, 1)
+    return {"rate_hz": float(rate), "ticks": int(n),
+            "period_ms_median": float(np.median(period)) if n > 1 else None,
+            "period_ms_p99": float(np.percentile(period, 99)) if n > 1 else None,
+            "period_ms_max": float(np.max(period)) if n > 1 else None,
+            "overruns_per_10k": overruns * per10k, "skipped_per_10k": skipped * per10k,
+            "repeated_measured_js_per_10k": repeated_js * 1e4 / max(n * arms, 1)}
+
+
 def _filter_delays(controller) -> dict:
     jf = controller.joint_filter[controller.master]
     ff = controller.force_filter
@@ -503,8 +536,11 @@ def format_report(result: dict) -> str:
                      else ")"),
                   f"  controller step ({len(result.get('arms') or []) or '?'} arms): median "
                   f"{result['loop_time_us']['median']:.0f} us, p99 {result['loop_time_us']['p99']:.0f} us "
-                  f"(budget 1000 us at 1 kHz)",
+                  f"(budget {1e6 / result['loop_timing']['rate_hz']:.0f} us at {result['loop_timing']['rate_hz']:g} Hz)"
+                  if result.get("loop_timing") else "",
+                  _timing_line(result.get("loop_timing")),
                   f"  plot: {result.get('plot')}"]
+    lines = [ln for ln in lines if ln]
     live = result.get("live_commands")
     if live:
         lines.append(f"  live commands: {sum(live['received'].values())} received, "

@@ -85,6 +85,16 @@ def compensation_model(cfg, arm: str):
     return PSMDynamics(gravity=config_gravity(cfg, arm)), {"model": "nominal PSM parameters", "kind": "nominal"}, found
 
 
+def move_to(arm, q, what: str, timeout: float = 10.0) -> None:
+    """move_jp and wait; not there within `timeout` s (joint 3 within 5 mm) aborts the run."""
+    if arm.move_jp(q, wait=True, timeout=timeout):
+        return
+    now = np.asarray(arm.measured_js().position[:3], float)
+    if np.any(np.abs(now - q) > np.array([0.02, 0.02, 0.005])):
+        raise AbortRun(f"{arm.name} did not reach {what} {np.round(q, 4).tolist()} (rad, rad, m) within "
+                       f"{timeout:g} s; it is at {np.round(now, 4).tolist()}")
+
+
 def force_ramp(run, arm, clock, dyn, q_ref, direction: int, p: dict, step) -> dict:
     """One ramp (module docstring, 1). Returns the samples and the breakaway (or None)."""
     rate = clock.rate
@@ -188,7 +198,7 @@ def constant_velocity_sweeps(run, arm, clock, dyn, q_ref, speeds, p: dict, step)
                            "friction_mean": float(sel[:, 2].mean()), "friction_std": float(sel[:, 2].std()),
                            "n": int(len(sel))})
         step.update(i + 1)
-    arm.move_jp(q_ref, wait=True, timeout=10.0)
+    move_to(arm, q_ref, "the ramps' start")
     return {"passes": passes, "samples": np.array(samples)}
 
 
@@ -277,15 +287,15 @@ def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = Tru
                 power = getattr(arm, "power_on", None)
                 if power is not None:
                     power()
-                arm.move_jp(q_ref, wait=True, timeout=15.0)
+                move_to(arm, q_ref, "the ramps' start", timeout=15.0)
                 q_ref = np.array([0.0, 0.0, float(arm.measured_js().position[JOINT])])
             ramps = {}
             n_total = int(round((SETTLE + parameters["ramp_time"]) * clock.rate))
             for key, direction, step_name in (("pos", 1, STEPS[1]), ("neg", -1, STEPS[2])):
                 with run.step(step_name, total=n_total) as st:
-                    arm.move_jp(q_ref, wait=True, timeout=10.0)
+                    move_to(arm, q_ref, "the ramps' start")
                     ramps[key] = force_ramp(run, arm, clock, dyn, q_ref, direction, parameters, st)
-                    arm.move_jp(q_ref, wait=True, timeout=10.0)
+                    move_to(arm, q_ref, "the ramps' start")
             with run.step(STEPS[3], total=len(speeds)) as st:
                 sweeps = constant_velocity_sweeps(run, arm, clock, dyn, q_ref, speeds, parameters, st)
             with run.step(STEPS[4]):

@@ -6,16 +6,22 @@ One process, paced to the wall clock:
 * every simulated arm as the dVRK 2.3 CRTK topics under /<arm>: measured_js at the rig
   rate (default 1 kHz); setpoint_js, measured_cp, local/measured_cp and body/measured_cf
   at `--cp-rate` (default 100 Hz, the dVRK ROS bridge's default publishing rate, which
-  also keeps the CPU budget for the 1 kHz stream); servo_jp, servo_jf and move_jp are
-  subscribed and drive `drivers.sim_arm.SimArm` (the same fake the in-process tests use,
-  trajectory generator included); /console/power_on, /console/power_off and
-  /console/home act on every arm (home: move_jp to the arm's q0);
+  also keeps the CPU budget for the 1 kHz stream), each while it has a subscriber (looked
+  up at 10 Hz); servo_jp, servo_jf and move_jp are subscribed and drive
+  `drivers.sim_arm.SimArm` (the same fake the in-process tests use, trajectory generator
+  included); <console>/power_on, power_off and home act on every arm (home: move_jp to the
+  arm's q0), with <console> /console as dVRK 2.3 or /system as 2.4 (`--console`);
 * the mocap system as geometry_msgs/PoseStamped on /<prefix>/<body>/pose at the mocap
-  rate (default 120 Hz) from `drivers.mocap_sim.SimTracker` (noise, occlusion, latency;
-  quaternions on the wire are geometry_msgs' (x, y, z, w)); an occluded body is simply not
-  published in that frame, as mocap bridges do;
-* the load cell: `drivers.loadcell.FakeLoadCellFirmware` on a pseudo-terminal fed by the
-  world's tension (printed as `loadcell: /dev/pts/N`; open it with pyserial).
+  rate (default 120 Hz), running while any body's topic has a subscriber, from
+  `drivers.mocap_sim.SimTracker` (noise, occlusion, latency; quaternions on the wire are
+  geometry_msgs' (x, y, z, w)); an occluded body is simply not published in that frame,
+  as mocap bridges do;
+* the operator's side channel (`drivers.operator`): the manual steps of a procedure done
+  by the simulation;
+* the load cell: `drivers.loadcell.FakeLoadCellFirmware`, each in its own process
+  (`drivers.loadcell_process`), on a pseudo-terminal per object
+  element, fed by its tension or a hanging mass (printed as `loadcell: /dev/pts/N`; open
+  it with pyserial; the configured [loadcell] port becomes a link to it when free).
 
 Threads: the main thread steps the world, publishes and paces (sleeps to
 `start + k / rate`); an executor thread spins the node for the subscriptions, whose
@@ -41,6 +47,9 @@ import time
 from collections import deque
 
 import click
+
+#: s behind the wall clock beyond which the served rig re-anchors its time instead of catching up
+REANCHOR = 0.5
 
 STEPS = ("build the simulated world", "start the load cell on a pty", "create the ROS 2 node and topics",
          "serve until stopped")
@@ -80,6 +89,7 @@ class SimServer:
         self.arms = {n: SimArm(world, n, self.clock) for n in arms}
         self.rate = self.clock.rate
         self.cp_every = max(1, int(round(self.rate / cp_rate)))
+        self._refresh_every = max(1, int(round(0.1 * self.rate)))  # subscribers looked up at 10 Hz
         self._commands: deque = deque()
         self._Msg = {"js": JointState, "pose": PoseStamped, "wrench": WrenchStamped}
         qos = QoSProfile(depth=10)
@@ -110,17 +120,28 @@ class SimServer:
 
         # the operator's side channel: what a person does by hand, done by the simulation
         self.operator = OperatorServer(SimOperator(world, self.arms, cell=(cells or [None])[0]), node)
+        self.cells = list(cells or [])
         self.tracker = None
+        self._mocap_msg: dict = {}
+        self._mocap_pub: dict = {}
+        self._mocap = mocap
+        self._seed = seed
         if mocap is not None:
             from drivers.mocap import pose_topic
+            from rig.sim import default_marker_bodies
 
-            self.tracker = SimTracker(world, self.clock, noise=mocap["noise"], latency=mocap["latency"],
-                                      occlusion=mocap["occlusion"], rate=mocap["rate"],
-                                      quaternion_order="xyzw", seed=seed + 1)
+            bodies = [mb.name for n in world.names for mb in default_marker_bodies(n)] + ["world"]
             self._mocap_pub = {b: node.create_publisher(PoseStamped, pose_topic(mocap["prefix"], b), qos)
-                               for b in self.tracker.bodies}
+                               for b in bodies}
+        # Topics nobody subscribes to are not computed nor published (the cameras run while
+        # someone watches): measured_js always, the others once a subscriber appears.
+        self._watched = {n: set() for n in arms}
+        self._refresh_watched()
         self.published = {n: 0 for n in arms}
         self.command_errors = 0
+        self.superseded = 0
+        self.max_lag = 0.0  # s, the longest the loop fell behind the wall clock
+        self._last_command: dict[str, int] = {}
         self.late_ticks = 0
         self.slips = 0
         self.stop = threading.Event()
@@ -140,7 +161,7 @@ class SimServer:
 
     def _queued(self, fn, arg):
         def callback(msg) -> None:
-            self._commands.append((fn, arg, msg))
+            self._commands.append((time.perf_counter(), fn, arg, msg))
         return callback
 
     @staticmethod
@@ -164,10 +185,26 @@ class SimServer:
             else:
                 arm.home(wait=False)
 
-    def _apply_commands(self) -> None:
+    def _apply_commands(self, until: float = float("inf")) -> None:
+        """Apply the commands received up to perf_counter time `until`: the wall time the
+        next step stands for. When the loop runs behind and catches up step by step, each
+        command then acts at the step of its arrival, as on an arm that never fell behind,
+        instead of the newest of a burst jumping the set-point forward."""
         self.operator.apply()
-        while self._commands:
-            fn, arg, msg = self._commands.popleft()
+        commands = self._commands
+        while commands and commands[0][0] <= until:
+            _, fn, arg, msg = commands.popleft()
+            if fn in (self._servo_jp, self._servo_jf, self._move_jp):
+                # DDS keeps order within a topic only: a servo command sent before a move_jp
+                # (a hold) may arrive after it and would cancel the move. One client stamps
+                # its commands on one clock, so a command older than the arm's last one is
+                # superseded: dropped and counted.
+                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                if stamp and stamp < self._last_command.get(arg.name, 0):
+                    self.superseded += 1
+                    continue
+                if stamp:
+                    self._last_command[arg.name] = stamp
             try:
                 fn(arg, msg)
             except ValueError as exc:  # a malformed command is refused, reported, counted
@@ -188,42 +225,66 @@ class SimServer:
         self._pub[name]["measured_js"].publish(m)
         self.published[name] += 1
 
+    def _refresh_watched(self) -> None:
+        """Which of the slower topics have subscribers; start or stop the mocap system to match."""
+        for name, pubs in self._pub.items():
+            self._watched[name] = {k for k, p in pubs.items() if k != "measured_js" and p.get_subscription_count() > 0}
+        watched = any(p.get_subscription_count() > 0 for p in self._mocap_pub.values())
+        if watched and self.tracker is None:
+            from drivers.mocap_sim import SimTracker
+
+            m = self._mocap
+            self.tracker = SimTracker(self.world, self.clock, noise=m["noise"], latency=m["latency"],
+                                      occlusion=m["occlusion"], rate=m["rate"], quaternion_order="xyzw",
+                                      seed=self._seed + 1)
+        elif not watched and self.tracker is not None:
+            self.tracker.close()
+            self.tracker = None
+
     def _publish_slow(self, name: str, t: float) -> None:
         from drivers.quaternion import matrix_to_quat_xyzw
 
+        watched = self._watched[name]
+        if not watched:
+            return
         arm, pub, Msg = self.arms[name], self._pub[name], self._Msg
-        sp = arm.setpoint_js()
-        m = Msg["js"]()
-        m.name = list(arm.joint_names)
-        m.header.frame_id = name
-        self._stamp(m, t)
-        m.position, m.velocity, m.effort = sp.position.tolist(), sp.velocity.tolist(), sp.effort.tolist()
-        pub["setpoint_js"].publish(m)
-        cp = arm.measured_cp()
-        pm = Msg["pose"]()
-        self._stamp(pm, t)
-        pm.header.frame_id = cp.frame
-        pm.pose.position.x, pm.pose.position.y, pm.pose.position.z = cp.position.tolist()
-        o = pm.pose.orientation
-        o.x, o.y, o.z, o.w = matrix_to_quat_xyzw(cp.rotation).tolist()  # geometry_msgs order
-        pub["measured_cp"].publish(pm)
-        pub["local/measured_cp"].publish(pm)  # no base frame on a simulated PSM: the same pose
-        cf = arm.body_measured_cf()
-        wm = Msg["wrench"]()
-        self._stamp(wm, t)
-        wm.header.frame_id = cf.frame
-        wm.wrench.force.x, wm.wrench.force.y, wm.wrench.force.z = cf.force.tolist()
-        wm.wrench.torque.x, wm.wrench.torque.y, wm.wrench.torque.z = cf.torque.tolist()
-        pub["body/measured_cf"].publish(wm)
+        if "setpoint_js" in watched:
+            sp = arm.setpoint_js()
+            m = Msg["js"]()
+            m.name = list(arm.joint_names)
+            m.header.frame_id = name
+            self._stamp(m, t)
+            m.position, m.velocity, m.effort = sp.position.tolist(), sp.velocity.tolist(), sp.effort.tolist()
+            pub["setpoint_js"].publish(m)
+        if watched & {"measured_cp", "local/measured_cp"}:
+            cp = arm.measured_cp()
+            pm = Msg["pose"]()
+            self._stamp(pm, t)
+            pm.header.frame_id = cp.frame
+            pm.pose.position.x, pm.pose.position.y, pm.pose.position.z = cp.position.tolist()
+            o = pm.pose.orientation
+            o.x, o.y, o.z, o.w = matrix_to_quat_xyzw(cp.rotation).tolist()  # geometry_msgs order
+            pub["measured_cp"].publish(pm)
+            pub["local/measured_cp"].publish(pm)  # no base frame on a simulated PSM: the same pose
+        if "body/measured_cf" in watched:
+            cf = arm.body_measured_cf()
+            wm = Msg["wrench"]()
+            self._stamp(wm, t)
+            wm.header.frame_id = cf.frame
+            wm.wrench.force.x, wm.wrench.force.y, wm.wrench.force.z = cf.force.tolist()
+            wm.wrench.torque.x, wm.wrench.torque.y, wm.wrench.torque.z = cf.torque.tolist()
+            pub["body/measured_cf"].publish(wm)
 
     def _publish_mocap(self) -> None:
         for frame in self.tracker.frames():
             for body, pose in frame.bodies.items():
                 if pose is None:
                     continue  # occluded: bridges publish nothing for a lost body
-                pm = self._Msg["pose"]()
+                pm = self._mocap_msg.get(body)
+                if pm is None:  # one message object per body, refilled (publish copies it)
+                    pm = self._mocap_msg[body] = self._Msg["pose"]()
+                    pm.header.frame_id = "world"
                 self._stamp(pm, frame.t)
-                pm.header.frame_id = "world"
                 pm.pose.position.x, pm.pose.position.y, pm.pose.position.z = pose.position.tolist()
                 q = frame.quaternions[body]  # frame.quaternion_order == "xyzw", as on the wire
                 o = pm.pose.orientation
@@ -256,24 +317,35 @@ class SimServer:
         while not self.stop.is_set():
             if duration is not None and world.t - t_start >= duration - 1e-9:
                 break
-            self._apply_commands()
+            self._apply_commands(perf0 + world.t + period)
             self.clock.tick()
             t = world.t
+            for cell in self.cells:
+                cell.update()
             for name in self.arms:
                 self._publish_js(name, t)
             k += 1
             if k % self.cp_every == 0:
                 for name in self.arms:
                     self._publish_slow(name, t)
+            if k % self._refresh_every == 0:
+                self._refresh_watched()
             if self.tracker is not None:
                 self._publish_mocap()
             lag = time.perf_counter() - (perf0 + t)
+            if lag > self.max_lag:
+                self.max_lag = lag
             if lag < 0:
                 time.sleep(-lag)
             else:
                 self.late_ticks += 1
-                if lag > 50 * period:
-                    # Far behind (a stall): re-anchor instead of bursting to catch up.
+                if lag > REANCHOR:
+                    # Far behind (the process was stopped, or a debugger held it): re-anchor
+                    # instead of bursting to catch up. Shorter stalls (the CPU shared with
+                    # other programs) are caught up step by step, so that the commands
+                    # received meanwhile act at the steps of their arrival
+                    # (`_apply_commands`): a re-anchor applies them all at once, and the
+                    # arm's PID sees the set-point jump.
                     perf0 += lag
                     self._epoch0 += lag
                     self.slips += 1
@@ -281,7 +353,8 @@ class SimServer:
         sim = world.t - t_start
         return {"wall_s": wall, "sim_s": sim, "ticks": k,
                 "measured_js_hz": {n: c / wall if wall > 0 else 0.0 for n, c in self.published.items()},
-                "late_ticks": self.late_ticks, "slips": self.slips, "command_errors": self.command_errors}
+                "late_ticks": self.late_ticks, "slips": self.slips, "command_errors": self.command_errors,
+                "superseded": self.superseded, "max_lag_s": self.max_lag}
 
     def close(self) -> None:
         self.stop.set()
@@ -384,16 +457,18 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, console, 
 
     firmwares, cells, links = [], [], []
     if loadcell and cfg.loadcell["driver"] != "none" and world.object is not None:
-        from drivers.loadcell import FakeLoadCellFirmware
+        from drivers.loadcell_process import FirmwareProcess
 
         first = min(cfg.loadcell["element"], len(world.object_elements) - 1)
         order = [first] + [k for k in range(len(world.object_elements)) if k != first]
         for k in order:
-            cell = CellLoad(world, k)
-            fw = FakeLoadCellFirmware(cell, noise=cfg.loadcell["noise"], rate_hz=int(round(cfg.loadcell["rate"])),
-                                      seed=world.seed + 7 * k)
-            fw.start()
+            # each "Arduino" in its own process: its samples keep their pace whatever this
+            # loop is doing (see drivers.loadcell_process)
+            fw = FirmwareProcess(noise=cfg.loadcell["noise"], rate_hz=int(round(cfg.loadcell["rate"])),
+                                 seed=world.seed + 7 * k)
             firmwares.append(fw)
+            cell = CellLoad(world, k, sink=fw.set_tension, cable=fw.unplug)
+            cell.update()
             cells.append(cell)
             a, b = world.object_elements[k]
             _say(f"loadcell: {fw.port_path}" if k == first else f"loadcell {a}-{b}: {fw.port_path}")
@@ -441,6 +516,8 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, console, 
     rates = ", ".join(f"{n} {v:.1f} Hz" for n, v in hz.items())
     held = all(v >= 0.98 * rate for v in hz.values())
     _say(f"measured_js achieved: {rates} (target {rate:g} Hz{'' if held else ', NOT held'}); "
-         f"{stats['sim_s']:.3f} s simulated in {stats['wall_s']:.3f} s wall; late ticks {stats['late_ticks']}, "
-         f"re-anchored {stats['slips']}, refused commands {stats['command_errors']}, "
+         f"{stats['sim_s']:.3f} s simulated in {stats['wall_s']:.3f} s wall; late ticks {stats['late_ticks']} (longest "
+         f"{stats['max_lag_s'] * 1e3:.1f} ms behind), "
+         f"re-anchored {stats['slips']}, refused commands {stats['command_errors']}, superseded "
+         f"{stats['superseded']}, "
          f"operator requests {sum(server.operator.served.values())}")

@@ -170,7 +170,7 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
         for n in names:
             a = cfg.arms[n]
             arm = RosArm(session.node, a["namespace"], watchdog=a["watchdog"], spin=False,
-                         console=cfg.ros["console"], streams=arm_streams, clock=session.executor_time)
+                         console=cfg.ros["console"], streams=arm_streams, polled=session.executor_time)
             rig.arms[n] = arm
             rig._closers.append(arm.close)
         lc = cfg.loadcell
@@ -187,7 +187,7 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
             from rig.sim import default_marker_bodies
 
             bodies = [mb.name for n in names for mb in default_marker_bodies(n)] + ["world"]
-            rig.tracker = RosMocapTracker(session.node, bodies, prefix=m["prefix"], clock=session.executor_time)
+            rig.tracker = RosMocapTracker(session.node, bodies, prefix=m["prefix"], polled=session.executor_time)
             rig._closers.append(rig.tracker.close)
         rig.operator = open_operator(cfg, session)
         session.start()

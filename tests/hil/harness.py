@@ -1,0 +1,143 @@
+"""Hardware in the loop without hardware: `rig sim` in one process, procedures in others.
+
+`ServedRig` writes a lab's rig.toml into a folder (ROS arms, the load cell on a serial
+port, ROS mocap, `rig sim`'s operator), starts `rig sim` on it with a private
+ROS_DOMAIN_ID and localhost discovery, and runs `rig <command> --json` as separate
+processes in the same folder, so results pass from one procedure to the next through its
+logs/ exactly as in a lab. The tests (tests/hil) and bench/bench_hil.py use it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+
+PSM2_BASE = "base_xyz = [1.0728, 0.0, 0.0]\nbase_rpy = [0.0, 0.0, 3.141592653589793]\n"
+
+
+def lab_toml(folder: Path, *, rate: float | None = None, watchdog: float | None = None, extra: str = "",
+             three_arms: bool = False) -> str:
+    """A lab's rig.toml for the rig `rig sim` serves: ROS arms, a serial load cell on
+    `folder/loadcell` (rig sim links it to its pty), ROS mocap, the simulated operator."""
+    arm = 'driver = "ros"\n' + (f"watchdog = {watchdog}\n" if watchdog else "")
+    text = (f"[rig]\nseed = 0\n" + (f"rate = {rate}\n" if rate else "")
+            + f"\n[arms.PSM1]\n{arm}\n[arms.PSM2]\n{arm}{PSM2_BASE}")
+    if three_arms:
+        text += f"\n[arms.PSM3]\n{arm}base_xyz = [0.5364, 0.5730, 0.0]\nbase_rpy = [0.0, 0.0, -1.5707963267948966]\n"
+    text += (f'\n[loadcell]\ndriver = "serial"\nport = "{folder / "loadcell"}"\n'
+             '\n[mocap]\ndriver = "ros"\n\n[operator]\ndriver = "ros"\n')
+    return text + extra
+
+
+@dataclass
+class Outcome:
+    """How one `rig` process ended: exit code, its --json document (None if none), stderr, wall s."""
+
+    code: int
+    doc: dict | None
+    stderr: str
+    seconds: float
+
+    @property
+    def last_line(self) -> str:
+        lines = [ln for ln in self.stderr.splitlines() if ln.strip()]
+        return lines[-1] if lines else ""
+
+
+class ServedRig:
+    """`rig sim` on `folder/rig.toml` (see the module docstring); a context manager."""
+
+    def __init__(self, folder: Path, domain: int, toml: str | None = None, sim_args: tuple[str, ...] = ()):
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.domain = domain
+        self.toml = toml if toml is not None else lab_toml(self.folder)
+        self.sim_args = tuple(sim_args)
+        self.proc: subprocess.Popen | None = None
+        self.sim_lines: list[str] = []
+
+    def env(self, **extra: str) -> dict:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+                   RIG_LOGS=str(self.folder / "logs"),
+                   PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
+        env.pop("RIG_CONFIG", None)
+        env.pop("RIG_DEBUG", None)
+        env.update(extra)
+        return env
+
+    def start(self, timeout: float = 60.0) -> "ServedRig":
+        (self.folder / "rig.toml").write_text(self.toml)
+        self.proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "sim", *self.sim_args],
+                                     cwd=self.folder, env=self.env(RIG_LOGS=str(self.folder / "sim-logs")),
+                                     stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True)
+        sel = selectors.DefaultSelector()
+        sel.register(self.proc.stdout, selectors.EVENT_READ)
+        deadline = time.monotonic() + timeout
+        while True:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"rig sim exited ({self.proc.returncode}): {self.proc.stderr.read()[-2000:]}")
+            if time.monotonic() > deadline:
+                self.stop()
+                raise RuntimeError(f"rig sim not ready in {timeout} s: {self.sim_lines}")
+            if sel.select(0.1):
+                line = self.proc.stdout.readline().strip()
+                self.sim_lines.append(line)
+                if line == "ready":
+                    return self
+
+    def run(self, *args: str, timeout: float = 300.0, json_doc: bool = True, stdin: str | None = None,
+            env: dict | None = None, on_start=None) -> Outcome:
+        """`rig <args> [--json]` in the folder; `on_start(proc)` is called once it runs."""
+        argv = [sys.executable, "-m", "rig.cli", *args] + (["--json"] if json_doc else [])
+        t0 = time.monotonic()
+        proc = subprocess.Popen(argv, cwd=self.folder, env=env or self.env(), text=True,
+                                stdin=subprocess.PIPE if stdin is not None else subprocess.DEVNULL,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        if on_start is not None:
+            on_start(proc)
+        try:
+            out, err = proc.communicate(stdin, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+            raise RuntimeError(f"rig {' '.join(args)} did not end in {timeout} s: {err[-3000:]}") from None
+        docs = [ln for ln in out.splitlines() if ln.startswith("{")]
+        doc = json.loads(docs[-1]) if docs else None
+        return Outcome(proc.returncode, doc, err, time.monotonic() - t0)
+
+    def kill(self, sig: int = signal.SIGKILL) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            self.proc.wait(timeout=10)
+
+    def stop(self) -> str:
+        """Stop rig sim (SIGINT, as Ctrl-C); returns what it printed at exit."""
+        if self.proc is None:
+            return ""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        rest = self.proc.stdout.read() if self.proc.stdout else ""
+        self.proc.stdout.close()
+        self.proc.stderr.close()
+        return rest
+
+    def __enter__(self) -> "ServedRig":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

@@ -239,6 +239,17 @@ class RosArm:
                 self._cond.wait(left)
         return True
 
+    def wait_newer(self, count: int, timeout: float) -> bool:
+        """Block until more than `count` measured_js have arrived (True) or `timeout` s passed."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while self.received <= count:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(left)
+        return True
+
     def measured_js(self) -> JointState:
         """The newest measured joint state, every joint the message carries.
 
@@ -318,7 +329,9 @@ class RosArm:
             if left <= 0:
                 return False
             with self._cond:
-                self._cond.wait(min(left, self.watchdog))
+                # wake at least five times per watchdog interval: a stream that stops is
+                # then seen within the watchdog plus a fifth of it
+                self._cond.wait(min(left, self.watchdog / 5.0))
 
     def hold(self) -> None:
         """Hold the last measured position (servo_jp there). Works while merely stale."""

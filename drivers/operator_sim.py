@@ -68,6 +68,7 @@ class SimOperator:
         self.arms = arms or {}
         self.cell = cell
         self.object_spec = object_spec if object_spec is not None else world.object
+        self.pinned: dict[str, np.ndarray] = {}  # arm -> joints where a touch holds its tip
 
     def confirm(self, message: str) -> None:
         return None
@@ -124,6 +125,22 @@ class SimOperator:
             arm = self.arms.get(name) if isinstance(arms, (list, tuple)) else arms[name]
             if arm is not None:
                 arm.hold()
+            self.pinned[name] = q
+
+    def hold_touch(self) -> None:
+        """Keep touching tips where the person holds them, step after step: left to the
+        arm's PID alone they would sag under gravity before a client in another process
+        reads them. `OperatorServer` calls it every step until the next request or a
+        command to the arm."""
+        for name, q in self.pinned.items():
+            self.world.set_state(name, q)
+
+    def release(self, name: str | None = None) -> None:
+        """Let go of one arm's tip (a command to it arrived), or of all."""
+        if name is None:
+            self.pinned.clear()
+        else:
+            self.pinned.pop(name, None)
 
 
 class OperatorServer:
@@ -154,6 +171,7 @@ class OperatorServer:
                 self.node.get_logger().warning(f"operator: malformed request ignored: {msg.data[:200]!r}")
                 continue
             ok, detail = True, "done"
+            self.operator.release()  # the person lets go of the tips for whatever comes next
             try:
                 self._do(action, doc)
             except (OperatorError, ValueError, TypeError, KeyError) as exc:

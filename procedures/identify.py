@@ -619,7 +619,11 @@ def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits) ->
         if k % every == 0:
             step.update(k + 1)
     step.update(n)
-    return {"t": T, "q": Q, "dq": DQ, "tau": TAU, "rate": rate}
+    # Over the wire a tick may find no new measured_js and read the last one again: keep
+    # each sample once (the fit needs time to increase), and say how many were repeats.
+    keep = np.concatenate([[True], np.diff(T) > 0])
+    return {"t": T[keep], "q": Q[keep], "dq": DQ[keep], "tau": TAU[keep], "rate": rate,
+            "repeated": int(n - keep.sum())}
 
 
 def block_mean(rec: dict, target_rate: float, source: str):
@@ -929,7 +933,8 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
             with run.step(STEPS_LIVE[6]):
                 extra = {"arm": arm_name, "excitation": {"cached": exc["cached"], "cache_file": exc["path"],
                                                          "trajectory": traj.to_dict(), **{k: v for k, v in exc["figures"].items() if k != "starts"}},
-                         "validation_trajectory": vtraj.to_dict(), "rig_rate": clock.rate}
+                         "validation_trajectory": vtraj.to_dict(), "rig_rate": clock.rate,
+                         "repeated_samples": {"excitation": rec_x["repeated"], "validation": rec_v["repeated"]}}
                 if parameters["plots"]:
                     plot_trajectory(rec_x["t"] - rec_x["t"][0], rec_x["q"], rec_x["dq"], run.dir / "figure_5_1_excitation.png",
                                     f"Excitation trajectory as measured ({parameters['frequency']} Hz, "

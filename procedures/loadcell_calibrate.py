@@ -207,8 +207,8 @@ def command(ctx, mass1: float, mass2: float, port: str | None, sim: bool, baud: 
     result["finished"] = datetime.now(timezone.utc).isoformat()
     run.mkdir(parents=True, exist_ok=True)
     (run / "result.json").write_text(json.dumps(result, indent=2) + "\n")
-    if as_json:
-        json.dump(result, sys.stdout, indent=2)
+    if as_json:  # one document on one line, as every procedure's --json
+        json.dump(result, sys.stdout)
         sys.stdout.write("\n")
     if result["status"] != "completed":
         raise click.ClickException(f"load-cell calibration failed: {result['error']} (recorded in {run})")

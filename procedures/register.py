@@ -77,9 +77,13 @@ def measure_touch(dev, run, cfg, arms: list[str], parameters: dict) -> dict:
         for i, goal in enumerate(pts):
             dev.person.touch({a: dev.arms[a] for a in arms}, i, goal)
             col = _Collector(f"touch {i + 1}", [])
-            settle(dev, run, col, [dev.arms[a] for a in arms], 0.003)
+            # Read while the tips are held together: the last 3 ms. Over the wire the first
+            # samples after the touch may still be from before it (in flight), so a real or
+            # served rig waits longer and keeps only the newest.
+            settle(dev, run, col, [dev.arms[a] for a in arms], 0.003 if dev.world is not None else 0.05)
             for a in arms:
-                q = np.median(col.js_q[a], axis=0)  # read while the tips are held together (3 ms)
+                t = np.asarray(col.js_t[a])
+                q = np.median(np.asarray(col.js_q[a])[t >= t[-1] - 0.003], axis=0)
                 tips[a].append(K.tip_in_rcm(q))
             if dev.world is not None:
                 w = [dev.world.tip_world(a) for a in arms]

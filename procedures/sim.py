@@ -205,6 +205,7 @@ class SimServer:
                     continue
                 if stamp:
                     self._last_command[arg.name] = stamp
+                self.operator.operator.release(arg.name)  # the client takes the arm over
             try:
                 fn(arg, msg)
             except ValueError as exc:  # a malformed command is refused, reported, counted
@@ -318,6 +319,7 @@ class SimServer:
             if duration is not None and world.t - t_start >= duration - 1e-9:
                 break
             self._apply_commands(perf0 + world.t + period)
+            self.operator.operator.hold_touch()
             self.clock.tick()
             t = world.t
             for cell in self.cells:

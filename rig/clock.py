@@ -130,3 +130,53 @@ class WallClock(_Listeners):
         """Tick for `duration` seconds (rounded to whole periods)."""
         for _ in range(int(round(duration * self.rate))):
             self.tick()
+
+
+class StreamClock(WallClock):
+    """Real time paced by the devices' own streams: `tick()` returns when every source has
+    delivered a new sample since the last tick (and at least `min_fraction` of a period has
+    passed), or at the latest `max_fraction` periods after the last tick.
+
+    Over the wire a loop on its own timer beats against the arms' stream: some ticks find
+    no new measured_js and act on data several ms old, the next find two; a stiff control
+    loop (the cooperative impedance) can go unstable on that jitter. Paced by the stream,
+    every control step acts on a sample that is fresh, as the dVRK's own controllers do.
+
+    sources: objects with `received` (a count of samples) and `wait_newer(count, timeout)`
+    (block until `received > count`; True if so). Late ticks (a source silent until the
+    deadline) are counted in `overruns`; `now()` is seconds since the epoch, as WallClock.
+    """
+
+    def __init__(self, rate: float, sources, min_fraction: float = 0.5, max_fraction: float = 1.5) -> None:
+        super().__init__(rate)
+        self.sources = list(sources)
+        self.min_fraction = float(min_fraction)
+        self.max_fraction = float(max_fraction)
+        self._last = time.perf_counter()
+        self._seen = [s.received for s in self.sources]
+
+    def add_source(self, source) -> None:
+        self.sources.append(source)
+        self._seen.append(source.received)
+
+    def tick(self) -> None:
+        self._k += 1
+        earliest = self._last + self.min_fraction * self.period
+        deadline = self._last + self.max_fraction * self.period
+        late = False
+        for i, s in enumerate(self.sources):
+            left = deadline - time.perf_counter()
+            if not s.wait_newer(self._seen[i], max(0.0, left)):
+                late = True
+        rest = earliest - time.perf_counter()
+        if rest > 0:
+            time.sleep(rest)
+        now = time.perf_counter()
+        if late:
+            self.overruns += 1
+            behind = int((now - self._last) // self.period) - 1
+            if behind > 0:
+                self.skipped += behind
+        self._last = now
+        self._seen = [s.received for s in self.sources]
+        self._notify(self.now())

@@ -91,11 +91,15 @@ _OPERATOR = _choice("console", "ros")
 #: does not hold 1 kHz on a shared 2-core machine: bench/bench_hil.py measures it (the
 #: thesis's own controller ran at 400-500 Hz).
 ROS_DEFAULT_RATE = 500.0
-#: s: the stale-stream watchdog of ROS arms and the stale timeout of a serial or CAN load
-#: cell when the file gives none. Above the longest stall of a process that this 2-core
-#: machine shows with two CPU burners beside the rig (bench/bench_hil.py measures it); an
-#: in-process simulated rig has no such stalls and keeps 50 ms.
-WIRE_DEFAULT_TIMEOUT = 0.25
+#: s: the stale-stream watchdog of ROS arms, and the stale timeout of a serial or CAN load
+#: cell, when the file gives none. Above the longest silence this 2-core machine shows
+#: with two CPU burners beside the rig (bench/bench_hil.py measures both): processes are
+#: held off the CPU for up to ~0.2 s, and bytes written to a pty reach the reader up to
+#: ~0.35 s late (the kernel's tty flush runs in a worker the burners delay). A killed
+#: `rig sim` is still seen at once on the pty (the port closes) and within the watchdog on
+#: ROS. An in-process simulated rig has no such stalls and keeps 50 ms.
+ROS_DEFAULT_WATCHDOG = 0.25
+SERIAL_DEFAULT_STALE = 0.5
 
 SCHEMA: dict[str, dict[str, Key]] = {
     "rig": {
@@ -127,7 +131,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "interface": Key("str", "socketcan", "python-can interface (driver = can)"),
         "channel": Key("str", "can0", "python-can channel (driver = can)"),
         "rate": Key("float", 500.0, "sample rate, Hz", lambda x: 1 <= x <= 2000, "a rate in [1, 2000] Hz"),
-        "stale_timeout": Key("float", 0.05, "no sample for this long stops the run, s (default 0.05; 0.25 for a "
+        "stale_timeout": Key("float", 0.05, "no sample for this long stops the run, s (default 0.05; 0.5 for a "
                              "serial or CAN cell)", _positive, "an interval > 0 s"),
         "noise": Key("float", 0.02, "simulated load-cell noise, N rms", _nonneg, "a noise >= 0 N"),
         "element": Key("int", 0, "which object element (pair of arms) the load cell sits on", _nonneg, "an index >= 0"),
@@ -145,7 +149,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "console": Key("str", "auto", "namespace of the dVRK console's topics: '/console' (dVRK 2.3), '/system' "
                        "(dVRK 2.4), or 'auto' (whichever the running system publishes)",
                        lambda x: x == "auto" or (x.startswith("/") and len(x) > 1), "'auto' or a namespace like '/system'"),
-        "connect_timeout": Key("float", 5.0, "wait this long for the first message of every stream, s",
+        "connect_timeout": Key("float", 15.0, "wait this long for the first message of every stream, s (ROS 2 discovery "
+                               "can take seconds on a loaded machine)",
                                _positive, "an interval > 0 s"),
     },
     "operator": {
@@ -307,7 +312,7 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
         rig["rate"] = ROS_DEFAULT_RATE
     for name, a in arms.items():
         if a["driver"] == "ros" and "watchdog" not in arms_doc[name]:
-            a["watchdog"] = WIRE_DEFAULT_TIMEOUT
+            a["watchdog"] = ROS_DEFAULT_WATCHDOG
     for name, a in arms.items():
         if not a["namespace"]:
             a["namespace"] = "/" + name
@@ -315,7 +320,7 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
             a["plant_model"] = _plant_model(source, name, a)
     loadcell = _section(source, "loadcell", SCHEMA["loadcell"], document.get("loadcell", {}))
     if loadcell["driver"] in ("serial", "can") and "stale_timeout" not in document.get("loadcell", {}):
-        loadcell["stale_timeout"] = WIRE_DEFAULT_TIMEOUT
+        loadcell["stale_timeout"] = SERIAL_DEFAULT_STALE
     if loadcell["driver"] == "serial" and not loadcell["port"]:
         raise ConfigError(f"{source}: loadcell.port: required when loadcell.driver = 'serial' (e.g. '/dev/ttyACM0')")
     mocap = _section(source, "mocap", SCHEMA["mocap"], document.get("mocap", {}))

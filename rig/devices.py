@@ -7,7 +7,8 @@ procedure or driver needs an `if simulated:` branch.
   stepping it (faster than real time unless `rig.pace`), `SimArm`s, the load cell as
   `SimForceSensor` (the firmware's device model and byte framing on simulated time; see
   `drivers.loadcell_sim` for why not the pty fake) and mocap as `SimTracker`.
-* Real arms (driver "ros"): a `WallClock` at `rig.rate`, one rclpy context and node owned
+* Real arms (driver "ros"): a `StreamClock` at `rig.rate` (each tick waits for a fresh
+  measured_js of every arm), one rclpy context and node owned
   by the Rig and spun by one executor thread, `RosArm`s on it (watchdog from each arm's
   config), the serial or CAN `LoadCell` and `RosMocapTracker` on the same node.
 
@@ -20,7 +21,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from rig.clock import SimClock, WallClock
+from rig.clock import SimClock, StreamClock
 from rig.config import ConfigError
 from rig.faults import DeviceFault
 
@@ -163,7 +164,8 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
     from rig.ros_session import RosSession
 
     session = RosSession("rig")
-    rig = Rig(clock=WallClock(cfg.rig["rate"]), arms={})
+    # every tick acts on a fresh measured_js of every arm (rig.clock.StreamClock)
+    rig = Rig(clock=StreamClock(cfg.rig["rate"], []), arms={})
     rig.session = session
     rig._closers.append(session.close)
     try:
@@ -172,6 +174,7 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
             arm = RosArm(session.node, a["namespace"], watchdog=a["watchdog"], spin=False,
                          console=cfg.ros["console"], streams=arm_streams, polled=session.executor_time)
             rig.arms[n] = arm
+            rig.clock.add_source(arm)
             rig._closers.append(arm.close)
         lc = cfg.loadcell
         if "loadcell" in uses:

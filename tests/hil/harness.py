@@ -111,7 +111,7 @@ class ServedRig:
             proc.kill()
             out, err = proc.communicate()
             raise RuntimeError(f"rig {' '.join(args)} did not end in {timeout} s: {err[-3000:]}") from None
-        docs = [ln for ln in out.splitlines() if ln.startswith("{")]
+        docs = [ln for ln in out.splitlines() if ln.startswith("{") and ln.rstrip().endswith("}")]
         doc = json.loads(docs[-1]) if docs else None
         return Outcome(proc.returncode, doc, err, time.monotonic() - t0)
 

@@ -141,15 +141,17 @@ def test_stale_load_cell_aborts(monkeypatch):
     from drivers import loadcell_sim
     from rig.run import AbortRun
 
-    original = loadcell_sim.SimForceSensor.samples
+    # the cell goes silent: after 300 of its sample instants it converts nothing more
+    original = loadcell_sim.SimForceSensor._on_tick
     state = {"calls": 0}
 
-    def dying(self):
+    def dying(self, t):
         state["calls"] += 1
-        return original(self) if state["calls"] < 300 else []
+        if state["calls"] < 300:
+            original(self, t)
 
     with pytest.raises(AbortRun, match="load cell stale"):
-        _api_run(monkeypatch, lambda mp: mp.setattr(loadcell_sim.SimForceSensor, "samples", dying))
+        _api_run(monkeypatch, lambda mp: mp.setattr(loadcell_sim.SimForceSensor, "_on_tick", dying))
 
 
 def test_stale_arm_stream_aborts(monkeypatch):

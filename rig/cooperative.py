@@ -135,7 +135,13 @@ def preset(kind: str) -> tuple[ImpedanceGains, bool]:
         # slave lags the master, a stiffer one passes the master's lag into the string).
         # k_fp 10: of 0-20 tried (15 % model error, stiction), 4 gave 0.28 N while moving,
         # 10-20 about 0.23 N (following the plan); 10 keeps a factor 2 from the largest tried
-        return ImpedanceGains(Md=None, Kp=np.full(3, 200.0), damping_ratio=0.7, Kp_across=None,
+        # damping ratio 0.3: over the wire the state is about a tick old when the command
+        # acts, and 0.7 then rang at half the loop rate on joint 3 up to the effort ceiling.
+        # In-process, 3 cm move at 500 Hz, measured joints one tick late: 0.7 and 0.5
+        # aborted, 0.4 / 0.3 / 0.2 held (0.115 / 0.109 / 0.109 N); two ticks late only 0.2
+        # held. On bench_cooperative's cases (1 N stiction, 15 % model error, 1 kHz) 0.2
+        # aborted on the 50 kN/m string and 0.3 gave 0.142 / 0.164 N (0.7: 0.108 / 0.148).
+        return ImpedanceGains(Md=None, Kp=np.full(3, 200.0), damping_ratio=0.3, Kp_across=None,
                               force_feedback=10.0), True
     raise ValueError(f"object kind must be 'spring' or 'string', got {kind!r}")
 

@@ -353,10 +353,17 @@ class RosArm:
 
     def console_namespace(self) -> str:
         """The console's namespace; with console="auto", found from the ROS graph: "/system"
-        when any /system/ topic exists (dVRK 2.4), else "/console" (dVRK 2.3)."""
+        when /system/ topics exist (dVRK 2.4), "/console" when /console/ ones do (2.3), and
+        "/console" if neither shows within 2 s."""
         if self._console == "auto":
-            names = [n for n, _ in self.node.get_topic_names_and_types()]
-            self._set_console("/system" if any(n.startswith("/system/") for n in names) else "/console")
+            # the graph fills in as discovery goes on: look for up to 2 s
+            found, deadline = None, time.monotonic() + 2.0
+            while found is None and time.monotonic() < deadline:
+                names = [n for n, _ in self.node.get_topic_names_and_types()]
+                found = next((ns for ns in ("/system", "/console") if any(n.startswith(ns + "/") for n in names)), None)
+                if found is None:
+                    time.sleep(0.05)
+            self._set_console(found or "/console")
             self._console_publishers()
         return self._console
 

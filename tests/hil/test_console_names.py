@@ -1,0 +1,44 @@
+"""dVRK 2.3 names its console topics /console/..., dVRK 2.4 /system/...: `rig sim` serves
+either, and a RosArm with console="auto" (the [ros] console default) finds which from the
+ROS graph and reaches the console that is there."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+
+from tests.hil.harness import ServedRig  # noqa: E402
+
+pytestmark = [pytest.mark.ros, pytest.mark.hil]
+
+
+@pytest.mark.parametrize("console", ["/system", "/console"])
+def test_auto_finds_the_console_rig_sim_serves(tmp_path, monkeypatch, console):
+    from drivers.dvrk_arm import RosArm
+    from rig.ros_session import RosSession
+
+    domain = 50 + (os.getpid() + (7 if console == "/system" else 3)) % 50
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    with ServedRig(tmp_path, domain, toml='[arms.PSM1]\ndriver = "ros"\n',
+                   sim_args=("--console", console, "--no-loadcell", "--no-mocap")):
+        session = RosSession("console_probe")
+        arm = RosArm(session.node, "/PSM1", watchdog=1.0, spin=False, polled=session.executor_time, console="auto")
+        session.start()
+        try:
+            assert arm.wait_for_data(20.0)
+            assert arm.console_namespace() == console
+            arm.power_on()
+            pub = arm._pubs["power_on"]
+            deadline = time.monotonic() + 10.0
+            while pub.get_subscription_count() == 0:  # rig sim listens on the found name
+                assert time.monotonic() < deadline, f"nobody subscribes to {arm.topic['power_on']}"
+                time.sleep(0.05)
+            assert arm.topic["power_on"] == f"{console}/power_on"
+        finally:
+            arm.close()
+            session.close()

@@ -146,8 +146,9 @@ def command(ctx, mass1: float, mass2: float, port: str | None, sim: bool, baud: 
             if session is not None:
                 session.start()
             ser = open_serial_port(port, baud)
-        # static loads: a 200 ms scheduling hiccup is harmless here, a dead cable still stops us
-        lc = LoadCell(ser, None, rate_hz=rate_hz, stale_timeout=0.2)
+        # static loads: a scheduling hiccup is harmless here (a pty on a loaded machine
+        # delivers up to ~0.35 s late), and a pulled cable still stops us at once
+        lc = LoadCell(ser, None, rate_hz=rate_hz, stale_timeout=max(0.5, cfg.loadcell["stale_timeout"]))
         ident = lc.identity
         result["device"] = {"port": port or fake.port_path, "protocol": ident.protocol,
                             "firmware": ".".join(map(str, ident.firmware)), "adc": ident.adc,

@@ -122,7 +122,7 @@ class ServedRig:
 
     def stop(self) -> str:
         """Stop rig sim (SIGINT, as Ctrl-C); returns what it printed at exit."""
-        if self.proc is None:
+        if self.proc is None or self.proc.stdout is None or self.proc.stdout.closed:
             return ""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGINT)

@@ -144,7 +144,9 @@ def kill_detection(folder: Path, domain: int, toml: str) -> tuple[float | None, 
         def later(proc):
             threading.Thread(target=lambda: (time.sleep(6.0), rig.kill()), daemon=True).start()
 
-        out = rig.run("identify", "--arm", "PSM1", "--duration", "30", "--starts", "1", "--iterations", "5",
+        # the chain's identify options in the chain's folder: the design is cached, so the
+        # kill lands while the excitation streams
+        out = rig.run("identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5",
                       "--no-plots", on_start=later)
     m = re.search(r"no message for (\d+) ms", out.last_line)
     return (float(m.group(1)) if m else None), out.last_line
@@ -175,7 +177,7 @@ def main() -> int:
                 sim_exit = rig.stop()
             cfg = config.load(tmp / "wire" / "rig.toml")
             print("kill detection:", flush=True)
-            killed_ms, kill_line = kill_detection(tmp / "kill", domain, toml)
+            killed_ms, kill_line = kill_detection(tmp / "wire", domain, toml)
             print(f"  {kill_line}")
     finally:
         worst_stall = stalls.stop()

@@ -27,7 +27,8 @@ blocked elsewhere. `measured_js()` itself raises `StaleStream` (topic and age) w
 the stream is stale, so a procedure cannot act on old data.
 
 Units: rad, m (joint 3), N m, N, s. Sample times are the header stamps (s since the epoch,
-the publisher's ROS clock); the staleness age uses this host's monotonic clock.
+the publisher's ROS clock); the staleness age uses this host's monotonic clock, counted up
+to when the executor last looked for messages (`polled`).
 """
 
 from __future__ import annotations

@@ -479,34 +479,28 @@ def exit_on_abort(fn: Callable) -> Callable:
             name = fn.__name__
         else:
             name = ctx.info_name if ctx.parent is not None else (ctx.command.name or ctx.info_name)
-        def json_of_the_run(exc) -> None:
-            # with --json the result document goes to stdout whatever the ending
+
+        def end(exc: BaseException, line: str, code: int) -> None:
+            """The one line (naming the run folder, if any) and the exit; with --json the
+            result document goes to stdout first, whatever the ending."""
             run_dir = getattr(exc, "run_dir", None)
             if kwargs.get("as_json") and run_dir is not None:
                 try:
                     click.echo(json.dumps(json.loads((Path(run_dir) / "result.json").read_text())))
                 except (OSError, ValueError):
                     pass
+            where = f" (run folder {run_dir})" if run_dir else ""
+            click.echo(f"rig {name}: {line}{where}", err=True)
+            sys.exit(code)
 
         try:
             return fn(*args, **kwargs)
         except AbortRun as exc:
-            json_of_the_run(exc)
-            where = f" (run folder {exc.run_dir})" if exc.run_dir else ""
-            click.echo(f"rig {name}: aborted: {exc.reason}{where}", err=True)
-            sys.exit(EXIT_ABORTED)
+            end(exc, f"aborted: {exc.reason}", EXIT_ABORTED)
         except KeyboardInterrupt as exc:
-            json_of_the_run(exc)
-            run_dir = getattr(exc, "run_dir", None)
-            where = f" (run folder {run_dir})" if run_dir else ""
-            click.echo(f"rig {name}: aborted: interrupted (Ctrl-C){where}", err=True)
-            sys.exit(EXIT_INTERRUPTED)
+            end(exc, "aborted: interrupted (Ctrl-C)", EXIT_INTERRUPTED)
         except DeviceFault as exc:
-            json_of_the_run(exc)
-            run_dir = getattr(exc, "run_dir", None)
-            where = f" (run folder {run_dir})" if run_dir else ""
-            click.echo(f"rig {name}: aborted: {exc}{where}", err=True)
-            sys.exit(EXIT_ABORTED)
+            end(exc, f"aborted: {exc}", EXIT_ABORTED)
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
         except ConfigError as exc:
@@ -514,12 +508,8 @@ def exit_on_abort(fn: Callable) -> Callable:
         except Exception as exc:  # noqa: BLE001 - a traceback is for developers (RIG_DEBUG=1)
             if os.environ.get("RIG_DEBUG"):
                 raise
-            json_of_the_run(exc)
-            run_dir = getattr(exc, "run_dir", None)
-            where = f" (run folder {run_dir})" if run_dir else ""
             text = str(exc).splitlines()[0] if str(exc) else ""
-            click.echo(f"rig {name}: failed: {type(exc).__name__}: {text}{where}; this is a bug of rig, please "
-                       "report it (RIG_DEBUG=1 shows where)", err=True)
-            sys.exit(EXIT_FAILED)
+            end(exc, f"failed: {type(exc).__name__}: {text}; a bug of rig: please report it "
+                     "(RIG_DEBUG=1 shows where)", EXIT_FAILED)
 
     return wrapper

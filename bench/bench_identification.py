@@ -1,9 +1,17 @@
 """Issue 5 benchmarks: the dynamic identification mathematics, timed and checked.
 
-    python bench/bench_identification.py [--model psm|reference] [--starts 4] [--skip-real]
+    python bench/bench_identification.py [--model psm|reference] [--starts 4] [--skip-real] [--quick]
 
+0. Unit-test-sized timings (the tests check these results, the bench their speed): base
+   parameters of the model, first call, target < 0.5 s (tests/calibration/
+   test_cal_psm_identification.py); base parameters of the 92-parameter reference arm,
+   target < 0.5 s (test_cal_base_params.py); the short excitation optimisation of
+   test_cal_excitation.py (reference arm, 1 start, 8 SLSQP iterations), target < 4 s.
+   `--quick` runs only these.
 1. Excitation: optimise a Fourier trajectory (5 harmonics, 0.13 Hz, 30 s, 6001 samples at
-   200 Hz) for the base regressor's condition number; target < 120 s.
+   200 Hz) for the base regressor's condition number; target < 120 s. With
+   `--model reference` this is the design of test_cal_excitation.py's slow test, which
+   checks the condition number and leaves the time to this figure.
 2. Simulated recording on that trajectory: true parameters, measurement noise on dq and
    tau, then the whole fit - processing (zero-phase filter, differentiation, trimming),
    regressor, base parameters, OLS, WLS, SDP with checks; target < 10 s for 6000 x 3.
@@ -75,11 +83,30 @@ def record(model, traj: FourierTrajectory, pi, rng, rate=200.0, dq_noise=0.01, t
                      tau + np.asarray(tau_noise) * rng.normal(size=tau.shape), rate, "simulated"), tau
 
 
+def unit_test_timings() -> list[tuple[str, str, str, bool]]:
+    """Rows for the reference-arm computations the calibration unit tests make (and check)."""
+    from calibration.reference_arm import ReferenceArm
+    arm = ReferenceArm(seed=0)
+    t0 = time.perf_counter()
+    base = base_parameters_of(arm.regressor_batch, arm.param_layout, arm.q_min, arm.q_max, arm.dq_max)
+    t_base = time.perf_counter() - t0
+    d = ExcitationDesigner(arm.regressor_batch, base.independent, arm.q_min, arm.q_max, arm.dq_max,
+                           ddq_max=np.array([6.0, 6.0, 1.5]), duration=30.0, n_objective=150, n_constraint=600)
+    t0 = time.perf_counter()
+    d.optimise(n_starts=1, seed=1, maxiter=8)
+    t_short = time.perf_counter() - t0
+    return [(f"base parameters of ReferenceArm ({arm.param_layout.n_params} standard) [s]", f"{t_base:.3f}",
+             "< 0.5", t_base < 0.5),
+            ("short excitation optimisation, ReferenceArm (1 start, 8 iterations) [s]", f"{t_short:.2f}", "< 4",
+             t_short < 4.0)]
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", choices=["psm", "reference"], default="psm")
     ap.add_argument("--starts", type=int, default=4, help="seeded starts of the excitation optimisation")
     ap.add_argument("--skip-real", action="store_true", help="skip the real-data figures")
+    ap.add_argument("--quick", action="store_true", help="only the unit-test-sized timings (section 0)")
     a = ap.parse_args()
     label, model, q_min, q_max, dq_max = load_model(a.model)
     print(f"model: {label}")
@@ -88,8 +115,16 @@ def main() -> int:
     pi_true = true_params(model)
     nominal = pi_true * rng.uniform(0.8, 1.2, pi_true.size)  # a nominal model 20 % off
 
-    # 1. Excitation.
+    # 0. Timings of the unit tests' computations (first call, as a test makes it).
+    t0 = time.perf_counter()
     base = base_parameters_of(model.regressor_batch, model, q_min, q_max, dq_max)
+    t_base = time.perf_counter() - t0
+    rows += [(f"base parameters of {label.split()[0]}, first call [s]", f"{t_base:.3f}", "< 0.5", t_base < 0.5)]
+    rows += unit_test_timings()
+    if a.quick:
+        return 0 if print_table(f"Unit-test-sized timings ({label})", rows) else 1
+
+    # 1. Excitation.
     designer = ExcitationDesigner(model.regressor_batch, base.independent, q_min, q_max, dq_max)
     exc = designer.optimise(n_starts=a.starts, seed=0, time_budget=100.0,
                             progress=lambda k, n, c: print(f"  excitation start {k}/{n}: best cond {c:.1f}",

@@ -45,7 +45,10 @@ def test_derivatives_consistent_and_eq_5_28():
 def test_short_optimisation_improves_and_respects_limits(arm, base):
     d = ExcitationDesigner(arm.regressor_batch, base.independent, arm.q_min, arm.q_max, arm.dq_max,
                            ddq_max=np.array([6.0, 6.0, 1.5]), duration=30.0, n_objective=150, n_constraint=600)
-    r = d.optimise(n_starts=1, seed=1, maxiter=8)
+    # (its speed, < 4 s, is a benchmark figure: bench/bench_identification.py)
+    # A budget of 0 s is spent once the first start is done: the second of three never begins.
+    r = d.optimise(n_starts=3, seed=1, maxiter=8, time_budget=0.0)
+    assert len(r.starts) == 1
     s = r.starts[0]
     assert r.condition_objective < s["seed_condition"]
     # Every full-rate sample within limits, at rest at both ends.
@@ -71,8 +74,11 @@ def test_limits_enforced_when_optimiser_overshoots(arm, base):
 
 
 @pytest.mark.slow
-def test_full_optimisation_within_budget(arm, base):
+def test_full_optimisation_reaches_the_condition_target(arm, base):
+    # Every start runs (no time budget), so the result does not depend on the machine's
+    # speed; the time the default 100 s budget allows, < 120 s, is a benchmark figure:
+    # bench/bench_identification.py.
     d = ExcitationDesigner(arm.regressor_batch, base.independent, arm.q_min, arm.q_max, arm.dq_max)
-    r = d.optimise(n_starts=4, seed=0, time_budget=100.0)
-    assert r.seconds < 120.0
+    r = d.optimise(n_starts=4, seed=0, time_budget=np.inf)
+    assert len(r.starts) == 4
     assert r.condition_full < 300.0

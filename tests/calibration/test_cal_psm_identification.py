@@ -1,7 +1,5 @@
 """The identification mathematics on the project's PSM model (rig.psm_dynamics.PSMDynamics)."""
 
-import time
-
 import numpy as np
 import pytest
 
@@ -32,10 +30,9 @@ def test_layout_matches_model_names(psm):
     assert layout.names()[:layout.n_inertial] == model_names[:layout.n_inertial]
 
 
-def test_psm_base_parameters_exact_and_fast(psm):
-    t0 = time.perf_counter()
+def test_psm_base_parameters_exact(psm):
+    # (its speed, < 0.5 s, is a benchmark figure: bench/bench_identification.py)
     bp = base_parameters_of(psm.regressor_batch, psm, Q_MIN, Q_MAX, DQ_MAX)
-    assert time.perf_counter() - t0 < 0.5
     Q, DQ, DDQ = random_samples(50, Q_MIN, Q_MAX, DQ_MAX, seed=11)
     W = psm.regressor_batch(Q, DQ, DDQ)
     rng = np.random.default_rng(0)

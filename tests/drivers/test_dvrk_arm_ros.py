@@ -3,6 +3,13 @@
 One `rig sim` subprocess serves the module (starting one costs ~2 s); both processes get
 the same private ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST. The last test
 kills the simulator with SIGKILL to check the stale-stream watchdog.
+
+The simulator shares the machine with this process and whatever else runs: on a loaded
+machine it runs slower than real time and messages arrive late. So the tests check what
+the mechanisms guarantee (every measured_js one rig period after the last, a timeout
+never before it is due, a watchdog firing only past its interval); wall-time limits are
+guards against a hang, generous enough for a busy machine. How fast it all is on a quiet
+machine is bench/bench_ros_sim.py's figure.
 """
 
 from __future__ import annotations
@@ -58,7 +65,7 @@ def rig_sim():
                             cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))))
     ctx = Context()
     try:
-        lines = _read_lines_until(proc, "ready", timeout=20)
+        lines = _read_lines_until(proc, "ready", timeout=60)  # ~2 s on an idle machine
         rclpy.init(context=ctx)
         nodes = {n: rclpy.create_node(f"rig_test_{n.lower()}", context=ctx) for n in ("PSM1", "PSM2", "watch")}
         stale_events: list[tuple[float, StaleStream]] = []
@@ -66,10 +73,10 @@ def rig_sim():
         # its own driver instance with the default 50 ms.
         arms = {n: RosArm(nodes[n], f"/{n}", watchdog=0.5) for n in ("PSM1", "PSM2")}
         for arm in arms.values():
-            assert arm.wait_for_data(10.0), f"no measured_js from rig sim on {arm.topic['measured_js']}"
-            assert arm.wait_for_subscribers(10.0)
+            assert arm.wait_for_data(30.0), f"no measured_js from rig sim on {arm.topic['measured_js']}"
+            assert arm.wait_for_subscribers(30.0)
         yield {"proc": proc, "arms": arms, "lines": lines, "stale_events": stale_events,
-               "watch_node": nodes["watch"]}
+               "watch_node": nodes["watch"], "nodes": nodes}
         for arm in arms.values():
             arm.close()
         for node in nodes.values():
@@ -99,18 +106,38 @@ def test_startup_prints_loadcell_pty_and_ready(rig_sim):
     assert isinstance(rig_sim["arms"]["PSM1"], Arm)
 
 
-def test_measured_js_streams_near_1khz_and_cp_matches_kinematics(rig_sim):
-    arm = rig_sim["arms"]["PSM1"]
-    n0, t0 = arm.received, time.monotonic()
-    time.sleep(1.0)
-    rate = (arm.received - n0) / (time.monotonic() - t0)
-    # A floor, not the 1 kHz figure: the subscriber is best-effort and this test shares
-    # two cores with the simulator and whatever else CI runs (bench/bench_ros_sim.py
-    # measures the rate on a quiet machine). A 100 Hz-only stream would still fail.
-    assert rate > 200, f"measured_js arrives at {rate:.0f} Hz"
+def test_measured_js_streams_every_rig_period_and_cp_matches_kinematics(rig_sim):
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+
+    arm, node = rig_sim["arms"]["PSM1"], rig_sim["nodes"]["PSM1"]
+    n0 = arm.received
+    stamps: list[int] = []  # ns
+    sub = node.create_subscription(
+        JointState, "/PSM1/measured_js",
+        lambda m: stamps.append(m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec),
+        QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT))
+    deadline = time.monotonic() + 30.0
+    while len(stamps) < 300:
+        assert time.monotonic() < deadline, f"{len(stamps)} measured_js in 30 s"
+        time.sleep(0.01)
+    node.destroy_subscription(sub)
+    assert arm.received > n0
+    # measured_js is published on every rig period (1 ms) and stamped with the rig's time
+    # (its start on the wall clock + simulated time), so two messages in a row are 1 ms
+    # apart however fast the simulator runs on this machine; a best-effort subscriber may
+    # miss some, which only makes gaps longer. A stream at the 100 Hz of measured_cp
+    # would be 10 ms apart. (The rate achieved in wall time is bench/bench_ros_sim.py's.)
+    gaps = np.diff(stamps)
+    assert abs(gaps[gaps > 0].min() - 1_000_000) <= 1_000, f"shortest gap {gaps[gaps > 0].min()} ns"
     js = arm.measured_js()
     assert js.name[:3] == ("outer_yaw", "outer_pitch", "outer_insertion")
-    assert abs(js.t - time.time()) < 0.5  # stamps on the wall clock
+    # Stamps on the wall clock: a stamp trails the wall clock by at most the lag at which
+    # the simulator re-anchors its time (REANCHOR), and measured_js() returns nothing older
+    # than the watchdog (0.5 s here); 1 s more for delivery on a loaded machine. Rig time
+    # from zero or the monotonic clock would be off by days or decades.
+    from procedures.sim import REANCHOR
+    assert -0.01 < time.time() - js.t < REANCHOR + arm.watchdog + 1.0
     cp = arm.measured_cp()
     T = K.tip_pose_rcm(arm.measured_js().position)
     assert np.allclose(cp.position, T[:3, 3], atol=2e-3)  # 100 Hz pose vs newest joints
@@ -124,7 +151,9 @@ def test_servo_jp_moves_toward_the_command(rig_sim):
     assert arm.move_jp(np.array([0.0, 0.0, 0.12]), wait=True, timeout=8.0)
     q0 = arm.measured_js().position
     target = q0 + np.array([0.08, -0.05, 0.01])
-    deadline = time.monotonic() + 3.0
+    # Well under a second of rig time; the simulator runs slower than real time on a
+    # loaded machine, so the wall-time limit only guards against a hang.
+    deadline = time.monotonic() + 30.0
     while True:  # the dVRK expects a stream of servo commands, as a procedure sends them
         arm.servo_jp(target)
         time.sleep(0.02)
@@ -143,8 +172,9 @@ def test_servo_jf_moves_the_joint_the_right_way(rig_sim):
     for sign in (+1.0, -1.0):
         arm.servo_jf(hold_effort + np.array([sign * 0.8, 0.0, 0.0]))
         # 0.8 N m on joint 1 moves it 0.01 rad in well under 0.15 s of rig time; the rig runs in
-        # another process, slower than real time on a loaded machine: wait up to 1 s of wall time
-        deadline = time.monotonic() + 1.0
+        # another process, slower than real time on a loaded machine: the wall-time limit
+        # only guards against a hang
+        deadline = time.monotonic() + 10.0
         while True:
             time.sleep(0.02)
             q1 = arm.measured_js().position
@@ -169,39 +199,51 @@ def test_move_jp_waits_until_arrived_and_times_out(rig_sim):
     assert elapsed > 0.25
     t0 = time.monotonic()
     assert arm.move_jp(np.array([0.08, -0.05, 0.13]), wait=True, timeout=0.1) is False
-    assert 0.09 < time.monotonic() - t0 < 0.5
+    # Never before the timeout; after it, the wait returns as soon as it wakes (on each
+    # message, and never later than the deadline): 1 s for that wake-up on a loaded machine.
+    assert 0.1 <= time.monotonic() - t0 < 0.1 + 1.0
     assert arm.move_jp(np.array([0.0, 0.0, 0.12]), wait=True, timeout=8.0)
 
 
-def test_watchdog_raises_within_100ms_of_the_stream_stopping(rig_sim):
+def test_watchdog_fires_once_the_stream_is_silent_for_its_interval(rig_sim):
     # Made here, not in the fixture: a 50 ms watchdog firing on a loaded machine commands
     # a hold, which would fight the motion tests' commands.
     events = rig_sim["stale_events"]
     arm = RosArm(rig_sim["watch_node"], "/PSM1", on_stale=lambda e: events.append((time.monotonic(), e)))
     rig_sim["arms"]["watch"] = arm  # closed by the fixture
-    assert arm.watchdog == 0.05 and arm.wait_for_data(5.0)
-    deadline = time.monotonic() + 5.0
+    assert arm.watchdog == 0.05 and arm.wait_for_data(30.0)
+    deadline = time.monotonic() + 30.0
     while arm.stream_age() > 0.01:  # start from a fresh stream
         assert time.monotonic() < deadline
         time.sleep(0.002)
     rig_sim["proc"].send_signal(signal.SIGKILL)
-    rig_sim["proc"].wait(timeout=5)
-    t_kill = time.monotonic()
-    deadline = t_kill + 2.0
+    rig_sim["proc"].wait(timeout=30)
+    # measured_js() returns data only while it is at most the watchdog interval old, and
+    # raises once it is older. Each return is checked against the age read just before
+    # the call (when no message came in between), so the check holds however late this
+    # loop runs.
+    deadline = time.monotonic() + 10.0
     while True:
+        n, age = arm.received, arm.stream_age()
         try:
             arm.measured_js()
         except StaleStream as err:
-            t_raise = time.monotonic()
             assert "/PSM1/measured_js" in str(err) and err.age > arm.watchdog
             break
+        assert arm.received != n or age <= arm.watchdog, f"measured_js returned data {age * 1e3:.0f} ms old"
         assert time.monotonic() < deadline, "measured_js never went stale"
         time.sleep(0.001)
-    last_rx = t_raise - arm.stream_age()
-    assert t_raise - last_rx < 0.1, f"stale after {1e3 * (t_raise - last_rx):.0f} ms"
-    time.sleep(0.05)
-    fired = [t for t, e in events if t >= last_rx]
-    assert fired, "the stale callback did not fire"
-    assert fired[0] - last_rx < 0.1, f"callback after {1e3 * (fired[0] - last_rx):.0f} ms"
+    last_rx = time.monotonic() - arm.stream_age()
+    # The watchdog thread looks every watchdog / 5 and fires once the age is past the
+    # interval: 50-60 ms after the last message when it gets the CPU at once. It fires
+    # from its own thread, so it is also waited for here, not polled once. The upper
+    # bound adds 0.5 s for that thread to get a CPU and the GIL on a loaded machine; a
+    # watchdog that never fires, or only with the next message, still fails.
+    while not any(t >= last_rx for t, _ in events):
+        assert time.monotonic() < deadline, "the stale callback did not fire"
+        time.sleep(0.002)
+    t_fired, err = next((t, e) for t, e in events if t >= last_rx)
+    assert err.age > arm.watchdog and t_fired - last_rx > arm.watchdog, "fired before the interval"
+    assert t_fired - last_rx < 1.2 * arm.watchdog + 0.5, f"callback after {1e3 * (t_fired - last_rx):.0f} ms"
     with pytest.raises(StaleStream):
         arm.move_jp(np.zeros(3), wait=True, timeout=1.0)

@@ -121,7 +121,7 @@ class ExpectedProtocolPort:
         assert not self._pairs, f"unused pairs: {[(s and s.hex(' '), r.hex(' ')) for s, r in self._pairs]}"
 
 
-def wait_for(pred, timeout=1.0) -> None:
+def wait_for(pred, timeout=30.0) -> None:  # a guard against a hang, not a figure
     end = time.monotonic() + timeout
     while not pred():
         assert time.monotonic() < end, "timed out"
@@ -326,7 +326,10 @@ def test_port_failure_raises_disconnected_and_keeps_received_samples():
         while True:
             lc.read()
             time.sleep(0.001)
-    assert time.monotonic() - t0 < 0.1
+    # Found by the reader's next read of the port (its timeout is 5 ms), not by the silence:
+    # the stale timeout is 10 s. The bound leaves the reader up to 1 s to be scheduled on a
+    # loaded machine and still fails a driver that only noticed the stream going stale.
+    assert time.monotonic() - t0 < lc.stale_timeout / 10
     assert len(lc.samples()) == 5  # nothing received is lost
     with pytest.raises(LoadCellDisconnected):
         lc.samples()
@@ -334,12 +337,29 @@ def test_port_failure_raises_disconnected_and_keeps_received_samples():
     port.assert_done()
 
 
+class ManualClock:
+    """Host seconds that only move when the test says so."""
+
+    def __init__(self) -> None:
+        self.t = 1000.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
 def test_stale_stream_raises_instead_of_returning_old_data():
+    # On a clock of its own, so the test sets the silence exactly (a busy machine cannot
+    # make fresh data look stale, or stale data fresh).
     port = ExpectedProtocolPort(OPENING + [(None, frames(0, 3))])
-    lc = LoadCell(port, CAL, stale_timeout=0.05)
+    clock = ManualClock()
+    lc = LoadCell(port, CAL, stale_timeout=0.05, clock=clock)
     wait_for(lambda: lc.stats().samples == 3)
     assert lc.read().seq == 2
-    time.sleep(0.07)
+    clock.t += 0.05  # silent for exactly the stale timeout: still usable
+    wait_for(lambda: lc.stream_age() == pytest.approx(0.05))  # the reader has looked since
+    assert lc.read().seq == 2
+    clock.t += 0.001
+    wait_for(lambda: lc.stream_age() > 0.05)
     with pytest.raises(LoadCellDisconnected, match="stale timeout 50 ms"):
         lc.read()
     lc.close()  # the device is gone: no STOP is sent

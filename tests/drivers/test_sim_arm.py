@@ -129,16 +129,67 @@ def test_trajectory_profile_is_smooth_and_limited():
     assert np.allclose(np.gradient(q, ts, axis=0), dq, atol=2e-3)
 
 
-def test_wall_clock_keeps_its_period_without_drift():
+class FakeTime:
+    """Stands in for the `time` module inside rig.clock: every sleep() overshoots by
+    `slack` s, as a real timer does, and nothing else takes any time."""
+
+    def __init__(self, slack: float) -> None:
+        self.t, self.slack = 100.0, slack
+
+    def perf_counter(self) -> float:
+        return self.t
+
+    def time(self) -> float:
+        return 1.7e9 + self.t
+
+    def sleep(self, duration: float) -> None:
+        assert duration >= 0
+        self.t += duration + self.slack
+
+
+def test_wall_clock_boundaries_come_from_the_start_not_from_the_last_wake_up(monkeypatch):
+    import rig.clock
+
+    fake = FakeTime(slack=0.3e-3)
+    monkeypatch.setattr(rig.clock, "time", fake)
     clock = WallClock(500.0)
-    seen = []
-    clock.add_listener(seen.append)
-    t0 = time.perf_counter()
+    start = fake.t
     for _ in range(100):
         clock.tick()
-    elapsed = time.perf_counter() - t0
-    assert len(seen) == 100
-    assert 0.19 <= elapsed < 0.26  # 100 periods of 2 ms; boundaries from the start, not chained
-    time.sleep(0.01)  # miss 5 boundaries
+    # On boundary 100, late only by the last sleep's slack; chaining periods from each
+    # wake-up would be late by 100 slacks (30 ms).
+    assert fake.t - start == pytest.approx(100 * 0.002 + 0.3e-3, abs=1e-9)
+    assert clock.overruns == 0 and clock.skipped == 0
+    fake.t += 0.010  # the loop is busy for 10 ms: boundaries 101-105 pass
+    clock.tick()  # an overrun (taking boundary 105) returns at once; 101-104 are skipped
+    assert fake.t - start == pytest.approx(0.2003 + 0.010, abs=1e-9)
+    assert clock.overruns == 1 and clock.skipped == 4
+    clock.tick()  # the next boundary, 106, not a burst replaying the missed ones
+    assert fake.t - start == pytest.approx(106 * 0.002 + 0.3e-3, abs=1e-9)
+    assert clock.overruns == 1 and clock.skipped == 4
+
+
+def test_wall_clock_ticks_on_the_real_clock():
+    # The same mechanism on the real clock. No tick returns before its boundary, and the
+    # loop ends on boundary 100 + skipped (a tick that finds itself a whole period late
+    # skips the boundaries it missed instead of replaying them). The upper bound adds one
+    # wake-up latency: on a loaded machine the last sleep may return late by a scheduler
+    # time slice or a few (tens of ms on two busy cores); 0.1 s is 50 periods, and delays
+    # of earlier ticks do not add up (that is the mechanism under test, without slack
+    # from the scheduler in the test above).
+    before = time.perf_counter()
+    clock = WallClock(500.0)
+    made = time.perf_counter()
+    seen = []
+    clock.add_listener(seen.append)
+    for _ in range(100):
+        clock.tick()
+    end = time.perf_counter()
+    assert len(seen) == 100 and all(b > a for a, b in zip(seen, seen[1:]))
+    boundaries = (100 + clock.skipped) * clock.period
+    assert end - before >= boundaries
+    assert end - made < boundaries + 0.1
+    overruns, skipped = clock.overruns, clock.skipped
+    time.sleep(0.01)  # miss at least 5 boundaries: the next tick is late by >= 8 ms
     clock.tick()
-    assert clock.overruns >= 1 and clock.skipped >= 4
+    assert clock.overruns == overruns + 1 and clock.skipped >= skipped + 4

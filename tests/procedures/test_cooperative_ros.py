@@ -183,7 +183,7 @@ def test_published_increments_move_the_object_and_raise_the_tension(tmp_path, te
         # Once the tension holds 5 N and the (empty) planned motion is over, one increment
         # of each kind; some 4 s of the run are left to follow them.
         proc.wait_for_loop_time(2.8, rate=1000.0, timeout=40.0)
-        teleop.wait_for_subscriber(timeout=10.0)
+        teleop.wait_for_subscriber(timeout=30.0)  # a guard against a hang
         teleop.twist(linear=(0.0, 0.01, 0.0))
         teleop.tension(1.0)
         result, err = proc.finish(timeout=60.0)
@@ -248,7 +248,7 @@ def test_bad_increments_are_refused_and_the_object_stays_held(tmp_path, teleop):
     proc = _Procedure(tmp_path, settle, hold_after)
     try:
         proc.wait_for_loop_time(1.5, rate=1000.0, timeout=40.0)
-        teleop.wait_for_subscriber(timeout=10.0)
+        teleop.wait_for_subscriber(timeout=30.0)  # a guard against a hang
         teleop.twist(linear=(float("nan"), 0.0, 0.0))
         teleop.twist(linear=(0.0, 0.5, 0.0))        # y = 0.5 m: outside the box (|y| <= 0.35 m)
         teleop.tension(20.0)                        # 25 N: above the 15 N ceiling

@@ -276,7 +276,7 @@ def test_a_process_that_exits_without_close_still_leaves_a_finished_file(tmp_pat
               f"r = Recorder({str(path)!r}); r.start('unit')\n"
               "for i in range(300): r.scalar('/x', i * 1e-3, float(i))\n"
               "sys.exit(0)\n")
-    subprocess.run([sys.executable, "-c", script], check=True, timeout=20)
+    subprocess.run([sys.executable, "-c", script], check=True, timeout=120)  # a guard against a hang
     rec = read_recording(path)
     assert rec.finalised and rec.counts() == {"/x": 300}
     assert rec.stop["status"] == "failed"

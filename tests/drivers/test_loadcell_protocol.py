@@ -321,15 +321,13 @@ def test_port_failure_raises_disconnected_and_keeps_received_samples():
     lc = LoadCell(port, CAL, stale_timeout=10.0)
     wait_for(lambda: lc.stats().samples == 5)
     port.dead = True
-    t0 = time.monotonic()
-    with pytest.raises(LoadCellDisconnected, match="disconnected"):
+    with pytest.raises(LoadCellDisconnected, match="disconnected: port read failed"):
         while True:
             lc.read()
             time.sleep(0.001)
-    # Found by the reader's next read of the port (its timeout is 5 ms), not by the silence:
-    # the stale timeout is 10 s. The bound leaves the reader up to 1 s to be scheduled on a
-    # loaded machine and still fails a driver that only noticed the stream going stale.
-    assert time.monotonic() - t0 < lc.stale_timeout / 10
+    # Found by the reader's read of the port, not by the silence (the stale timeout is 10 s):
+    # the port's failure names it ("... disconnected: port read failed"); a stale stream reads
+    # "no sample for ..." and would not match. The time it takes is bench_loadcell's row.
     assert len(lc.samples()) == 5  # nothing received is lost
     with pytest.raises(LoadCellDisconnected):
         lc.samples()

@@ -193,15 +193,14 @@ def test_unplug_raises_disconnected_from_the_port(rig):
     wait_for(lambda: lc.stats().samples >= 40, "40 samples")
     lc.read()
     fake.unplug()  # returns once the pty is closed
-    t0 = time.monotonic()
+    # Found from the port (its closed pty), not from the silence: the stale timeout is 10 s
+    # and a stale stream reads "no sample for ...". How fast is bench_loadcell's row.
     with pytest.raises(LoadCellDisconnected, match="disconnected") as exc:
-        while True:
+        for _ in range(200_000):  # a guard against a hang, not a time bound
             lc.read()
-            assert time.monotonic() - t0 < lc.stale_timeout, "the unplug was never noticed"
             time.sleep(0.0005)
-    elapsed = time.monotonic() - t0
-    print(f"unplug -> LoadCellDisconnected in {elapsed * 1e3:.1f} ms: {exc.value}")
-    assert elapsed < lc.stale_timeout / 10
+        pytest.fail("the unplug was never noticed")
+    assert "no sample for" not in str(exc.value)
     st = lc.stats()
     assert st.samples >= 40 and st.lost == 0
     lc.close()

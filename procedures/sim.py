@@ -78,7 +78,6 @@ class SimServer:
         from std_msgs.msg import Empty
 
         from drivers.crtk import PSM_JOINT_NAMES
-        from drivers.mocap_sim import SimTracker
         from rig.clock import SimClock
         from drivers.sim_arm import SimArm
 

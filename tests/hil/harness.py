@@ -29,7 +29,7 @@ def lab_toml(folder: Path, *, rate: float | None = None, watchdog: float | None 
     """A lab's rig.toml for the rig `rig sim` serves: ROS arms, a serial load cell on
     `folder/loadcell` (rig sim links it to its pty), ROS mocap, the simulated operator."""
     arm = 'driver = "ros"\n' + (f"watchdog = {watchdog}\n" if watchdog else "")
-    text = (f"[rig]\nseed = 0\n" + (f"rate = {rate}\n" if rate else "")
+    text = ("[rig]\nseed = 0\n" + (f"rate = {rate}\n" if rate else "")
             + f"\n[arms.PSM1]\n{arm}\n[arms.PSM2]\n{arm}{PSM2_BASE}")
     if three_arms:
         text += f"\n[arms.PSM3]\n{arm}base_xyz = [0.5364, 0.5730, 0.0]\nbase_rpy = [0.0, 0.0, -1.5707963267948966]\n"

@@ -210,6 +210,10 @@ class FrameParser:
       bad_length   LEN byte above MAX_PAYLOAD (cannot be a frame; skipped)
       resyncs      times bytes were skipped to find the next sync that belonged to no
                    counted frame (garbage, line noise, a partial frame at start-up)
+    A frame whose CRC passes but which holds a plausible header inside is accepted only
+    when the next frame starts right after it (the two following bytes are a sync), since
+    a 16-bit CRC passes a cut frame spliced with its successor once in 65536; such a frame
+    waits for those two bytes.
     `on_reject(kind, type_byte)` is called for every rejected frame, so the firmware fake
     can answer a bad command with an error reply.
     """
@@ -254,6 +258,26 @@ class FrameParser:
             return None
         return buf[j + 2] <= self.max_payload and buf[j + 3] in KNOWN_TYPES
 
+    def _inner_header(self, end: int) -> bool | None:
+        """Whether a plausible header starts inside the frame that ends at `end` (and, if
+        one does, whether the two bytes after the frame have arrived: None until they have)."""
+        buf = self._buf
+        j = buf.find(SYNC, 1, end)
+        while j > 0:
+            plausible = self._header_at(j)
+            if plausible is None or plausible:
+                break
+            j = buf.find(SYNC, j + 1, end)
+        if j < 0:
+            return False
+        if plausible is None or len(buf) < end + 2:
+            return None
+        return plausible
+
+    def _aligned_after(self, end: int) -> bool:
+        """Frames are sent back to back: the next one starts right after a real frame."""
+        return self._buf[end:end + 2] == SYNC
+
     def feed(self, data: bytes) -> list[Frame]:
         """Append bytes; return every complete valid frame now available, oldest first."""
         buf = self._buf
@@ -281,7 +305,16 @@ class FrameParser:
             end = length + FRAME_OVERHEAD
             if len(buf) < end:
                 return out
-            if crc16_ccitt_false(bytes(buf[2:end - 2])) == (buf[end - 2] | buf[end - 1] << 8):
+            crc_ok = crc16_ccitt_false(bytes(buf[2:end - 2])) == (buf[end - 2] | buf[end - 1] << 8)
+            if crc_ok:
+                inner = self._inner_header(end)
+                if inner is None:
+                    return out  # decide when the bytes that tell are here
+                if inner and not self._aligned_after(end):
+                    # A 16-bit CRC passes a cut frame spliced with its successor once in
+                    # 65536: a header inside and no sync right after means exactly that.
+                    crc_ok = False
+            if crc_ok:
                 out.append(Frame(ftype, bytes(buf[4:end - 2])))
                 self.frames += 1
                 self._skipping = False

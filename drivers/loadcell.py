@@ -969,13 +969,18 @@ class LoadCell(_StreamingLoadCell):
     def _reader(self) -> None:
         port, parser = self.port, self.parser
         while not self._stop.is_set():
+            # Wait for a byte (up to the port timeout), then take everything the port holds
+            # at `rx`: every byte that had arrived by then is parsed before the stream's age
+            # is judged at `rx`, so a reader that could not run for a while (the process
+            # busy, the machine loaded) finds the samples waiting, not a silent cell.
             try:
+                first = port.read(1) if port.in_waiting == 0 else b""
+                rx = self.clock()
                 n = port.in_waiting
-                data = port.read(n if n > 0 else 1)
+                data = None if first is None else first + (port.read(n) if n else b"")
             except Exception as exc:  # noqa: BLE001 - pyserial raises SerialException/OSError/TypeError on hangup
                 self._lost_port(f"port read failed: {exc}")
                 return
-            rx = self._last_poll = self.clock()
             if data is None:
                 self._lost_port("port returned EOF")
                 return
@@ -987,7 +992,8 @@ class LoadCell(_StreamingLoadCell):
                         self._on_reply(frame.type, frame.payload)
                 with self._lock:
                     self._copy_parser_stats()
-            self._check_stale(self.clock())
+            self._last_poll = rx
+            self._check_stale(rx)
 
     def _copy_parser_stats(self) -> None:
         st, p, sq = self._stats, self.parser, self._seq

@@ -388,6 +388,52 @@ def test_stale_stream_raises_instead_of_returning_old_data():
     port.assert_done()
 
 
+class HeldReaderPort(ExpectedProtocolPort):
+    """As ExpectedProtocolPort, and `hold()` makes the reader's next wait for a byte last
+    until `release()`: the reader thread that cannot run while the cell goes on sending."""
+
+    def __init__(self, pairs) -> None:
+        super().__init__(pairs)
+        self._held = threading.Event()
+        self._go = threading.Event()
+        self.waiting = threading.Event()
+
+    def hold(self) -> None:
+        self._go.clear()
+        self._held.set()
+
+    def release(self) -> None:
+        self._held.clear()
+        self._go.set()
+
+    def arrive(self, data: bytes) -> None:
+        with self._cond:
+            self._rx += data
+
+    def read(self, n: int = 1) -> bytes:
+        if self._held.is_set():
+            self.waiting.set()
+            self._go.wait(30.0)
+        return super().read(n)
+
+
+def test_a_reader_held_up_finds_the_waiting_samples_not_a_silent_cell():
+    port = HeldReaderPort(OPENING + [(None, frames(0, 3)), (STOP, STOPPED)])
+    clock = ManualClock()
+    lc = LoadCell(port, CAL, stale_timeout=0.05, clock=clock)
+    wait_for(lambda: lc.stats().samples == 3)
+    port.hold()
+    wait_for(port.waiting.is_set)  # the reader waits for a byte and cannot run
+    port.arrive(frames(3, 100))  # the cell goes on sending meanwhile: 0.2 s of samples
+    clock.t += 0.2
+    port.release()
+    wait_for(lambda: lc.stats().samples == 103)
+    assert lc.read().seq == 102  # no stale error: the samples were there
+    assert lc.stream_age() == 0.0
+    lc.close()
+    port.assert_done()
+
+
 def test_no_calibration_means_no_newtons():
     port = ExpectedProtocolPort(OPENING + [(None, frames(0, 2)), (STOP, STOPPED)])
     lc = LoadCell(port, None, stale_timeout=10.0)

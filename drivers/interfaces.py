@@ -128,8 +128,9 @@ class Operator(Protocol):
         between the tool tips."""
         ...
 
-    def hang_mass(self, kg: float) -> None:
-        """Hang `kg` kilograms from the load cell (0: take everything off it)."""
+    def hang_mass(self, kg: float, element: int | None = None) -> None:
+        """Hang `kg` kilograms from the load cell (0: take everything off it); `element`:
+        which object element's cell, on a rig with one per element (None: the one cell)."""
         ...
 
     def touch(self, arms: dict, point_index: int, goal_world: np.ndarray) -> None:

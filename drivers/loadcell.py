@@ -598,10 +598,34 @@ def open_serial_port(path: str, baudrate: int):
                                    "port in rig.toml [loadcell] (or `rig sim`'s printed pty)") from None
 
 
-def load_latest_calibration() -> LoadCellCalibration:
-    """The calibration of the newest completed `rig loadcell-calibrate` run."""
-    from rig.paths import latest_result, runs_root
+def load_latest_calibration(device: str | None = None, strict: bool = False) -> LoadCellCalibration:
+    """The calibration of the newest completed `rig loadcell-calibrate` run.
 
+    With `device` (the cell's port as rig.toml names it), the newest calibration made on
+    that port; with `strict` (a rig with a load cell per object element, whose cells differ)
+    only that one, else the newest of any port when none was made on it.
+    """
+    from rig.paths import latest_result, run_dirs, runs_root
+
+    def of(run) -> LoadCellCalibration | None:
+        try:
+            data = json.loads((run / "result.json").read_text())
+        except (OSError, json.JSONDecodeError):
+            return None
+        if data.get("status") != "completed" or "calibration" not in data:
+            return None
+        cal = LoadCellCalibration.from_dict(data["calibration"], source=str(run / "result.json"))
+        return cal
+
+    if device:
+        for run in reversed(run_dirs(CALIBRATION_PROCEDURE)):
+            cal = of(run)
+            if cal is not None and cal.device == device:
+                return cal
+        if strict:
+            raise LoadCellNotCalibrated(
+                f"no completed '{CALIBRATION_PROCEDURE}' run of the load cell on {device} under {runs_root()}; "
+                f"run `rig loadcell-calibrate --port {device}` (or --element) first")
     found = latest_result(CALIBRATION_PROCEDURE)
     if found is None:
         raise LoadCellNotCalibrated(

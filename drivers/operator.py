@@ -17,7 +17,7 @@ The side channel (served by `drivers.operator_sim.OperatorServer` in `rig sim`):
   /rig_sim/operator/reply    std_msgs/String  {"id": "...", "ok": true|false, "detail": "..."}
 
 ACTION is one of ACTIONS, with its fields: confirm {message}; detach_object {};
-attach_object {kind (optional): "spring" or "string"}; hang_mass {kg}; touch {arms: [names], index, goal: [x, y, z] m in the
+attach_object {kind (optional): "spring" or "string"}; hang_mass {kg, element (optional)}; touch {arms: [names], index, goal: [x, y, z] m in the
 world}; unplug {device: "loadcell"} (a person pulling a cable: fault injection). Both topics are reliable with depth 10; the client matches a reply by its id and
 ignores the others (several clients may share the channel).
 """
@@ -68,9 +68,9 @@ class ConsoleOperator:
     def attach_object(self, kind: str | None = None) -> None:
         self._ask(f"Attach the {kind or 'object'} and the load cell between the tool tips")
 
-    def hang_mass(self, kg: float) -> None:
-        self._ask("Take everything off the load cell" if kg == 0 else
-                  f"Hang {kg:.3f} kg from the load cell and let it settle")
+    def hang_mass(self, kg: float, element: int | None = None) -> None:
+        cell = "the load cell" if element is None else f"the load cell of object element {element}"
+        self._ask(f"Take everything off {cell}" if kg == 0 else f"Hang {kg:.3f} kg from {cell} and let it settle")
 
     def touch(self, arms: dict, point_index: int, goal_world: np.ndarray) -> None:
         self._ask(f"Touch point {point_index + 1}: bring the tool tips of {' and '.join(arms)} together on one "
@@ -150,8 +150,8 @@ class RosOperator:
     def attach_object(self, kind: str | None = None) -> None:
         self.request("attach_object", **({"kind": kind} if kind else {}))
 
-    def hang_mass(self, kg: float) -> None:
-        self.request("hang_mass", kg=float(kg))
+    def hang_mass(self, kg: float, element: int | None = None) -> None:
+        self.request("hang_mass", kg=float(kg), **({} if element is None else {"element": int(element)}))
 
     def unplug(self, device: str) -> None:
         self.request("unplug", device=device)

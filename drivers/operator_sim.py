@@ -63,10 +63,13 @@ class SimOperator:
     attach_object attaches (default: the object the world was built with).
     """
 
-    def __init__(self, world, arms: dict | None = None, cell: CellLoad | None = None, object_spec=None):
+    def __init__(self, world, arms: dict | None = None, cell: CellLoad | None = None, object_spec=None,
+                 cells: dict[int, CellLoad] | None = None):
         self.world = world
         self.arms = arms or {}
         self.cell = cell
+        # element -> its cell, where the rig has a cell per object element
+        self.cells = dict(cells) if cells else ({cell.element: cell} if cell is not None else {})
         self.object_spec = object_spec if object_spec is not None else world.object
         self.pinned: dict[str, np.ndarray] = {}  # arm -> joints where a touch holds its tip
 
@@ -91,15 +94,18 @@ class SimOperator:
             if current is not None:
                 self.world.detach_object()
             self.world.attach_object(spec)
-        if self.cell is not None:
-            self.cell.kg = None
+        for cell in self.cells.values():
+            cell.kg = None
 
-    def hang_mass(self, kg: float) -> None:
-        if self.cell is None:
-            raise OperatorError("the simulated rig serves no load cell to hang a mass from")
+    def hang_mass(self, kg: float, element: int | None = None) -> None:
+        cell = self.cell if element is None else self.cells.get(int(element))
+        if cell is None:
+            raise OperatorError("the simulated rig serves no load cell to hang a mass from"
+                                + ("" if element is None else f" on element {element}; it serves "
+                                   f"{sorted(self.cells) or 'none'}"))
         if not (np.isfinite(kg) and kg >= 0):
             raise OperatorError(f"a mass must be >= 0 kg, got {kg}")
-        self.cell.kg = float(kg)
+        cell.kg = float(kg)
 
     def unplug(self, device: str) -> None:
         """Pull a cable out (a fault a person can cause): "loadcell"."""
@@ -190,7 +196,7 @@ class OperatorServer:
         elif action == "attach_object":
             op.attach_object(doc.get("kind"))
         elif action == "hang_mass":
-            op.hang_mass(float(doc["kg"]))
+            op.hang_mass(float(doc["kg"]), doc.get("element"))
         elif action == "unplug":
             op.unplug(str(doc.get("device", "")))
         else:

@@ -70,6 +70,9 @@ def _point(mass_kg: float, counts: list[int]) -> dict:
 @click.option("--port", type=click.Path(dir_okay=False), default=None,
               help="Serial port of the load-cell Arduino, e.g. /dev/ttyACM0. Default: rig.toml's [loadcell] port when "
                    "its driver is 'serial', else the simulated cell.")
+@click.option("--element", type=click.IntRange(0), default=None,
+              help="On a rig with a load cell per object element (rig.toml [loadcell] ports): which element's cell "
+                   "to calibrate (0 = PSM1-PSM2, 1 = PSM1-PSM3, 2 = PSM2-PSM3).")
 @click.option("--sim", is_flag=True, help="Use the in-process simulated load cell, whatever rig.toml says.")
 @click.option("--baud", type=int, default=None, help="Serial speed (baud). Default: rig.toml's [loadcell] baudrate (115200).")
 @click.option("--seconds", type=click.FloatRange(0.1, 60), default=2.0, show_default=True,
@@ -81,8 +84,8 @@ def _point(mass_kg: float, counts: list[int]) -> dict:
               help="Print the result (result.json) on stdout and the report on stderr.")
 @yes_option
 @click.pass_context
-def command(ctx, mass1: float, mass2: float, port: str | None, sim: bool, baud: int | None, seconds: float,
-            rate_hz: int, list_steps: bool, as_json: bool) -> None:
+def command(ctx, mass1: float, mass2: float, port: str | None, element: int | None, sim: bool, baud: int | None,
+            seconds: float, rate_hz: int, list_steps: bool, as_json: bool) -> None:
     """Two-point load-cell calibration with known masses (kg), stored for later runs.
 
     Forces are m g with g = 9.80665 m/s^2, in N. The calibration maps ADC counts to
@@ -98,6 +101,17 @@ def command(ctx, mass1: float, mass2: float, port: str | None, sim: bool, baud: 
         raise click.UsageError("--mass1 and --mass2 must be non-negative and different (kg)")
     report = (lambda m: click.echo(m, err=True)) if as_json else click.echo
     cfg = config_from_context(ctx)
+    ports = cfg.loadcell["ports"] if cfg.loadcell["driver"] == "serial" else []
+    if element is not None:
+        if port or sim:
+            raise click.UsageError("give --element, or --port / --sim, not both")
+        if element >= len(ports):
+            raise click.UsageError(f"--element {element}: {cfg.source} [loadcell] ports names "
+                                   f"{len(ports)} cell(s)" + ("" if ports else "; --element needs a cell per element"))
+        port = ports[element]
+    elif len(ports) > 1 and port is None and not sim:
+        raise click.UsageError(f"{cfg.source} names a load cell per object element ({', '.join(ports)}): "
+                               f"give --element 0..{len(ports) - 1} (or --port)")
     if port is None and not sim and cfg.loadcell["driver"] == "serial":
         port = cfg.loadcell["port"]
     elif port is None and not sim and cfg.loadcell["driver"] == "can":
@@ -106,7 +120,7 @@ def command(ctx, mass1: float, mass2: float, port: str | None, sim: bool, baud: 
     if baud is None:
         baud = cfg.loadcell["baudrate"]
     simulated = port is None
-    params = {"mass1_kg": mass1, "mass2_kg": mass2, "port": port, "sim": simulated, "baud": baud,
+    params = {"mass1_kg": mass1, "mass2_kg": mass2, "port": port, "element": element, "sim": simulated, "baud": baud,
               "seconds": seconds, "rate_hz": rate_hz}
     run = runs_root() / run_dir_name(CALIBRATION_PROCEDURE)
     result: dict = {"procedure": CALIBRATION_PROCEDURE, "status": "failed", "parameters": params,
@@ -124,7 +138,7 @@ def command(ctx, mass1: float, mass2: float, port: str | None, sim: bool, baud: 
         if simulated:
             weights.kg = kg  # collect_counts() only takes samples converted from now on
         else:
-            operator.hang_mass(kg)
+            operator.hang_mass(kg, element)
             time.sleep(0.1)  # let it settle: the first conversions may still swing
 
     try:

@@ -118,7 +118,8 @@ class SimServer:
         from drivers.operator_sim import OperatorServer, SimOperator
 
         # the operator's side channel: what a person does by hand, done by the simulation
-        self.operator = OperatorServer(SimOperator(world, self.arms, cell=(cells or [None])[0]), node)
+        self.operator = OperatorServer(SimOperator(world, self.arms, cell=(cells or [None])[0],
+                                                   cells={c.element: c for c in cells or []}), node)
         self.cells = list(cells or [])
         self.tracker = None
         self._mocap_msg: dict = {}
@@ -473,11 +474,18 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, console, 
             cells.append(cell)
             a, b = world.object_elements[k]
             _say(f"loadcell: {fw.port_path}" if k == first else f"loadcell {a}-{b}: {fw.port_path}")
-        if cfg.loadcell["driver"] == "serial" and cfg.loadcell["port"]:
-            link = _link_port(cfg.loadcell["port"], firmwares[0].port_path)
-            if link:
-                links.append(link)
-                _say(f"loadcell link: {link} -> {firmwares[0].port_path}")
+        # the configured ports (one, or one per element) become links to the served ptys
+        wanted = ({k: port for k, port in enumerate(cfg.loadcell["ports"])} if cfg.loadcell["ports"]
+                  else {first: cfg.loadcell["port"]} if cfg.loadcell["port"] else {})
+        if cfg.loadcell["driver"] == "serial":
+            for k, port in wanted.items():
+                if k >= len(order):
+                    continue
+                pty = firmwares[order.index(k)].port_path
+                link = _link_port(port, pty)
+                if link:
+                    links.append(link)
+                    _say(f"loadcell link: {link} -> {pty}")
 
     import rclpy
     from rclpy.context import Context

@@ -91,6 +91,10 @@ _OPERATOR = _choice("console", "ros")
 #: does not hold 1 kHz on a shared 2-core machine: bench/bench_hil.py measures it (the
 #: thesis's own controller ran at 400-500 Hz).
 ROS_DEFAULT_RATE = 500.0
+#: Hz: the same with three ROS arms or more. Each cycle reads, controls, records and
+#: commands every arm; with three arms the cooperative loop reached 190-330 Hz of 500 and
+#: aborted on the effort ceiling, at 250 Hz it held 5 N within 0.09-0.10 N (bench_hil).
+ROS_DEFAULT_RATE_MANY_ARMS = 250.0
 #: s: the stale-stream watchdog of ROS arms, and the stale timeout of a serial or CAN load
 #: cell, when the file gives none. Above the longest silence this 2-core machine shows
 #: with two CPU burners beside the rig (bench/bench_hil.py measures both): processes are
@@ -104,7 +108,8 @@ SERIAL_DEFAULT_STALE = 0.5
 SCHEMA: dict[str, dict[str, Key]] = {
     "rig": {
         "seed": Key("int", 0, "seed of the simulated rig's random numbers"),
-        "rate": Key("float", 1000.0, "rig (servo) rate, Hz (default 1000; 500 when the arms are ROS arms)",
+        "rate": Key("float", 1000.0, "rig (servo) rate, Hz (default 1000; 500 when the arms are ROS arms, "
+                    "250 with three ROS arms or more)",
                     _positive, "a rate > 0 Hz"),
         "pace": Key("bool", False, "pace the simulated rig to the wall clock"),
         "gravity": Key("vec3", [0.0, 0.0, -9.81], "gravity in the world frame, m/s^2"),
@@ -127,6 +132,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "loadcell": {
         "driver": Key("str", "sim", "load-cell driver", *_DRIVER_LOADCELL),
         "port": Key("str", "", "serial port of the Arduino (driver = serial)"),
+        "ports": Key("strlist", [], "serial ports of one load cell per object element, in the elements' order "
+                     "(PSM1-PSM2, PSM1-PSM3, PSM2-PSM3 for three arms; driver = serial); replaces port"),
         "baudrate": Key("int", 115200, "serial baud rate", _positive, "a baud rate > 0"),
         "interface": Key("str", "socketcan", "python-can interface (driver = can)"),
         "channel": Key("str", "can0", "python-can channel (driver = can)"),
@@ -308,8 +315,9 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
     if len(arms_doc) > 3:
         raise ConfigError(f"{source}: arms: the rig drives one to three PSMs, got {len(arms_doc)}")
     arms = {name: _section(source, f"arms.{name}", SCHEMA["arm"], a) for name, a in arms_doc.items()}
-    if "rate" not in document.get("rig", {}) and any(a["driver"] == "ros" for a in arms.values()):
-        rig["rate"] = ROS_DEFAULT_RATE
+    n_ros = sum(a["driver"] == "ros" for a in arms.values())
+    if "rate" not in document.get("rig", {}) and n_ros:
+        rig["rate"] = ROS_DEFAULT_RATE if n_ros < 3 else ROS_DEFAULT_RATE_MANY_ARMS
     for name, a in arms.items():
         if a["driver"] == "ros" and "watchdog" not in arms_doc[name]:
             a["watchdog"] = ROS_DEFAULT_WATCHDOG
@@ -321,6 +329,10 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
     loadcell = _section(source, "loadcell", SCHEMA["loadcell"], document.get("loadcell", {}))
     if loadcell["driver"] in ("serial", "can") and "stale_timeout" not in document.get("loadcell", {}):
         loadcell["stale_timeout"] = SERIAL_DEFAULT_STALE
+    if loadcell["ports"] and loadcell["driver"] != "serial":
+        raise ConfigError(f"{source}: loadcell.ports: only with loadcell.driver = 'serial'")
+    if loadcell["ports"] and not loadcell["port"]:
+        loadcell["port"] = loadcell["ports"][min(loadcell["element"], len(loadcell["ports"]) - 1)]
     if loadcell["driver"] == "serial" and not loadcell["port"]:
         raise ConfigError(f"{source}: loadcell.port: required when loadcell.driver = 'serial' (e.g. '/dev/ttyACM0')")
     mocap = _section(source, "mocap", SCHEMA["mocap"], document.get("mocap", {}))
@@ -334,6 +346,10 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
         raise ConfigError(f"{source}: object.arms: must name two or three different arms, got {obj['arms']}")
     if loadcell["element"] >= max(1, len(obj["arms"]) * (len(obj["arms"]) - 1) // 2):
         raise ConfigError(f"{source}: loadcell.element: the object has fewer elements than {loadcell['element'] + 1}")
+    n_elements = len(obj["arms"]) * (len(obj["arms"]) - 1) // 2
+    if loadcell["ports"] and len(loadcell["ports"]) != n_elements:
+        raise ConfigError(f"{source}: loadcell.ports: the object ({', '.join(obj['arms'])}) has {n_elements} "
+                          f"element(s), one port each; got {len(loadcell['ports'])}")
     effects_doc = document.get("effects", {})
     if not isinstance(effects_doc, dict):
         raise ConfigError(f"{source}: effects: expected tables [effects.<ARM>]")

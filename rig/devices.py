@@ -178,7 +178,12 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
             rig._closers.append(arm.close)
         lc = cfg.loadcell
         if "loadcell" in uses:
-            if lc["driver"] in ("serial", "can"):
+            if lc["driver"] == "serial" and lc["ports"]:
+                # a cell per object element: each with its own calibration
+                rig.forces = {k: _open_loadcell(dict(lc, port=port), rig, strict=True)
+                              for k, port in enumerate(lc["ports"])}
+                rig.force = rig.forces[min(lc["element"], len(lc["ports"]) - 1)]
+            elif lc["driver"] in ("serial", "can"):
                 rig.force = _open_loadcell(lc, rig)
                 rig.forces = {lc["element"]: rig.force}
             elif lc["driver"] == "sim":
@@ -214,7 +219,7 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say) -> dict:
     shown = time.monotonic()
     waiting = {f"{rig.arms[n].topic['measured_js']}": rig.arms[n] for n in names}
     say(f"connecting on {domain_text()}: waiting for {', '.join(waiting)}"
-        + (", the load cell" if rig.force is not None else "")
+        + ("" if rig.force is None else ", the load cell" if len(rig.forces) <= 1 else f", {len(rig.forces)} load cells")
         + (", mocap" if rig.tracker is not None else "") + f" (up to {timeout:g} s)")
     while True:
         missing = [topic for topic, arm in waiting.items() if arm.stream_age() == float("inf")]
@@ -245,15 +250,16 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say) -> dict:
     window = 0.25
     arm0 = {n: rig.arms[n].received for n in names}
     mocap0 = dict(rig.tracker.stats.received) if rig.tracker is not None else {}
-    lc0 = rig.force.stats().samples if rig.force is not None else 0
+    cells = list(rig.forces.values()) if rig.forces else ([rig.force] if rig.force is not None else [])
+    lc0 = [c.stats().samples for c in cells]
     time.sleep(window)
     rates = {rig.arms[n].topic["measured_js"]: (rig.arms[n].received - arm0[n]) / window for n in names}
     parts = [f"{n} {rates[rig.arms[n].topic['measured_js']]:.0f} Hz" for n in names]
-    if rig.force is not None:
-        lc_rate = (rig.force.stats().samples - lc0) / window
-        rates["loadcell"] = lc_rate
-        ident = getattr(rig.force, "identity", None)
-        parts.append(f"load cell {rig.force.name} {lc_rate:.0f} Hz"
+    for i, (cell, n0) in enumerate(zip(cells, lc0)):
+        lc_rate = (cell.stats().samples - n0) / window
+        rates["loadcell" if i == 0 else f"loadcell{i}"] = lc_rate
+        ident = getattr(cell, "identity", None)
+        parts.append(f"load cell {cell.name} {lc_rate:.0f} Hz"
                      + (f" (firmware {'.'.join(map(str, ident.firmware))})" if ident else ""))
     if rig.tracker is not None:
         body_rates = [(rig.tracker.stats.received[b] - mocap0[b]) / window for b in rig.tracker.bodies]
@@ -263,10 +269,12 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say) -> dict:
     return rates
 
 
-def _open_loadcell(lc: dict, rig: Rig):
+def _open_loadcell(lc: dict, rig: Rig, strict: bool = False):
+    """The configured cell, with the newest calibration made on its port (`strict`: only
+    that one; else the newest of any port when none was made on it)."""
     from drivers.loadcell import LoadCell, load_latest_calibration
 
-    calibration = load_latest_calibration()
+    calibration = load_latest_calibration(lc["port"] if lc["driver"] == "serial" else None, strict=strict)
     if lc["driver"] == "serial":
         from drivers.loadcell import open_serial_port
 

@@ -490,6 +490,27 @@ def test_latest_calibration_is_found_from_the_runs(tmp_path, monkeypatch):
     assert load_latest_calibration().newtons_per_count == 0.02
 
 
+def test_each_port_gets_the_calibration_made_on_it(tmp_path, monkeypatch):
+    from datetime import datetime, timedelta, timezone
+
+    from rig.paths import run_dir_name
+
+    monkeypatch.setenv("RIG_LOGS", str(tmp_path))
+    now = datetime.now(timezone.utc)
+    for i, (k, device) in enumerate([(0.01, "/dev/ttyACM0"), (0.02, "/dev/ttyACM1"), (0.03, "/dev/ttyACM0")]):
+        run = tmp_path / run_dir_name("loadcell-calibrate", now + timedelta(seconds=i))
+        run.mkdir()
+        (run / "result.json").write_text(json.dumps(
+            {"status": "completed", "calibration": LoadCellCalibration(k, 5.0, device=device).to_dict()}))
+    assert load_latest_calibration("/dev/ttyACM1").newtons_per_count == 0.02
+    assert load_latest_calibration("/dev/ttyACM0", strict=True).newtons_per_count == 0.03
+    # a port never calibrated: the newest of any port for the one cell of a rig, an error
+    # naming the port where each element has its own cell
+    assert load_latest_calibration("/dev/ttyACM2").newtons_per_count == 0.03
+    with pytest.raises(LoadCellNotCalibrated, match="on /dev/ttyACM2.*--port /dev/ttyACM2"):
+        load_latest_calibration("/dev/ttyACM2", strict=True)
+
+
 # ----------------------------------------------------------------- the sketch itself
 
 SKETCH = Path(__file__).resolve().parents[2] / "drivers" / "firmware" / "loadcell" / "loadcell.ino"

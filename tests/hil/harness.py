@@ -27,14 +27,21 @@ PSM2_BASE = "base_xyz = [1.0728, 0.0, 0.0]\nbase_rpy = [0.0, 0.0, 3.141592653589
 def lab_toml(folder: Path, *, rate: float | None = None, watchdog: float | None = None, extra: str = "",
              three_arms: bool = False) -> str:
     """A lab's rig.toml for the rig `rig sim` serves: ROS arms, a serial load cell on
-    `folder/loadcell` (rig sim links it to its pty), ROS mocap, the simulated operator."""
+    `folder/loadcell` (rig sim links it to its pty), ROS mocap, the simulated operator.
+    `three_arms`: PSM3 too, the object a triangle and a cell per element
+    (`folder/loadcell`, `loadcell1`, `loadcell2`)."""
     arm = 'driver = "ros"\n' + (f"watchdog = {watchdog}\n" if watchdog else "")
     text = ("[rig]\nseed = 0\n" + (f"rate = {rate}\n" if rate else "")
             + f"\n[arms.PSM1]\n{arm}\n[arms.PSM2]\n{arm}{PSM2_BASE}")
     if three_arms:
+        # a triangle: a load cell per element, each on its own port
         text += f"\n[arms.PSM3]\n{arm}base_xyz = [0.5364, 0.5730, 0.0]\nbase_rpy = [0.0, 0.0, -1.5707963267948966]\n"
-    text += (f'\n[loadcell]\ndriver = "serial"\nport = "{folder / "loadcell"}"\n'
-             '\n[mocap]\ndriver = "ros"\n\n[operator]\ndriver = "ros"\n')
+        ports = ", ".join(f'"{folder / name}"' for name in ("loadcell", "loadcell1", "loadcell2"))
+        text += (f'\n[object]\narms = ["PSM1", "PSM2", "PSM3"]\nrest_length = 0.099\n'
+                 f'\n[loadcell]\ndriver = "serial"\nports = [{ports}]\n')
+    else:
+        text += f'\n[loadcell]\ndriver = "serial"\nport = "{folder / "loadcell"}"\n'
+    text += '\n[mocap]\ndriver = "ros"\n\n[operator]\ndriver = "ros"\n'
     return text + extra
 
 

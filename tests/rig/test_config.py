@@ -34,6 +34,9 @@ def test_rig_toml_in_cwd_is_found(tmp_path):
     ('[mocap]\nocclusion = 1.5\n', "mocap.occlusion: must be a probability in [0, 1)"),
     ('[effects.PSM1]\nbacklash = [0, 0, -1]\n', "effects.PSM1.backlash: must be plays >= 0"),
     ('[rig\nseed = 1\n', "not valid TOML"),
+    ('[loadcell]\ndriver = "serial"\nports = ["/dev/ttyACM0"]\n[arms.PSM1]\n[arms.PSM2]\n[arms.PSM3]\n'
+     '[object]\narms = ["PSM1", "PSM2", "PSM3"]\n', "loadcell.ports: the object (PSM1, PSM2, PSM3) has 3 element(s)"),
+    ('[loadcell]\ndriver = "can"\nports = ["/dev/ttyACM0"]\n', "loadcell.ports: only with loadcell.driver = 'serial'"),
 ])
 def test_bad_configuration_is_one_named_line(tmp_path, text, message):
     with pytest.raises(config.ConfigError) as err:
@@ -59,3 +62,13 @@ def test_real_rig_file_parses(tmp_path):
                           '[loadcell]\ndriver = "serial"\nport = "/dev/ttyACM0"\n[mocap]\ndriver = "ros"\n')
     assert not cfg.simulated
     assert cfg.arms["PSM1"]["namespace"] == "/PSM1" and cfg.arms["PSM2"]["namespace"] == "/dvrk/PSM2"
+
+
+def test_a_cell_per_element_and_the_rate_of_three_ros_arms(tmp_path):
+    arms = "".join(f'[arms.PSM{i}]\ndriver = "ros"\n' for i in (1, 2, 3))
+    cfg = _load(tmp_path, arms + '[object]\narms = ["PSM1", "PSM2", "PSM3"]\n[loadcell]\ndriver = "serial"\n'
+                                 'ports = ["/dev/ttyACM0", "/dev/ttyACM1", "/dev/ttyACM2"]\nelement = 1\n')
+    assert cfg.loadcell["port"] == "/dev/ttyACM1"  # the configured element's, for single-cell commands
+    assert cfg.rig["rate"] == config.ROS_DEFAULT_RATE_MANY_ARMS
+    two = _load(tmp_path, '[arms.PSM1]\ndriver = "ros"\n[arms.PSM2]\ndriver = "ros"\n')
+    assert two.rig["rate"] == config.ROS_DEFAULT_RATE

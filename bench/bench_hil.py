@@ -11,8 +11,9 @@ seen, and the longest stall of a sleeping process meanwhile (what the machine im
     .venv/bin/python bench/bench_hil.py [--burners 2] [--rate 500] [--skip-inprocess]
 
 --burners N starts N CPU-burning processes for the whole bench (the issue's loaded
-machine). Figures are against the simulated rig's truth: the nominal PSM and the
-configured placement that rig sim serves. About 5 min; exits 1 when a row fails.
+machine). Three arms (a load cell per element) run on a rig sim of their own, with the
+chain's identified model. Figures are against the simulated rig's truth: the nominal PSM
+and the configured placement that rig sim serves. About 6 min; exits 1 when a row fails.
 """
 
 from __future__ import annotations
@@ -152,6 +153,27 @@ def kill_detection(folder: Path, domain: int, toml: str) -> tuple[float | None, 
     return (float(m.group(1)) if m else None), out.last_line
 
 
+def three_arms(folder: Path, domain: int, model: Path | None) -> Outcome | None:
+    """A triangle over the wire: a cell per element, each calibrated, a registration, then
+    the cooperative procedure on the three arms with the chain's identified model."""
+    with ServedRig(folder, domain, toml=lab_toml(folder, three_arms=True)) as rig:
+        for k in range(3):
+            out = rig.run("loadcell-calibrate", "--seconds", "0.5", "--element", str(k))
+            if out.code:
+                print(f"  loadcell-calibrate --element {k}: {out.last_line}", flush=True)
+                return out
+        out = rig.run("register", "--points", "6")
+        if out.code or model is None:
+            print(f"  register: {out.last_line}" if out.code else "  no model from the chain", flush=True)
+            return out if out.code else None
+        out = rig.run("cooperative", "--arms", "PSM1,PSM2,PSM3", "--force", "5", "--object", "spring",
+                      "--move", "0.05,0,0", "--model", str(model))
+        doc = out.doc or {}
+        print(f"  cooperative, three arms: {doc.get('status', 'exit ' + str(out.code))}"
+              + (f" ({doc.get('error')})" if doc.get("error") else ""), flush=True)
+        return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--burners", type=int, default=0, help="CPU-burning processes beside the rig")
@@ -176,6 +198,9 @@ def main() -> int:
                 wire = run_chain(rig.run, tmp / "wire" / "logs")
                 sim_exit = rig.stop()
             cfg = config.load(tmp / "wire" / "rig.toml")
+            print("three arms over the wire:", flush=True)
+            models = sorted((tmp / "wire" / "logs").glob("*-identify/model.json"))
+            triangle = three_arms(tmp / "triangle", domain - 50, models[-1] if models else None)
             print("kill detection:", flush=True)
             killed_ms, kill_line = kill_detection(tmp / "wire", domain, toml)
             print(f"  {kill_line}")
@@ -206,6 +231,15 @@ def main() -> int:
             rows.append((f"{name}: controller step median / p99", f"{d['loop_time_us']['median']:.0f} / "
                          f"{d['loop_time_us']['p99']:.0f} us", f"< {1e6 / lt['rate_hz']:.0f} us",
                          d["loop_time_us"]["median"] < 1e6 / lt["rate_hz"]))
+    d3 = (triangle.doc or {}) if triangle is not None else {}
+    err3 = d3.get("max_error_during_motion") if d3.get("status") == "completed" else None
+    rows.append(("cooperative, three arms (spring, 5 cm): max |F - 5 N| while moving over the wire",
+                 "failed" if err3 is None else f"{err3:.3f} N", "<= 0.25 N", err3 is not None and err3 <= 0.25))
+    if err3 is not None:
+        lt = d3["loop_timing"]
+        rows.append(("cooperative, three arms: rate, loop period median / p99", f"{lt['rate_hz']:g} Hz, "
+                     f"{lt['period_ms_median']:.2f} / {lt['period_ms_p99']:.2f} ms", "reported", True))
+    stale += "stale" in (d3.get("error") or "")
     rows.append(("false stale aborts over the wire", str(stale), "0", stale == 0))
     watchdog = cfg.arms["PSM1"]["watchdog"]
     rows.append(("SIGKILL of rig sim seen after (measured_js age)",

@@ -908,7 +908,9 @@ class _StreamingLoadCell(abc.ABC):
         """Ask the device for the mean of its next `conversions` readings (counts)."""
         if not 1 <= conversions <= 255:
             raise ValueError("conversions must be 1..255")
-        timeout = 0.5 + conversions / max(self.rate_hz, 1)
+        # the averaging, plus a margin for a host under load (bench_hil with two CPU burners
+        # and three cells: a reply came more than 0.5 s after the averaging ended)
+        timeout = 1.5 + conversions / max(self.rate_hz, 1)
         mean, _n = TARE_REPLY_FMT.unpack(self.command(CMD_TARE, TARE_CMD_FMT.pack(conversions), timeout))
         return mean
 

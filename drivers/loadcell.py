@@ -614,8 +614,7 @@ def load_latest_calibration(device: str | None = None, strict: bool = False) -> 
             return None
         if data.get("status") != "completed" or "calibration" not in data:
             return None
-        cal = LoadCellCalibration.from_dict(data["calibration"], source=str(run / "result.json"))
-        return cal
+        return LoadCellCalibration.from_dict(data["calibration"], source=str(run / "result.json"))
 
     if device:
         for run in reversed(run_dirs(CALIBRATION_PROCEDURE)):

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from typing import Callable
 
 import numpy as np
@@ -96,6 +97,8 @@ class RosArm:
         self._Empty = Empty
         self._lock = threading.Lock()
         self._cond = threading.Condition(self._lock)
+        # every measured_js since the last drain_js() (a few seconds at the dVRK's rates)
+        self._js_log: deque[JointState] = deque(maxlen=4096)
         self._js: JointState | None = None
         self._js_rx: float | None = None  # time.monotonic() of the last measured_js
         self._latest: dict[str, object] = {}
@@ -178,6 +181,7 @@ class RosArm:
         js = self._joint_state(m)
         with self._cond:
             self._js = js
+            self._js_log.append(js)
             self._js_rx = time.monotonic()
             self._stale_fired = False
             self.received += 1
@@ -262,6 +266,15 @@ class RosArm:
         if js is None or age > self.watchdog:
             raise StaleStream(self.topic["measured_js"], age, self.watchdog)
         return js
+
+    def drain_js(self) -> list[JointState]:
+        """Every measured_js received since the last drain, oldest first (the newest 4096 at
+        most); StaleStream as measured_js() when the stream is stale."""
+        self.measured_js()
+        with self._lock:
+            out = list(self._js_log)
+            self._js_log.clear()
+        return out
 
     def _get(self, key: str):
         if key not in self.streams:

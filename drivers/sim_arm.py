@@ -114,6 +114,10 @@ class SimArm:
         q, dq, effort = self.world.measured_js(self.name)
         return JointState(self.clock.now(), q, dq, effort, self.joint_names)
 
+    def drain_js(self) -> list[JointState]:
+        """The sample of this tick: in-process, a loop sees every tick."""
+        return [self.measured_js()]
+
     def setpoint_js(self) -> JointState:
         """The PID's position/velocity set-point and the effort applied now."""
         q, dq, effort = self.world.setpoint_js(self.name)

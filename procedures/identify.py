@@ -601,29 +601,49 @@ def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits) ->
     rate = clock.rate
     n = int(round(traj.duration * rate)) + 1
     q_cmd = traj.sample(np.arange(n) / rate)[0]
-    T, Q, DQ, TAU = np.empty(n), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    samples = []
     rec = run.recorder
     margin = np.array([0.05, 0.05, 0.01])  # rad, rad, m beyond Table 4.2 before aborting
     every = max(1, n // 100)
+    arm.drain_js()  # what arrived before the trajectory starts is not part of it
+    ticks_without = 0
     for k in range(n):
         arm.servo_jp(q_cmd[k])
         rec.joint_state(f"/{arm.name}/servo_jp", clock.now(), q_cmd[k])
         clock.tick()
-        js = arm.measured_js()
-        T[k], Q[k], DQ[k], TAU[k] = js.t, js.position[:3], js.velocity[:3], js.effort[:3]
-        rec.joint_state(f"/{arm.name}/measured_js", js.t, js.position, js.velocity, js.effort)
-        if np.any(Q[k] < limits.q_min - margin) or np.any(Q[k] > limits.q_max + margin) \
-                or np.any(np.abs(DQ[k]) > limits.dq_max):
-            problem = limits.violation(Q[k], DQ[k], margin=0.0) or "limit"
-            raise AbortRun(f"{arm.name} during the {topic_prefix} trajectory at t = {k / rate:.2f} s: {problem}")
+        # every sample the arm sent since the last tick: a tick held up by the machine
+        # finds several, and the fit still gets the stream whole
+        new = arm.drain_js()
+        ticks_without += not new
+        for js in new:
+            samples.append((js.t, js.position[:3], js.velocity[:3], js.effort[:3]))
+            rec.joint_state(f"/{arm.name}/measured_js", js.t, js.position, js.velocity, js.effort)
+        if new:
+            q, dq = np.asarray(new[-1].position[:3]), np.asarray(new[-1].velocity[:3])
+            if np.any(q < limits.q_min - margin) or np.any(q > limits.q_max + margin) \
+                    or np.any(np.abs(dq) > limits.dq_max):
+                problem = limits.violation(q, dq, margin=0.0) or "limit"
+                raise AbortRun(f"{arm.name} during the {topic_prefix} trajectory at t = {k / rate:.2f} s: {problem}")
         if k % every == 0:
             step.update(k + 1)
     step.update(n)
-    # Over the wire a tick may find no new measured_js and read the last one again: keep
-    # each sample once (the fit needs time to increase), and say how many were repeats.
+    if not samples:
+        raise AbortRun(f"{arm.name}: no measured_js during the {topic_prefix} trajectory")
+    T = np.array([s[0] for s in samples])
+    Q, DQ, TAU = (np.array([s[i] for s in samples], float) for i in (1, 2, 3))
+    # Keep each sample once (time must increase), and put them on a uniform grid of their
+    # own stamps (the arm's sample times), which the filtering and the decimation assume:
+    # over the wire the samples jitter, and a gap (a publisher held up) is interpolated.
     keep = np.concatenate([[True], np.diff(T) > 0])
-    return {"t": T[keep], "q": Q[keep], "dq": DQ[keep], "tau": TAU[keep], "rate": rate,
-            "repeated": int(n - keep.sum())}
+    t, q, dq, tau = T[keep], Q[keep], DQ[keep], TAU[keep]
+    if len(t) > 1 and not np.allclose(np.diff(t), 1.0 / rate, rtol=1e-3, atol=1e-6):
+        grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate)) + 1) / rate
+
+        def on_grid(x):
+            return np.column_stack([np.interp(grid, t, x[:, j]) for j in range(x.shape[1])])
+
+        t, q, dq, tau = grid, on_grid(q), on_grid(dq), on_grid(tau)
+    return {"t": t, "q": q, "dq": dq, "tau": tau, "rate": rate, "ticks_without_sample": ticks_without}
 
 
 def block_mean(rec: dict, target_rate: float, source: str):
@@ -934,7 +954,8 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
                 extra = {"arm": arm_name, "excitation": {"cached": exc["cached"], "cache_file": exc["path"],
                                                          "trajectory": traj.to_dict(), **{k: v for k, v in exc["figures"].items() if k != "starts"}},
                          "validation_trajectory": vtraj.to_dict(), "rig_rate": clock.rate,
-                         "repeated_samples": {"excitation": rec_x["repeated"], "validation": rec_v["repeated"]}}
+                         "ticks_without_sample": {"excitation": rec_x["ticks_without_sample"],
+                                                  "validation": rec_v["ticks_without_sample"]}}
                 if parameters["plots"]:
                     plot_trajectory(rec_x["t"] - rec_x["t"][0], rec_x["q"], rec_x["dq"], run.dir / "figure_5_1_excitation.png",
                                     f"Excitation trajectory as measured ({parameters['frequency']} Hz, "

@@ -155,7 +155,7 @@ def command(ctx, mass1: float, mass2: float, port: str | None, element: int | No
             if cfg.operator["driver"] == "ros":
                 from rig.ros_session import RosSession
 
-                session = RosSession("rig_loadcell_calibrate")
+                session = RosSession("rig_loadcell_calibrate", executor=cfg.ros["executor"])
             operator = open_operator(cfg, session)
             if session is not None:
                 session.start()

@@ -71,7 +71,7 @@ class SimServer:
     """
 
     def __init__(self, world, node, arms: list[str], cp_rate: float = 100.0, mocap: dict | None = None,
-                 seed: int = 0, console: str = "/console", cells: list | None = None):
+                 seed: int = 0, console: str = "/console", cells: list | None = None, executor: str = "events"):
         from geometry_msgs.msg import PoseStamped, WrenchStamped
         from rclpy.qos import QoSProfile
         from sensor_msgs.msg import JointState
@@ -145,16 +145,17 @@ class SimServer:
         self.late_ticks = 0
         self.slips = 0
         self.stop = threading.Event()
-        from rclpy.executors import SingleThreadedExecutor
+        from rig.ros_session import make_executor
 
-        self._executor = SingleThreadedExecutor(context=node.context)
+        self._executor = make_executor(executor, node.context)
         self._executor.add_node(node)
         self._spin_thread = threading.Thread(target=self._spin, name="sim-executor", daemon=True)
 
     # -- subscriptions (executor thread): queue, never touch the world -----------------
     def _spin(self) -> None:
         try:
-            self._executor.spin()
+            while not self.stop.is_set():  # spin_once in a loop: see make_executor
+                self._executor.spin_once(timeout_sec=0.005)
         except Exception:  # noqa: BLE001 - the context was shut down while stopping
             if not self.stop.is_set():
                 raise
@@ -499,7 +500,7 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, console, 
         node = rclpy.create_node("rig_sim", context=context)
         mocap_cfg = dict(cfg.mocap) if mocap and cfg.mocap["driver"] != "none" else None
         server = SimServer(world, node, list(world.names), cp_rate=cp_rate, mocap=mocap_cfg, seed=world.seed,
-                           console=console, cells=cells)
+                           console=console, cells=cells, executor=cfg.ros["executor"])
         server.stop = stop
         # Installed after rclpy is up: its initialisation replaces SIGINT/SIGTERM handlers.
         signal.signal(signal.SIGINT, on_signal)

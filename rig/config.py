@@ -159,6 +159,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "connect_timeout": Key("float", 15.0, "wait this long for the first message of every stream, s (ROS 2 discovery "
                                "can take seconds on a loaded machine)",
                                _positive, "an interval > 0 s"),
+        "executor": Key("str", "events", "rclpy executor of the ROS 2 devices: 'events' (rclpy's EventsExecutor, about "
+                        "a third of the CPU) or 'single' (SingleThreadedExecutor)", *_choice("events", "single")),
     },
     "operator": {
         "driver": Key("str", "console", "who does the manual steps (mount bodies, hang masses, attach the object): "

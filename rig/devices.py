@@ -163,7 +163,7 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
     from drivers.dvrk_arm import RosArm
     from rig.ros_session import RosSession
 
-    session = RosSession("rig")
+    session = RosSession("rig", executor=cfg.ros["executor"])
     # every tick acts on a fresh measured_js of every arm (rig.clock.StreamClock)
     rig = Rig(clock=StreamClock(cfg.rig["rate"], []), arms={})
     rig.session = session

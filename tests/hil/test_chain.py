@@ -145,10 +145,20 @@ def _cooperative_args(duration: float = 6.0) -> list[str]:
             "--settle", "1", "--hold-after", "0"]
 
 
-def test_wrong_domain_is_one_line_naming_the_topic_and_domain(served):
-    out = served.run("identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5",
-                     "--no-plots", env=served.env(ROS_DOMAIN_ID=str(served.domain + 1)))
-    _one_clear_line(out, "/PSM1/measured_js", f"ROS_DOMAIN_ID={served.domain + 1}")
+@pytest.mark.parametrize("args", [
+    ["link-lengths", "--passes", "1"],
+    ["calibrate-rcm", "--arm", "PSM1", "--duration", "6", "--q1-range", "0.5", "--q2-range", "0.4"],
+    ["register", "--points", "6"],
+    ["identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5", "--no-plots"],
+    ["friction-ramp", "--no-plots"],
+    ["cooperative", "--force", "5", "--object", "spring", "--duration", "1"],
+], ids=lambda a: a[0])
+def test_wrong_domain_is_one_line_naming_the_topic_and_domain(served, args):
+    # every procedure that drives the arms; a short connect timeout keeps the wait brief
+    short = served.folder / "short-connect.toml"
+    short.write_text((served.folder / "rig.toml").read_text() + "\n[ros]\nconnect_timeout = 2.0\n")
+    out = served.run("--config", str(short), *args, env=served.env(ROS_DOMAIN_ID=str(served.domain + 1)))
+    _one_clear_line(out, "/PSM1/measured_js", f"ROS_DOMAIN_ID={served.domain + 1}", "no message within 2 s")
 
 
 def test_a_pty_that_is_not_a_load_cell(served):
@@ -226,3 +236,26 @@ def test_rig_sim_killed_mid_run_is_seen_within_the_watchdog(served):
 
     age_ms = float(re.search(r"no message for (\d+) ms", out.doc["error"]).group(1))
     assert 250 <= age_ms <= 300, out.doc["error"]
+
+
+def test_rig_sim_killed_mid_cooperative_holds_both_arms(served):
+    """After the test above: a fresh rig sim on the same folder, killed while the
+    cooperative procedure holds the object. Its load cell's pty closes with it and the
+    arms' streams stop: whichever the run sees first ends it, in one line."""
+    import threading
+    import time
+
+    rig = ServedRig(served.folder, served.domain, toml=served.toml)
+    rig.start()
+    try:
+        def kill_later(proc):
+            threading.Thread(target=lambda: (time.sleep(7.0), rig.kill()), daemon=True).start()
+
+        out = served.run(*_cooperative_args(10.0), on_start=kill_later)
+    finally:
+        rig.stop()
+    assert out.code == 3 and "Traceback" not in out.stderr, out.stderr[-3000:]
+    assert "aborted" in out.last_line
+    assert ("stale stream" in out.last_line) or ("load cell" in out.last_line), out.last_line
+    stop = _stopped_recording(out, ())
+    assert sorted(stop["held"]) == ["PSM1", "PSM2"]

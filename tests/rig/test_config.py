@@ -37,6 +37,7 @@ def test_rig_toml_in_cwd_is_found(tmp_path):
     ('[loadcell]\ndriver = "serial"\nports = ["/dev/ttyACM0"]\n[arms.PSM1]\n[arms.PSM2]\n[arms.PSM3]\n'
      '[object]\narms = ["PSM1", "PSM2", "PSM3"]\n', "loadcell.ports: the object (PSM1, PSM2, PSM3) has 3 element(s)"),
     ('[loadcell]\ndriver = "can"\nports = ["/dev/ttyACM0"]\n', "loadcell.ports: only with loadcell.driver = 'serial'"),
+    ('[ros]\nexecutor = "multi"\n', "ros.executor: must be one of 'events', 'single', got 'multi'"),
 ])
 def test_bad_configuration_is_one_named_line(tmp_path, text, message):
     with pytest.raises(config.ConfigError) as err:

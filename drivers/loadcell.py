@@ -812,15 +812,18 @@ class _StreamingLoadCell(abc.ABC):
         """Raw counts of the samples converted during the next `seconds` (s).
 
         Selected by their (mapped) conversion time, so a sample taken before the call but
-        delivered late is not mixed in.
+        delivered late is not mixed in. The window is complete when a sample converted
+        after its end has arrived (on a loaded host the last ones come tens of ms late), or
+        at the latest a stale timeout after its end.
         """
         start = self.clock()
         end = start + seconds
         out: list[int] = []
         while True:
-            done = self.clock() >= end + 0.02  # a little longer for the last ones in flight
-            out.extend(s.raw for s in self.raw_samples() if start <= s.t < end)
-            if done:
+            late = self.clock() >= end + max(0.02, self.stale_timeout)
+            new = self.raw_samples()
+            out.extend(s.raw for s in new if start <= s.t < end)
+            if late or any(s.t >= end for s in new):
                 return out
             time.sleep(0.005)
 

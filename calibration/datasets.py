@@ -177,6 +177,9 @@ def load_csv(path, rate: float = 200.0, joints: int | None = None) -> JointData:
         text = path.read_text()
     except OSError as e:
         raise DataError(f"{path}: cannot read ({e.strerror})") from None
+    except UnicodeDecodeError:
+        raise DataError(f"{path}: not a text CSV file (binary content): expected rows of 3n "
+                        "comma-separated numbers (q1..qn, dq1..dqn, tau1..taun)") from None
     lines = text.splitlines()
     # A trailing blank line is normal; blank lines inside are not skipped silently.
     while lines and not lines[-1].strip():

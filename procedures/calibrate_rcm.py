@@ -336,7 +336,7 @@ def run_from_csv(path: str, body: str, parameters: dict, run_root=None, progress
 
 @click.command(name=PROCEDURE)
 @with_parameters(PARAMETERS)
-@click.option("--from-csv", "from_csv", type=click.Path(dir_okay=False), default=None,
+@click.option("--from-csv", "from_csv", type=click.Path(dir_okay=False, exists=True), default=None,
               help="Calibrate offline from an OptiTrack Motive CSV export (m or mm, quaternions).")
 @click.option("--body", default=None, help="Rigid body of the tool in the --from-csv file.")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")

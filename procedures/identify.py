@@ -809,6 +809,11 @@ def load_timed_csv(path, rate: float, joints: int):
         from calibration.datasets import DataError
 
         raise DataError(f"{path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        from calibration.datasets import DataError
+
+        raise DataError(f"{path}: not a text CSV file (binary content): expected rows of "
+                        "t, q1..qn, dq1..dqn, tau1..taun") from None
     while lines and not lines[-1].strip():
         lines.pop()
     if not lines:

@@ -61,6 +61,13 @@ def main(ctx: click.Context, config_path: str | None) -> None:
     Units are SI: m, rad, N, N m, s.
     """
     ctx.obj = {"config_path": config_path}
+    if config_path is not None:  # a file the user named is checked whatever the command
+        from rig import config
+
+        try:
+            config.load(config_path)
+        except config.ConfigError as exc:
+            raise click.ClickException(str(exc)) from None
 
 
 if __name__ == "__main__":  # pragma: no cover

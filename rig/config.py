@@ -425,6 +425,8 @@ def load(path: str | Path | None = None) -> RigConfig:
         raise ConfigError(f"{path}: no such configuration file") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a configuration file (binary content, not TOML text)") from None
     try:
         document = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -397,6 +397,9 @@ def load_model(path) -> IdentifiedModel:
                              "of a model.json)") from None
     except OSError as exc:
         raise ModelFileError(f"{path}: cannot read the model file ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise ModelFileError(f"{path}: not a model file (binary content, not JSON); give the model.json "
+                             "of a `rig identify` or `rig discrepancy` run") from None
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as exc:

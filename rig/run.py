@@ -43,6 +43,7 @@ import click
 
 from rig.config import ConfigError
 from rig.faults import DeviceFault
+from rig.model_file import ModelFileError
 from rig.paths import run_dir_name, runs_root
 from rig.records import Recorder, to_json
 
@@ -504,6 +505,8 @@ def exit_on_abort(fn: Callable) -> Callable:
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
         except ConfigError as exc:
+            raise click.ClickException(str(exc)) from None
+        except ModelFileError as exc:  # a file the user named: theirs to fix, not a bug
             raise click.ClickException(str(exc)) from None
         except Exception as exc:  # noqa: BLE001 - a traceback is for developers (RIG_DEBUG=1)
             if os.environ.get("RIG_DEBUG"):

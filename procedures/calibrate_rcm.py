@@ -192,6 +192,9 @@ def table_6_1(arms: dict) -> str:
     for arm, r in arms.items():
         c, s = np.array(r["rcm"]) * 1e3, np.array(r["rms_xyz"]) * 1e3
         lines.append(f"  {arm:8} {c[0]:9.2f} {c[1]:9.2f} {c[2]:9.2f} |     {s[0]:6.2f} {s[1]:6.2f} {s[2]:6.2f}")
+        if r.get("tip_offset") is not None:
+            b = np.array(r["tip_offset"]) * 1e3
+            lines.append(f"    tool offset (the pivot, the RCM, in the marker body frame): {b[0]:.2f} {b[1]:.2f} {b[2]:.2f} mm")
         if "truth" in r:
             t = r["truth"]
             lines.append(f"    error against the simulated truth: RCM {t['rcm_error'] * 1e3:.3f} mm, "
@@ -276,7 +279,10 @@ def run_calibrate_rcm(cfg, parameters: dict, run_root=None, progress: bool = Tru
     seed = None if parameters["seed"] < 0 else parameters["seed"]
     dev = open_devices(cfg, seed=seed, arms=arms)
     try:
-        with Run(procedure, parameters=parameters, config=cfg.snapshot(), seed=seed, steps=list(STEPS),
+        # every arm walks the first five steps: the list a user sees counts them per arm
+        steps = [f"{name} ({a})" for a in arms for name in STEPS[:5]
+                 if name != STEPS[3] or parameters["duration"] > 0] + [STEPS[5]]
+        with Run(procedure, parameters=parameters, config=cfg.snapshot(), seed=seed, steps=steps,
                  root=run_root, progress=progress) as run:
             dev.person.detach_object()
             dev.person.confirm("Mount a marker body on each tool and clear the workspace")
@@ -348,9 +354,10 @@ def command(ctx, parameters, from_csv, body, list_steps: bool, as_json: bool) ->
     """Remote centre of motion by pivot calibration (appendix A.2, Table 6.1).
 
     Sweeps q1 and q2 with q3 held and tracks the tool body; fits b_tip and b_post (the RCM)
-    by the one-step least squares of eq. A.10, two-step and sphere fits with RANSAC. Prints
-    the RCM (m, mocap frame), the tool offset (m) and the RMS (m); with --json at least
-    {"rcm": [x, y, z], "tip_offset": [x, y, z], "rms": r}. Saves rcm.png (Figure 6.2).
+    by the one-step least squares of eq. A.10, two-step and sphere fits with RANSAC. Prints,
+    per arm, the RCM and its RMS (mm, mocap frame: the form of Table 6.1) and the tool
+    offset (mm); result.json and --json give them in m, at least {"rcm": [x, y, z],
+    "tip_offset": [x, y, z], "rms": r}. Saves rcm.png (Figure 6.2).
     """
     if list_steps:
         for i, s in enumerate(STEPS, 1):

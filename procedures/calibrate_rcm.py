@@ -194,7 +194,8 @@ def table_6_1(arms: dict) -> str:
         lines.append(f"  {arm:8} {c[0]:9.2f} {c[1]:9.2f} {c[2]:9.2f} |     {s[0]:6.2f} {s[1]:6.2f} {s[2]:6.2f}")
         if r.get("tip_offset") is not None:
             b = np.array(r["tip_offset"]) * 1e3
-            lines.append(f"    tool offset (the pivot, the RCM, in the marker body frame): {b[0]:.2f} {b[1]:.2f} {b[2]:.2f} mm")
+            lines.append(f"    tool offset (the pivot, the RCM, in the marker body frame): "
+                         f"{b[0]:.2f} {b[1]:.2f} {b[2]:.2f} mm")
         if "truth" in r:
             t = r["truth"]
             lines.append(f"    error against the simulated truth: RCM {t['rcm_error'] * 1e3:.3f} mm, "

@@ -22,7 +22,8 @@ import click
 import numpy as np
 
 from rig.params import Parameter, with_parameters
-from rig.run import AbortRun, Run, config_from_context, emit_result, exit_on_abort, json_option, yes_option
+from rig.run import (EXIT_MISSED, AbortRun, Run, config_from_context, emit_result, exit_on_abort, json_option,
+                     yes_option)
 
 #: Live increments: per key press, and the slew rates the controller ramps them in at
 KEY_STEP_M, KEY_STEP_RAD, KEY_STEP_N = 0.002, 0.05, 0.5      # m, rad, N
@@ -38,6 +39,8 @@ PARAMETERS = [
     Parameter("hold_after", 2.0, "s", "Time to keep holding after the motion", minimum=0.0, maximum=60.0),
     Parameter("deadband", 0.4, "N", "Force deadband of the position-based mode (7.7.3)", minimum=0.0, maximum=5.0),
     Parameter("tension_ceiling", 15.0, "N", "Abort above this tension", minimum=0.5, maximum=15.0),
+    Parameter("tolerance", 0.5, "N", "Success: the tension settles and stays within this of the set-point while "
+              "moving (the thesis' bound); else the run ends 'failed'", minimum=0.01, maximum=5.0),
 ]
 
 
@@ -103,6 +106,8 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
     if list_steps:
         click.echo("\n".join(f"{i + 1}. {name}" for i, name in enumerate(STEPS)))
         return
+    if interactive and not sys.stdin.isatty():  # before anything is powered or moved
+        raise click.UsageError("--interactive needs a terminal on stdin; from a script steer with --ros-commands")
     cfg = config_from_context(ctx)
     names = [a.strip() for a in arms.split(",")] if arms else list(cfg.object["arms"] or list(cfg.arms)[:2])
     if not 2 <= len(names) <= 3 or len(set(names)) != len(names):
@@ -123,7 +128,10 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
                              model_path=model_path, seed=seed, dry_run=dry_run, ros_commands=ros_commands,
                              interactive=interactive, parameter_set=parameters)
     emit_result(result, as_json, report=format_report(result))
-    if result.get("status") not in ("completed", "planned"):
+    if result.get("status") == "failed":
+        click.echo(f"rig cooperative: failed: {result.get('error')} (run folder {result.get('run_dir')})", err=True)
+        sys.exit(EXIT_MISSED)
+    if result.get("status") not in ("completed", "dry-run"):
         sys.exit(1)
 
 
@@ -239,6 +247,23 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         notes = [f"model: {model_note}", f"registration: {registration_note}"]
         for line in notes:
             run._write(line + "\n")
+        if dry_run:
+            # plan only: nothing is powered, moved or attached; the plan starts where a
+            # real run would (the simulated rig's start, or each arm's configured q0)
+            js = {n: rig.arms[n].measured_js() for n in names}
+            q0 = {n: (js[n].position[:3] if rig.world is not None else np.array(cfg.arms[n]["q0"], float))
+                  for n in names}
+            controller = build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick,
+                                          rcm_frames, kind, stiffness, elements, 1.0 / clock.rate, list(effects))
+            controller.start(clock.now(), q0, {n: np.zeros(3) for n in names},
+                             np.full(len(elements), float(params["force"])))
+            total = params["settle"] + params["duration"] + params["hold_after"]
+            with run.step(STEPS[2]):
+                plan = _check_plan(controller, names, q0, total, limits)
+            result = {"plan": plan, "model": model_note, "registration": registration_note,
+                      "arms": names, "master": master, "mode": mode, "object": kind}
+            run.finish(result, status="dry-run")
+            return run.result
         with run.step(STEPS[0]):
             for n in names:
                 arm = rig.arms[n]
@@ -283,11 +308,6 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         total = params["settle"] + params["duration"] + params["hold_after"]
         with run.step(STEPS[2]):
             plan = _check_plan(controller, names, q0, total, limits)
-        if dry_run:
-            result = {"status": "planned", "plan": plan, "model": model_note, "registration": registration_note,
-                      "arms": names, "master": master, "mode": mode, "object": kind}
-            run.finish(result)
-            return result
         for n in names:
             run.claim(rig.arms[n])
         live = _LiveCommands(controller, ros_commands, interactive, rec, names, limits,
@@ -378,9 +398,23 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             plot = Path(run.dir) / "cooperative.png"
             _plot(log, names, params, plot)
             result["plot"] = str(plot)
-            result["status"] = "completed"
-            run.finish(result)
+            missed = _missed(result, params)
+            run.finish(result, status="failed" if missed else "completed", reason=missed)
         return run.result
+
+
+def _missed(result: dict, params: dict) -> str | None:
+    """What the run missed of its purpose (None: met). It exists to reach the tension and
+    hold it within the tolerance while the object moves."""
+    tol, force = params["tolerance"], params["force"]
+    moving = result.get("max_error_during_motion")
+    end = params["settle"] + params["duration"] + params["hold_after"]
+    if result.get("settling_time") is not None and result["settling_time"] >= 0.95 * end:
+        return (f"the tension never settled within {max(0.1 * force, 0.25):.2f} N of {force:g} N "
+                f"(settling time {result['settling_time']:.2f} s of {end:.2f} s)")
+    if moving is not None and moving > tol:
+        return f"max |F - {force:g} N| while moving {moving:.3f} N, above the tolerance {tol:g} N"
+    return None
 
 
 def _check_plan(controller, names, q0, total, limits) -> dict:
@@ -521,7 +555,7 @@ def _plot(log, names, params, path: Path) -> None:
 
 
 def format_report(result: dict) -> str:
-    if result.get("status") == "planned":
+    if result.get("status") == "dry-run":
         return (f"plan checked for {', '.join(result['arms'])} (master {result['master']}): inside every limit; "
                 f"nothing moved")
     lines = [f"cooperative ({result.get('mode')}, {result.get('object')}): {result.get('status')}",

@@ -49,6 +49,10 @@ from rig.records import Recorder, to_json
 
 EXIT_FAILED = 1
 EXIT_ABORTED = 3
+#: a run that ended without meeting what it exists for (status "failed"; see Run.finish)
+EXIT_MISSED = 4
+#: statuses a procedure may declare for a run that ended without an exception
+DECLARED_STATUSES = ("completed", "failed", "dry-run")
 EXIT_INTERRUPTED = 130  # the shell's convention for SIGINT
 
 
@@ -139,6 +143,7 @@ class Run:
         self.dir: Path | None = None
         self.recorder: Recorder | None = None
         self.result: dict | None = None
+        self._declared: tuple[str, str | None] | None = None  # (status, reason) from finish()
         self.status: str | None = None
         self._claimed: list = []
         self._step_times: dict[str, float] = {}
@@ -214,12 +219,20 @@ class Run:
             if ok:
                 self._current_step = None
 
-    def finish(self, result: dict) -> dict:
+    def finish(self, result: dict, status: str = "completed", reason: str | None = None) -> dict:
         """Set the procedure's result; returns the result document (updated on exit with
-        status and timings, and written to result.json when the run ends)."""
+        status and timings, and written to result.json when the run ends).
+
+        `status`: how the run ended if nothing raised: "completed", "failed" (it ran to its
+        end without meeting what it exists for; `reason` says what was missed) or "dry-run"
+        (planned, nothing moved). It goes to result.json and the recording's stop record.
+        """
         if not isinstance(result, dict):
             raise TypeError(f"the result must be a dict, got {type(result).__name__}")
-        self.result = dict(result)
+        if status not in DECLARED_STATUSES:
+            raise ValueError(f"status must be one of {DECLARED_STATUSES}, got {status!r}")
+        self.result = result
+        self._declared = (status, reason)
         return self.result
 
     def elapsed(self) -> float:
@@ -229,6 +242,8 @@ class Run:
     # ------------------------------------------------------------- finalising
     def _finalise(self, exc: BaseException | None) -> None:
         status, reason = classify(exc)
+        if exc is None and self._declared is not None:
+            status, reason = self._declared
         self.status = status
         stopped_in = self._current_step.name if (exc is not None and self._current_step) else None
         held, hold_errors = self._hold_all()
@@ -255,7 +270,7 @@ class Run:
             "timings": {"utc_start": self.utc_start.isoformat(), "utc_stop": utc_stop.isoformat(),
                         "duration_s": round(self.elapsed(), 6), "steps": self._step_times},
         })
-        if status != "completed":
+        if status not in ("completed", "dry-run"):
             doc["error"] = reason
             if stopped_in:
                 doc["step"] = stopped_in

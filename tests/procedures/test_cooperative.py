@@ -45,7 +45,7 @@ def test_holds_five_newtons_on_the_spring_while_moving():
 def test_dry_run_moves_nothing_and_checks_limits():
     res, data = _invoke(["--dry-run"])
     assert res.exit_code == 0, res.output
-    assert data["status"] == "planned"
+    assert data["status"] == "dry-run"
     res, data = _invoke(["--dry-run", "--move", "0.6,0,0"])
     assert res.exit_code != 0
     assert "plan:" in res.output
@@ -335,3 +335,30 @@ def test_model_file_effects_are_fed_forward_and_the_rest_named(tmp_path):
     assert data["model_effects"]["fed_forward"] == ["spring@3", "position_friction@3"]
     assert [s["name"] for s in data["model_effects"]["not_fed_forward"]] == ["backlash"]
     assert data["max_error_during_motion"] < 0.25
+
+
+def test_a_run_that_misses_its_tolerance_ends_failed_not_completed():
+    """The motion runs to its end, but the tension strays beyond the tolerance it was
+    given: status 'failed' with what was missed in result.json, the recording's stop
+    record and the last stderr line, and exit code 4 (a safety abort is 3)."""
+    from rig.records import read_recording
+    from rig.run import EXIT_MISSED
+
+    res, data = _invoke(["--force", "5", "--duration", "1", "--settle", "1.5", "--hold-after", "0.2",
+                         "--tolerance", "0.01"])
+    assert res.exit_code == EXIT_MISSED, res.output
+    assert data["status"] == "failed" and "above the tolerance 0.01 N" in data["error"]
+    assert _run_dir_result(data)["status"] == "failed"
+    rec = read_recording(os.path.join(data["run_dir"], "run.mcap"))
+    assert rec.stop["status"] == "failed" and rec.stop["error"] == data["error"]
+    last = [ln for ln in res.stderr.splitlines() if ln.strip()][-1]
+    assert last.startswith("rig cooperative: failed: max |F - 5 N| while moving")
+
+
+def test_a_tension_that_never_settles_is_missed():
+    from procedures.cooperative import _missed
+
+    params = {"tolerance": 0.5, "force": 5.0, "settle": 2.0, "duration": 5.0, "hold_after": 2.0}
+    # the issue's string that was never tensioned: max error 5.07 N, settling 9.00 s of 9.00 s
+    assert "never settled" in _missed({"settling_time": 9.0, "max_error_during_motion": 5.073}, params)
+    assert _missed({"settling_time": 1.1, "max_error_during_motion": 0.12}, params) is None

@@ -247,14 +247,16 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         notes = [f"model: {model_note}", f"registration: {registration_note}"]
         for line in notes:
             run._write(line + "\n")
+        def new_controller():
+            return build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick,
+                                    rcm_frames, kind, stiffness, elements, 1.0 / clock.rate, list(effects))
+
         if dry_run:
             # plan only: nothing is powered, moved or attached; the plan starts where a
             # real run would (the simulated rig's start, or each arm's configured q0)
-            js = {n: rig.arms[n].measured_js() for n in names}
-            q0 = {n: (js[n].position[:3] if rig.world is not None else np.array(cfg.arms[n]["q0"], float))
-                  for n in names}
-            controller = build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick,
-                                          rcm_frames, kind, stiffness, elements, 1.0 / clock.rate, list(effects))
+            q0 = {n: (rig.arms[n].measured_js().position[:3] if rig.world is not None
+                      else np.array(cfg.arms[n]["q0"], float)) for n in names}
+            controller = new_controller()
             controller.start(clock.now(), q0, {n: np.zeros(3) for n in names},
                              np.full(len(elements), float(params["force"])))
             total = params["settle"] + params["duration"] + params["hold_after"]
@@ -290,8 +292,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                 held = [elements[k] for k in sensed]
                 raise AbortRun(f"the object has {len(elements)} elements but load cells on only {held}: "
                                "a triangle of three arms needs a load cell on every element")
-        controller = build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick,
-                                      rcm_frames, kind, stiffness, elements, 1.0 / clock.rate, list(effects))
+        controller = new_controller()
         comp = next(iter(controller.impedance.values())).model.effects if controller.impedance else None
         model_effects = {"fed_forward": [], "not_fed_forward": []}
         if comp is not None:

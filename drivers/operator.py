@@ -17,7 +17,8 @@ The side channel (served by `drivers.operator_sim.OperatorServer` in `rig sim`):
   /rig_sim/operator/reply    std_msgs/String  {"id": "...", "ok": true|false, "detail": "..."}
 
 ACTION is one of ACTIONS, with its fields: confirm {message}; detach_object {};
-attach_object {kind (optional): "spring" or "string"}; hang_mass {kg, element (optional)}; touch {arms: [names], index, goal: [x, y, z] m in the
+attach_object {kind (optional): "spring" or "string"}; hang_mass {kg, element (optional:
+which object element's cell)}; touch {arms: [names], index, goal: [x, y, z] m in the
 world}; unplug {device: "loadcell"} (a person pulling a cable: fault injection). Both topics are reliable with depth 10; the client matches a reply by its id and
 ignores the others (several clients may share the channel).
 """

@@ -219,7 +219,8 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say) -> dict:
     shown = time.monotonic()
     waiting = {f"{rig.arms[n].topic['measured_js']}": rig.arms[n] for n in names}
     say(f"connecting on {domain_text()}: waiting for {', '.join(waiting)}"
-        + ("" if rig.force is None else ", the load cell" if len(rig.forces) <= 1 else f", {len(rig.forces)} load cells")
+        + ("" if rig.force is None else
+           ", the load cell" if len(rig.forces) <= 1 else f", {len(rig.forces)} load cells")
         + (", mocap" if rig.tracker is not None else "") + f" (up to {timeout:g} s)")
     while True:
         missing = [topic for topic, arm in waiting.items() if arm.stream_age() == float("inf")]

@@ -77,10 +77,13 @@ class FirmwareProcess:
     def set_tension(self, newtons: float) -> None:
         self._tension.value = float(newtons)
 
-    def unplug(self) -> None:
-        """Pull the cable: the firmware stops and its pty closes."""
+    def unplug(self, wait: bool = False) -> None:
+        """Pull the cable: the firmware stops and its pty closes. Without `wait` it returns at
+        once: `rig sim` pulls it from the loop that steps the world, and waiting for the
+        child there (it was seen to take over 0.25 s) would stop the arms' streams too."""
         self._conn.send("unplug")
-        self._conn.poll(5.0) and self._conn.recv()
+        if wait:
+            self._conn.poll(5.0) and self._conn.recv()
 
     def close(self) -> None:
         if self._proc.is_alive():

@@ -60,6 +60,14 @@ class Outcome:
         return lines[-1] if lines else ""
 
 
+def completed(out: Outcome, what: str) -> dict:
+    """The --json document of a run that must have completed, with no traceback (asserts)."""
+    assert out.code == 0, f"rig {what} exited {out.code}: {out.stderr[-3000:]}"
+    assert out.doc is not None and out.doc["status"] == "completed", out.stderr[-3000:]
+    assert "Traceback" not in out.stderr
+    return out.doc
+
+
 class ServedRig:
     """`rig sim` on `folder/rig.toml` (see the module docstring); a context manager."""
 

@@ -18,24 +18,15 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from tests.hil.harness import ServedRig  # noqa: E402
+from tests.hil.harness import ServedRig, completed  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.hil]
 
 
 @pytest.fixture(scope="module")
 def served(tmp_path_factory):
-    rig = ServedRig(tmp_path_factory.mktemp("lab"), domain=201 + (os.getpid() + 13) % 31)
-    rig.start()
-    yield rig
-    rig.stop()
-
-
-def _ok(out, what: str) -> dict:
-    assert out.code == 0, f"rig {what} exited {out.code}: {out.stderr[-3000:]}"
-    assert out.doc is not None and out.doc["status"] == "completed", out.stderr[-3000:]
-    assert "Traceback" not in out.stderr
-    return out.doc
+    with ServedRig(tmp_path_factory.mktemp("lab"), domain=201 + (os.getpid() + 13) % 31) as rig:
+        yield rig
 
 
 def _cfg(served):
@@ -45,7 +36,7 @@ def _cfg(served):
 
 
 def test_loadcell_calibrate_hangs_masses_through_the_operator(served):
-    doc = _ok(served.run("loadcell-calibrate", "--seconds", "0.5"), "loadcell-calibrate")
+    doc = completed(served.run("loadcell-calibrate", "--seconds", "0.5"), "loadcell-calibrate")
     assert doc["device"]["port"] == str(served.folder / "loadcell")
     # the simulated operator hung 0.5 kg: the check reads its weight back (noise 20 mN rms)
     assert abs(doc["check"]["error_n"]) < 0.02
@@ -54,7 +45,7 @@ def test_loadcell_calibrate_hangs_masses_through_the_operator(served):
 def test_link_lengths(served):
     from procedures.link_lengths import nominal_lengths
 
-    doc = _ok(served.run("link-lengths", "--q1-range", "0.5", "--q2-range", "0.4", "--passes", "1",
+    doc = completed(served.run("link-lengths", "--q1-range", "0.5", "--q2-range", "0.4", "--passes", "1",
                          "--q3-stroke", "0.05"), "link-lengths")
     true = nominal_lengths()  # the geometry rig sim's arms have
     for key in ("l1", "l2", "l3", "l4"):
@@ -64,7 +55,7 @@ def test_link_lengths(served):
 def test_calibrate_rcm(served):
     from rig import psm_kinematics as K
 
-    doc = _ok(served.run("calibrate-rcm", "--arm", "all", "--duration", "6", "--q1-range", "0.5",
+    doc = completed(served.run("calibrate-rcm", "--arm", "all", "--duration", "6", "--q1-range", "0.5",
                          "--q2-range", "0.4"), "calibrate-rcm")
     cfg = _cfg(served)
     for arm in ("PSM1", "PSM2"):
@@ -75,14 +66,14 @@ def test_calibrate_rcm(served):
 def test_register_by_touch(served):
     from procedures.register import truth_errors
 
-    doc = _ok(served.run("register", "--points", "6"), "register")
+    doc = completed(served.run("register", "--points", "6"), "register")
     T = np.array(doc["transforms"]["PSM2"]["T_ref_rcm_arm_rcm"])
     err = truth_errors(_cfg(served), ["PSM1", "PSM2"], {"PSM1": np.eye(4), "PSM2": T})["PSM2"]
     assert err["rcm_translation_error"] < 0.002 and err["rcm_rotation_error_deg"] < 0.5, err
 
 
 def test_identify(served):
-    doc = _ok(served.run("identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5",
+    doc = completed(served.run("identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5",
                          "--no-plots"), "identify")
     assert doc["checks"]["sdp"] is True
     # a sanity bound: the accuracy over the wire (0.02-0.18 on joint 1, by the machine's
@@ -93,7 +84,7 @@ def test_identify(served):
 def test_friction_ramp(served):
     from rig.psm_dynamics import PSMParameters
 
-    doc = _ok(served.run("friction-ramp", "--ramp-time", "1.5", "--speeds", "0.01,0.02,0.04", "--no-plots"),
+    doc = completed(served.run("friction-ramp", "--ramp-time", "1.5", "--speeds", "0.01,0.02,0.04", "--no-plots"),
               "friction-ramp")
     fc_true = PSMParameters().drive.Fc[2]
     fc = doc["fits"]["viscous_coulomb"]["Fc"]
@@ -102,7 +93,7 @@ def test_friction_ramp(served):
 
 @pytest.mark.parametrize("kind", ["spring", pytest.param("string", marks=pytest.mark.slow)])
 def test_cooperative_holds_5_newtons(served, kind):
-    doc = _ok(served.run("cooperative", "--force", "5", "--object", kind, "--move", "0.03,0,0", "--duration", "2",
+    doc = completed(served.run("cooperative", "--force", "5", "--object", kind, "--move", "0.03,0,0", "--duration", "2",
                          "--settle", "1.5", "--hold-after", "0.5"), f"cooperative --object {kind}")
     assert doc["max_error_during_motion"] <= 0.25, doc["summary"]
     assert doc["overshoot"] <= 0.5, doc["summary"]
@@ -113,7 +104,7 @@ def test_cooperative_holds_5_newtons(served, kind):
 
 def test_discrepancy_on_the_identify_run(served):
     runs = sorted(p for p in (served.folder / "logs").iterdir() if p.name.endswith("-identify"))
-    doc = _ok(served.run("discrepancy", str(runs[-1])), "discrepancy")
+    doc = completed(served.run("discrepancy", str(runs[-1])), "discrepancy")
     assert all(math.isfinite(v) for v in doc["baseline"]["heldout_rms"])
 
 

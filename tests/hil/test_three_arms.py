@@ -13,7 +13,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from tests.hil.harness import ServedRig, lab_toml  # noqa: E402
+from tests.hil.harness import ServedRig, completed, lab_toml  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.hil]
 
@@ -21,23 +21,14 @@ pytestmark = [pytest.mark.ros, pytest.mark.hil]
 @pytest.fixture(scope="module")
 def triangle(tmp_path_factory):
     folder = tmp_path_factory.mktemp("triangle")
-    rig = ServedRig(folder, domain=180 + (os.getpid() + 5) % 20, toml=lab_toml(folder, three_arms=True))
-    rig.start()
-    yield rig
-    rig.stop()
-
-
-def _ok(out, what: str) -> dict:
-    assert out.code == 0, f"rig {what} exited {out.code}: {out.stderr[-3000:]}"
-    assert out.doc is not None and out.doc["status"] == "completed", out.stderr[-3000:]
-    assert "Traceback" not in out.stderr
-    return out.doc
+    with ServedRig(folder, domain=180 + (os.getpid() + 5) % 20, toml=lab_toml(folder, three_arms=True)) as rig:
+        yield rig
 
 
 def test_each_element_has_its_cell_calibrated_on_its_own_port(triangle):
     ports = [str(triangle.folder / n) for n in ("loadcell", "loadcell1", "loadcell2")]
     for k, port in enumerate(ports):
-        doc = _ok(triangle.run("loadcell-calibrate", "--seconds", "0.5", "--element", str(k)),
+        doc = completed(triangle.run("loadcell-calibrate", "--seconds", "0.5", "--element", str(k)),
                   f"loadcell-calibrate --element {k}")
         assert doc["device"]["port"] == port
         # the simulated operator hung 0.5 kg on this element's cell (noise 20 mN rms)
@@ -49,10 +40,10 @@ def test_each_element_has_its_cell_calibrated_on_its_own_port(triangle):
 
 @pytest.mark.slow
 def test_three_arms_hold_5_newtons_on_every_element(triangle):
-    _ok(triangle.run("register", "--points", "6"), "register")
-    _ok(triangle.run("identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5",
+    completed(triangle.run("register", "--points", "6"), "register")
+    completed(triangle.run("identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5",
                      "--no-plots"), "identify")
-    doc = _ok(triangle.run("cooperative", "--arms", "PSM1,PSM2,PSM3", "--force", "5", "--object", "spring",
+    doc = completed(triangle.run("cooperative", "--arms", "PSM1,PSM2,PSM3", "--force", "5", "--object", "spring",
                            "--move", "0.03,0,0", "--duration", "2", "--settle", "1.5", "--hold-after", "0.5"),
               "cooperative (three arms)")
     assert doc["max_error_during_motion"] <= 0.25, doc["summary"]

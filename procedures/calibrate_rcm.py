@@ -36,11 +36,25 @@ from calibration.pivot_insertion import pivot_with_insertion
 from calibration.registration import pose_error
 from procedures.link_lengths import _joint_sign
 from procedures.mocap_sweep import Capture, _Collector, body_points, concatenate, move_capture, open_devices, servo_capture
+from rig import provenance
 from rig import psm_kinematics as K
 from rig.params import Parameter, with_parameters
-from rig.run import Run, config_from_context, emit_result, exit_on_abort, json_option, yes_option
+from rig.run import Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option, yes_option
 
 PROCEDURE = "calibrate-rcm"
+#: m: pivot-fit RMS above which a calibration is not used: the tool's markers then do not
+#: turn about one point within the scale of Table 6.1 (sub-millimetre RMS on a tracked
+#: tool); a loose marker body or a moving RCM shows as millimetres.
+RMS_BOUND = 0.002
+
+
+def missed_bound(arms: dict) -> str | None:
+    """Why a calibration of `arms` ({name: {"rms": m}}) is not good enough, or None."""
+    high = [f"{a} {r['rms'] * 1e3:.2f} mm" for a, r in arms.items() if not r.get("rms", math.inf) <= RMS_BOUND]
+    if not high:
+        return None
+    return (f"pivot-fit RMS {', '.join(high)} above the bound {RMS_BOUND * 1e3:g} mm: check that the marker "
+            "body is rigid on the tool and the arm's RCM holds, then calibrate again")
 STEPS = (
     "power on and home the arm",
     "sweep q1 with q2 = 0",
@@ -305,7 +319,9 @@ def run_calibrate_rcm(cfg, parameters: dict, run_root=None, progress: bool = Tru
                           "plot": str(run.dir / "rcm.png"),
                           "summary": {f"{a} rcm (m)": r["rcm"] for a, r in results.items()}
                           | {f"{a} rms (m)": r["rms"] for a, r in results.items()}}
-                run.finish(result)
+                result["provenance"] = provenance.live(cfg, arms, run.dir)
+                missed = missed_bound(results)
+                run.finish(result, "failed" if missed else "completed", missed)
     finally:
         dev.close()
     return run.result
@@ -336,8 +352,10 @@ def run_from_csv(path: str, body: str, parameters: dict, run_root=None, progress
                    "frames_occluded": int((~track.valid).sum()), "length_unit": take.length_unit}
             result = {"rcm": res["rcm"], "tip_offset": res["tip_offset"], "rms": res["rms"], "frame": "mocap",
                       "source": str(path), "arms": {body: res}, "plot": str(run.dir / "rcm.png"),
-                      "summary": {"rcm (m)": res["rcm"], "rms (m)": res["rms"]}}
-            run.finish(result)
+                      "summary": {"rcm (m)": res["rcm"], "rms (m)": res["rms"]},
+                      "provenance": provenance.recording(path, body)}
+            missed = missed_bound({body: res})
+            run.finish(result, "failed" if missed else "completed", missed)
     return run.result
 
 
@@ -376,3 +394,4 @@ def command(ctx, parameters, from_csv, body, list_steps: bool, as_json: bool) ->
         click.echo(f"rig {PROCEDURE}: refused: {exc}{where}", err=True)
         sys.exit(1)
     emit_result(result, as_json, table_6_1(result["arms"]) + f"\nrun folder: {result['run_dir']}")
+    exit_for_status(PROCEDURE, result)

@@ -22,7 +22,8 @@ import click
 import numpy as np
 
 from rig.params import Parameter, with_parameters
-from rig.run import (EXIT_MISSED, AbortRun, Run, config_from_context, emit_result, exit_on_abort, json_option,
+from rig import provenance
+from rig.run import (AbortRun, Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option,
                      yes_option)
 
 #: Live increments: per key press, and the slew rates the controller ramps them in at
@@ -76,7 +77,11 @@ def _vector(text: str | None, what: str) -> np.ndarray:
 @click.option("--model", "model_path", type=click.Path(dir_okay=False), default=None,
               help="Identified model file (default: the newest `rig identify` result; nominal on the simulated rig). "
                    "Effects a `rig discrepancy` model adds are fed forward with the rigid body where they are loads "
-                   "(backlash and an effort delay are named, not fed forward).")
+                   "(backlash and an effort delay are named, not fed forward). A file measured on another arm or "
+                   "rig, or edited by hand, is refused unless --force-model is given.")
+@click.option("--force-model", is_flag=True,
+              help="Use the --model file even though its provenance says it belongs to another arm or rig (or it "
+                   "was edited): the run's report and result carry a warning.")
 @click.option("--seed", type=int, default=None, help="Seed of the simulated rig.")
 @click.option("--dry-run", is_flag=True, help="Check the plan against every limit, print it, move nothing.")
 @click.option("--ros-commands", is_flag=True,
@@ -95,7 +100,7 @@ def _vector(text: str | None, what: str) -> np.ndarray:
 @json_option
 @click.pass_context
 @exit_on_abort
-def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, model_path, seed, dry_run,
+def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, model_path, force_model, seed, dry_run,
             ros_commands, interactive, list_steps, as_json):
     """Cooperative manipulation with force tracking (thesis 6.3, 7.7).
 
@@ -106,6 +111,8 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
     if list_steps:
         click.echo("\n".join(f"{i + 1}. {name}" for i, name in enumerate(STEPS)))
         return
+    if force_model and not model_path:
+        raise click.UsageError("--force-model applies to a --model FILE: give the file")
     if interactive and not sys.stdin.isatty():  # before anything is powered or moved
         raise click.UsageError("--interactive needs a terminal on stdin; from a script steer with --ros-commands")
     cfg = config_from_context(ctx)
@@ -126,33 +133,44 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
     cfg.object["arms"] = names
     result = run_cooperative(cfg, names, master, dict(parameters), translation, rotation, mode,
                              model_path=model_path, seed=seed, dry_run=dry_run, ros_commands=ros_commands,
-                             interactive=interactive, parameter_set=parameters)
+                             interactive=interactive, parameter_set=parameters, force_model=force_model)
     emit_result(result, as_json, report=format_report(result))
-    if result.get("status") == "failed":
-        click.echo(f"rig cooperative: failed: {result.get('error')} (run folder {result.get('run_dir')})", err=True)
-        sys.exit(EXIT_MISSED)
-    if result.get("status") not in ("completed", "dry-run"):
-        sys.exit(1)
+    exit_for_status("cooperative", result)
 
 
 # ----------------------------------------------------------------------------- set-up
-def _model_for(cfg, model_path, simulated: bool):
+def _model_for(cfg, model_path, simulated: bool, force_model: bool = False, warnings: list | None = None):
     """(PSMDynamics, StickSlip or None, description, effects) from a model file or nominal;
-    ``effects``: the file's added effects (`rig discrepancy`), [] when it has none."""
+    ``effects``: the file's added effects (`rig discrepancy`), [] when it has none.
+
+    Implicitly only a model of one of this rig's arms is taken (rig.provenance); newer ones
+    passed over are added to `warnings`. A --model file that does not belong is refused,
+    or with `force_model` used with a warning."""
     from rig import model_file
     from rig.psm_dynamics import PSMDynamics
 
+    warnings = warnings if warnings is not None else []
     if model_path:
         m = model_file.load_model(model_path)
+        why = provenance.mismatch(m.document, cfg)
+        if why is not None:
+            if not force_model:
+                raise click.ClickException(
+                    f"{model_path}: not a model of this rig: {why}; run `rig identify` on this rig, or add "
+                    "--force-model to use it anyway")
+            warnings.append(f"--force-model: {model_path} used although {why}")
     else:
-        m = model_file.latest_model()
+        skipped: list[str] = []
+        m = model_file.latest_model(cfg=cfg, skipped=skipped)
+        warnings.extend(skipped)
         if m is not None and m.standard is None:
             m = None
     if m is None:
         if not simulated:
-            raise click.ClickException("no identified model: run `rig identify` (and `rig friction-ramp`) first, "
-                                       "or pass --model FILE")
-        return PSMDynamics(), None, "nominal model (no identified model yet)", []
+            raise click.ClickException("no identified model of this rig's arms: run `rig identify` (and "
+                                       "`rig friction-ramp`) first, or pass --model FILE"
+                                       + (f" ({warnings[-1]})" if warnings else ""))
+        return PSMDynamics(), None, "nominal model (no identified model of this rig yet)", []
     effects = m.effects
     note = f"identified model {m.path}"
     if effects:
@@ -160,23 +178,23 @@ def _model_for(cfg, model_path, simulated: bool):
     return m.dynamics(), m.stick_slip(), note, effects
 
 
-def _registration_for(cfg, names, simulated: bool):
-    """Each arm's RCM frame in the world, and where it came from."""
+def _registration_for(cfg, names, simulated: bool, warnings: list | None = None):
+    """Each arm's RCM frame in the world, and where it came from: the newest registration
+    of these arms on this rig (rig.provenance; newer ones passed over go to `warnings`)."""
     from rig import psm_kinematics as K
-    from rig.paths import latest_result
 
-    found = latest_result("register")
-    if found is not None:
-        run_dir, data = found
-        frames = {}
-        transforms = data.get("rcm_frames") or data.get("transforms") or {}
-        for n in names:
-            if n in transforms:
-                frames[n] = np.asarray(transforms[n], float)
-        if len(frames) == len(names):
-            return frames, f"registration {run_dir}"
+    def frames_of(data: dict) -> dict:
+        transforms = data.get("rcm_frames") or {}
+        return {n: np.asarray(transforms[n], float) for n in names if n in transforms}
+
+    found = provenance.find("register", cfg, arms=names, usable=lambda run, data: len(frames_of(data)) == len(names))
+    if warnings is not None:
+        warnings.extend(found.skipped)
+    if found.run_dir is not None:
+        return frames_of(found.data), f"registration {found.run_dir}"
     if not simulated:
-        raise click.ClickException("no registration of the arms: run `rig register` first")
+        raise click.ClickException("no registration of these arms on this rig: run `rig register` first"
+                                   + (f" ({found.skipped[-1]})" if found.skipped else ""))
     return {n: cfg.base_matrix(n) @ K.RCM_FRAME for n in names}, "the configuration's arm bases (simulated rig)"
 
 
@@ -209,17 +227,18 @@ def build_controller(cfg, names, master, params, translation, rotation, mode, dy
 # ----------------------------------------------------------------------------- the run
 def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, model_path=None, seed=None,
                     dry_run=False, ros_commands=False, interactive=False, parameter_set=None, model=None,
-                    progress=True):
+                    progress=True, force_model=False):
     """The procedure; returns the result document. `model` overrides the model file (tests, bench)."""
     from rig.devices import open_rig
     from rig.safety import SafetyLimits
 
     simulated = cfg.simulated
+    warnings: list[str] = []
     if model is not None:
         dyn, stick, model_note, effects = model, None, "model given by the caller", []
     else:
-        dyn, stick, model_note, effects = _model_for(cfg, model_path, simulated)
-    rcm_frames, registration_note = _registration_for(cfg, names, simulated)
+        dyn, stick, model_note, effects = _model_for(cfg, model_path, simulated, force_model, warnings)
+    rcm_frames, registration_note = _registration_for(cfg, names, simulated, warnings)
     limits = SafetyLimits(tension_ceiling=params["tension_ceiling"])
     if params["force"] >= limits.tension_ceiling:
         raise click.BadParameter(f"{params['force']} N is not below the tension ceiling "
@@ -228,14 +247,14 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
     try:
         return _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
                     model_note, registration_note, limits, dry_run, ros_commands, interactive,
-                    parameter_set, seed, progress, effects)
+                    parameter_set, seed, progress, effects, warnings)
     finally:
         rig.close()
 
 
 def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames, model_note,
          registration_note, limits, dry_run, ros_commands, interactive, parameter_set, seed, progress,
-         effects=()):
+         effects=(), warnings=()):
     clock = rig.clock
     elements = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
     kind = cfg.object["kind"]
@@ -244,7 +263,8 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
              config=cfg.snapshot(), seed=seed if seed is not None else cfg.rig["seed"], steps=STEPS,
              progress=progress) as run:
         rec = run.recorder
-        notes = [f"model: {model_note}", f"registration: {registration_note}"]
+        notes = [f"model: {model_note}", f"registration: {registration_note}"] + [
+            f"warning: {w}" for w in warnings]
         for line in notes:
             run._write(line + "\n")
         def new_controller():
@@ -263,7 +283,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             with run.step(STEPS[2]):
                 plan = _check_plan(controller, names, q0, total, limits)
             result = {"plan": plan, "model": model_note, "registration": registration_note,
-                      "arms": names, "master": master, "mode": mode, "object": kind}
+                      "arms": names, "master": master, "mode": mode, "object": kind, "warnings": list(warnings)}
             run.finish(result, status="dry-run")
             return run.result
         with run.step(STEPS[0]):
@@ -395,7 +415,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                 result["live_commands"] = live.summary(t_start)
             result.update({"model": model_note, "model_effects": model_effects, "registration": registration_note, "arms": names,
                            "master": master, "mode": mode, "object": kind,
-                           "filter_delay": _filter_delays(controller)})
+                           "filter_delay": _filter_delays(controller), "warnings": list(warnings)})
             plot = Path(run.dir) / "cooperative.png"
             _plot(log, names, params, plot)
             result["plot"] = str(plot)
@@ -557,10 +577,11 @@ def _plot(log, names, params, path: Path) -> None:
 
 def format_report(result: dict) -> str:
     if result.get("status") == "dry-run":
-        return (f"plan checked for {', '.join(result['arms'])} (master {result['master']}): inside every limit; "
-                f"nothing moved")
+        return "\n".join([f"plan checked for {', '.join(result['arms'])} (master {result['master']}): inside every "
+                          "limit; nothing moved"] + [f"  warning: {w}" for w in result.get("warnings") or []])
     lines = [f"cooperative ({result.get('mode')}, {result.get('object')}): {result.get('status')}",
              f"  {result.get('model')}", f"  {result.get('registration')}"]
+    lines += [f"  warning: {w}" for w in result.get("warnings") or []]
     if result.get("max_error_during_motion") is not None:
         lines += [f"  max |F - {result['force']:.2f} N| during the motion: {result['max_error_during_motion']:.3f} N",
                   f"  RMS error after settling: {result['rms_error']:.3f} N",

@@ -30,8 +30,10 @@ import sys
 import click
 import numpy as np
 
+from rig import provenance
 from rig.params import Parameter, with_parameters
-from rig.run import AbortRun, Run, config_from_context, emit_result, exit_on_abort, json_option, yes_option
+from rig.run import (AbortRun, Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option,
+                     yes_option)
 
 PROCEDURE = "friction-ramp"
 JOINT = 2  # joint 3, 0-based
@@ -73,16 +75,23 @@ def parse_speeds(text: str) -> np.ndarray:
     return np.sort(v)
 
 
-def compensation_model(cfg, arm: str):
-    """(PSMDynamics, description): the latest identified model, else nominal with config gravity."""
+def compensation_model(cfg, arm: str, say=None):
+    """(PSMDynamics, description, model or None): the newest identified model of this arm
+    on this rig, else nominal with the configuration's gravity. Newer models that belong to
+    another arm or rig are named through `say` and passed over."""
     from procedures.identify import config_gravity
     from rig import model_file
     from rig.psm_dynamics import PSMDynamics
 
-    found = model_file.latest_model(with_friction_ramp=False)
+    skipped: list[str] = []
+    found = model_file.latest_model(with_friction_ramp=False, cfg=cfg, arm=arm, skipped=skipped)
+    for line in skipped:
+        (say or (lambda m: click.echo(m, err=True)))(f"rig {PROCEDURE}: {line}")
+    info = {"skipped": skipped} if skipped else {}
     if found is not None and found.standard is not None:
-        return found.dynamics(), {"model": str(found.path), "kind": "identified"}, found
-    return PSMDynamics(gravity=config_gravity(cfg, arm)), {"model": "nominal PSM parameters", "kind": "nominal"}, found
+        return found.dynamics(), {"model": str(found.path), "kind": "identified", **info}, found
+    return (PSMDynamics(gravity=config_gravity(cfg, arm)),
+            {"model": "nominal PSM parameters", "kind": "nominal", **info}, None)
 
 
 def move_to(arm, q, what: str, timeout: float = 10.0) -> None:
@@ -328,13 +337,15 @@ def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = Tru
                     provenance=model_file.provenance(f"{run.dir / 'run.mcap'} ({arm_name})", run.dir,
                                                      {"procedure": PROCEDURE, "compensation": comp_info}))
                 (run.dir / model_file.STICK_SLIP_FILENAME).write_text(json.dumps(stick.to_dict(), indent=2) + "\n")
-                if prior is not None and prior.standard is not None:
-                    written = model_file.update_stick_slip(prior.path, stick).path
-                    where = "identified model"
+                origin = provenance.live(cfg, [arm_name], run.dir)
+                own = run.dir / model_file.MODEL_FILENAME
+                if prior is not None:
+                    written = model_file.with_stick_slip(own, prior, stick, {**stick.provenance, **origin}).path
+                    where = f"identified model {prior.path} with these stick-slip terms"
                 else:
-                    written = model_file.friction_only_model(run.dir / model_file.MODEL_FILENAME, stick,
-                                                             dyn.gravity, dyn.slope, stick.provenance)
-                    where = "friction-only model (no identified model yet)"
+                    written = model_file.friction_only_model(own, stick, dyn.gravity, dyn.slope,
+                                                             {**stick.provenance, **origin})
+                    where = "friction-only model (no identified model yet: a later `rig identify` takes these terms)"
                 result = {
                     "arm": arm_name, "joint": 3, "q_ref": q_ref.tolist(),
                     "Fs_pos": fs_pos, "Fs_neg": fs_neg,
@@ -343,14 +354,20 @@ def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = Tru
                                      "note": "ramps are applied on top of g3(q) + Fo3 of this model"},
                     "breakaway_position": {k: float(r["q"][r["index"]]) for k, r in ramps.items()},
                     "fits": fits, "passes": sweeps["passes"], "plots": plots,
-                    "model": str(written), "model_kind": where,
+                    "model": str(written), "model_kind": where, "stick_slip": stick.to_dict(),
+                    "provenance": origin,
                     "summary": {"Fs_pos": fs_pos, "Fs_neg": fs_neg, "Fs_symmetric": 0.5 * (fs_pos - fs_neg),
                                 "model": str(written)},
                 }
                 world = getattr(dev, "world", None)
                 if world is not None:
                     result["truth"] = simulated_truth(world, arm_name, dyn, ramps)
-                run.finish(result)
+                # a breakaway is a force against the motion: up for the positive ramp, down
+                # for the negative; anything else is a measurement that went wrong
+                missed = None if fs_pos > 0 > fs_neg else (
+                    f"breakaway forces Fs+ {fs_pos:.3f} N, Fs- {fs_neg:.3f} N do not oppose their ramps "
+                    "(expected Fs+ > 0 > Fs-)")
+                run.finish(result, "failed" if missed else "completed", missed)
     finally:
         dev.close()
     return run.result
@@ -431,3 +448,4 @@ def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
         click.echo(f"rig {PROCEDURE}: {exc}{where}", err=True)
         sys.exit(1)
     emit_result(result, as_json, report_text(result))
+    exit_for_status(PROCEDURE, result)

@@ -73,7 +73,9 @@ import click
 import numpy as np
 
 from rig.params import Parameter, with_parameters
-from rig.run import AbortRun, Run, config_from_context, emit_result, exit_on_abort, json_option, yes_option
+from rig import provenance
+from rig.run import (AbortRun, Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option,
+                     yes_option)
 
 PROCEDURE = "identify"
 
@@ -437,6 +439,33 @@ def validation_table(outcome: FitOutcome, data) -> dict:
     return out
 
 
+#: The identified model's relative validation error above which a run has not produced a
+#: usable model: at 0.5 the model leaves a quarter of the effort's energy unexplained (the
+#: thesis's own models reach 0.05-0.2 on the real arm, the simulated rig well under 0.1).
+VALIDATION_SANITY = 0.5
+
+
+def missed_purpose(result: dict) -> tuple[str, str | None]:
+    """("completed", None), or ("failed", why) when the identified (SDP) model failed its
+    physical checks or its validation error is not finite or above VALIDATION_SANITY."""
+    problems = []
+    if not result.get("checks", {}).get("sdp"):
+        failed = [k for k, v in result.get("checks", {}).get("sdp_detail", {}).items()
+                  if isinstance(v, dict) and v.get("pass") is False]
+        problems.append("the SDP model fails its physical checks" + (f" ({', '.join(failed)})" if failed else ""))
+    errors = result.get("validation", {}).get("sdp") or []
+    bad = [f"j{j + 1} {e}" for j, e in enumerate(errors) if e is None or not math.isfinite(e)]
+    high = [f"j{j + 1} {e:.3f}" for j, e in enumerate(errors) if e is not None and math.isfinite(e)
+            and e > VALIDATION_SANITY]
+    if not errors:
+        problems.append("no validation error was computed")
+    if bad:
+        problems.append(f"validation error not finite ({', '.join(bad)})")
+    if high:
+        problems.append(f"validation relative error {', '.join(high)} above the sanity bound {VALIDATION_SANITY}")
+    return ("failed", "; ".join(problems)) if problems else ("completed", None)
+
+
 def table_5_1(outcome: FitOutcome, excitation: dict | None) -> dict:
     f = outcome.fits
     return {"optimisation_condition": None if excitation is None else excitation.get("condition_objective"),
@@ -723,8 +752,11 @@ def report_text(result: dict) -> str:
 
 
 def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: str, data_source: str,
-                parameters: dict, excitation: dict | None, reference_gravity, extra: dict | None = None) -> dict:
-    """Validation, plots, model file and the result document (common to both paths)."""
+                parameters: dict, excitation: dict | None, reference_gravity, origin: dict,
+                extra: dict | None = None, stick_slip=None) -> dict:
+    """Validation, plots, model file and the result document (common to both paths);
+    `origin`: the model's provenance (rig.provenance.live or .recording); `stick_slip`: an
+    earlier friction-ramp run's terms of the same arm, carried into the model file."""
     from rig import model_file
 
     table = validation_table(outcome, val)
@@ -753,10 +785,11 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
         run.dir / model_file.MODEL_FILENAME, standard=sdp.pi, names=list(outcome.model.param_names()),
         slope=outcome.slope, gravity=outcome.gravity, base_values=sdp.beta, stribeck=outcome.stribeck(),
         base_expressions=outcome.base.expressions(), base_independent=outcome.base.independent,
-        gravity_source=outcome.gravity_source, validation=validation_doc, checks=checks["sdp"],
-        provenance_info=model_file.provenance(data_source, run.dir, {"procedure": PROCEDURE,
-                                                                      "training_samples": int(train.n_samples),
-                                                                      "validation_samples": int(val.n_samples)}))
+        gravity_source=outcome.gravity_source, validation=validation_doc, checks=checks["sdp"], stick_slip=stick_slip,
+        provenance_info={**model_file.provenance(data_source, run.dir, {"procedure": PROCEDURE,
+                                                                         "training_samples": int(train.n_samples),
+                                                                         "validation_samples": int(val.n_samples)}),
+                         **origin})
     result = {
         "source": source,
         "model": str(path),
@@ -783,6 +816,7 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
         "samples": {"training": int(train.n_samples), "validation": int(val.n_samples)},
         "summary": {"validation_sdp": table["sdp"]["relative_error"], "validation_ols": table["ols"]["relative_error"],
                     "model": str(path)},
+        "provenance": origin,
     }
     if source == "csv":
         result["published_7dof"] = {"sdp": list(PUBLISHED_7DOF),
@@ -893,8 +927,8 @@ def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
                                          parallel=parameters["parallel_filter"], stribeck=parameters["stribeck"])
         with run.step(STEPS_CSV[3]):
             result = _finish_fit(run, outcome, train, val, val_source, "csv", str(parameters["csv"]), parameters,
-                                 None, np.array([0.0, 0.0, -9.81]))
-            run.finish(result)
+                                 None, np.array([0.0, 0.0, -9.81]), provenance.recording(parameters["csv"]))
+            run.finish(result, *missed_purpose(result))
     return run.result
 
 
@@ -965,19 +999,40 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
                     plot_trajectory(rec_x["t"] - rec_x["t"][0], rec_x["q"], rec_x["dq"], run.dir / "figure_5_1_excitation.png",
                                     f"Excitation trajectory as measured ({parameters['frequency']} Hz, "
                                     f"{parameters['harmonics']} harmonics)")
+                stick, ramp_note = earlier_stick_slip(cfg, arm_name)
+                if ramp_note:
+                    say(ramp_note)
+                    extra["stick_slip_from"] = ramp_note
                 result = _finish_fit(run, outcome, train, val, "validation trajectory "
                                      f"({parameters['validation_frequency']} Hz, not optimised)", "live",
-                                     f"{run.dir / 'run.mcap'} ({arm_name})", parameters, exc["figures"], g_config, extra)
+                                     f"{run.dir / 'run.mcap'} ({arm_name})", parameters, exc["figures"], g_config,
+                                     provenance.live(cfg, [arm_name], run.dir), extra, stick_slip=stick)
                 if parameters["plots"]:
                     result["plots"]["figure_5_1_excitation.png"] = str(run.dir / "figure_5_1_excitation.png")
                 world = getattr(dev, "world", None)
                 if world is not None:
                     result["truth"] = simulated_truth(world, arm_name, outcome, val)
-                run.finish(result)
+                run.finish(result, *missed_purpose(result))
     finally:
         if dev is not None:  # after the run's exit has held the arm
             dev.close()
     return run.result
+
+
+def earlier_stick_slip(cfg, arm_name: str):
+    """(StickSlip or None, note): the newest completed `rig friction-ramp` result of this
+    arm on this rig, so that the model file holds it whichever of the two ran first."""
+    from rig import model_file
+
+    found = provenance.find("friction-ramp", cfg, arm=arm_name,
+                            usable=lambda run, res: "stick_slip" in res
+                            or (run / model_file.STICK_SLIP_FILENAME).exists())
+    notes = list(found.skipped)
+    if found.run_dir is None:
+        return None, "; ".join(notes)
+    stick = model_file.ramp_stick_slip(found.run_dir, found.data)
+    notes.append(f"stick-slip terms of joint 3 taken from friction-ramp run {found.run_dir.name}")
+    return stick, "; ".join(notes)
 
 
 def simulated_truth(world, arm_name: str, outcome: FitOutcome, val) -> dict:
@@ -1059,3 +1114,4 @@ def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
         click.echo(f"rig {PROCEDURE}: {exc}{where}", err=True)
         sys.exit(1)
     emit_result(result, as_json, report_text(result))
+    exit_for_status(PROCEDURE, result)

@@ -65,9 +65,10 @@ from calibration.fit_error import FitError
 from calibration.joint_axis import JointAxisFit, fit_joint_axis_sara
 from calibration.registration import invert, mean_pose
 from procedures.mocap_sweep import (Capture, _Collector, body_points, move_capture, open_devices, settle)
+from rig import provenance
 from rig import psm_kinematics as K
 from rig.params import Parameter, with_parameters
-from rig.run import Run, config_from_context, emit_result, exit_on_abort, json_option, yes_option
+from rig.run import Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option, yes_option
 
 PROCEDURE = "link-lengths"
 STEPS = (
@@ -520,6 +521,26 @@ def _symmetric_sweep(joint: int, span: float, passes: int, q3: float) -> list[np
     return goals
 
 
+#: m: one-sigma uncertainty of a Table 4.1 length above which the fit has not measured it:
+#: the thesis reports its lengths to the millimetre, and a sound sweep with sub-millimetre
+#: marker noise gives a few tenths of a millimetre (bench_calibration_procedures).
+LENGTH_STD_BOUND = 0.002
+
+
+def missed_bound(result: dict) -> str | None:
+    """Why the fitted lengths are not usable (an uncertainty not finite or above the
+    bound), or None."""
+    import math
+
+    high = [f"{k} +-{v['std'] * 1e3:.2f} mm" if v.get("std") is not None and math.isfinite(v["std"]) else f"{k} (no std)"
+            for k, v in result["lengths"].items()
+            if not (v.get("std") is not None and math.isfinite(v["value"]) and v["std"] <= LENGTH_STD_BOUND)]
+    if not high:
+        return None
+    return (f"length uncertainty {', '.join(high)} above {LENGTH_STD_BOUND * 1e3:g} mm: check the marker bodies' "
+            "tracking (occlusion, loose bodies) and sweep again")
+
+
 def run_link_lengths(cfg, parameters: dict, run_root=None, progress: bool = True) -> dict:
     """The procedure as a function (the CLI and the bench call it). Returns the result."""
     arm_name = parameters["arm"]
@@ -576,7 +597,9 @@ def run_link_lengths(cfg, parameters: dict, run_root=None, progress: bool = True
                 result.pop("_W2", None)
                 result["plot"] = str(run.dir / "link_lengths.png")
                 result["summary"] = {k: v["value"] for k, v in result["lengths"].items()}
-                run.finish(result)
+                result["provenance"] = provenance.live(cfg, [arm_name], run.dir)
+                missed = missed_bound(result)
+                run.finish(result, "failed" if missed else "completed", missed)
     finally:
         dev.close()
     return run.result
@@ -617,3 +640,4 @@ def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
         click.echo(f"rig {PROCEDURE}: refused: {exc}{where}", err=True)
         sys.exit(1)
     emit_result(result, as_json, report_table(result) + f"\nrun folder: {result['run_dir']}")
+    exit_for_status(PROCEDURE, result)

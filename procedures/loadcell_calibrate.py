@@ -28,10 +28,19 @@ from drivers.loadcell import (
     LoadCell,
     LoadCellCalibration,
     LoadCellError,
+    usb_serial_number,
 )
 from drivers.operator import OperatorError
+from rig import provenance
 from rig.paths import run_dir_name, runs_root
-from rig.run import config_from_context, yes_option
+from rig.records import package_version
+from rig.run import EXIT_MISSED, config_from_context, result_json, yes_option
+
+#: The check reads mass 2 through the new calibration: it must agree with m g within
+#: 20 mN (the calibration's accuracy target, bench_loadcell) or 1 % of the load, whichever
+#: is larger; beyond it the masses were still swinging or the cell drifts.
+CHECK_BOUND_N = 0.02
+CHECK_BOUND_REL = 0.01
 
 STEPS = (
     "connect to the load cell",
@@ -199,6 +208,17 @@ def command(ctx, mass1: float, mass2: float, port: str | None, element: int | No
             check={"expected_n": p2["force_n"], "measured_n": measured, "error_n": measured - p2["force_n"],
                    "std_n": statistics.stdev(forces), "n": len(forces)},
             stats=vars(lc.stats()))
+        result["provenance"] = {
+            "cell": {"port": result["device"]["port"], "usb_serial": "" if simulated else usb_serial_number(port),
+                     "adc": ident.adc, "firmware": result["device"]["firmware"], "simulated": simulated},
+            "source": {"run": run.name}, "package_version": package_version(),
+            "time": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+        bound = max(CHECK_BOUND_N, CHECK_BOUND_REL * p2["force_n"])
+        if not abs(result["check"]["error_n"]) <= bound:
+            result["status"] = "failed"
+            result["error"] = (f"check with {mass2} kg read {measured:.4f} N, expected {p2['force_n']:.4f} N: error "
+                               f"{result['check']['error_n'] * 1e3:+.1f} mN beyond {bound * 1e3:.0f} mN (the masses "
+                               "swinging, or a cell that drifts: calibrate again)")
         if simulated:
             true_k = 1.0 / fake.model.gain
             result["truth"] = {"newtons_per_count": true_k, "zero_counts": fake.model.offset,
@@ -221,11 +241,16 @@ def command(ctx, mass1: float, mass2: float, port: str | None, element: int | No
     report(f"[{len(STEPS)}/{len(STEPS)}] {STEPS[-1]}")
     result["finished"] = datetime.now(timezone.utc).isoformat()
     run.mkdir(parents=True, exist_ok=True)
+    if "provenance" in result:
+        result = provenance.seal(json.loads(result_json(result)))
     (run / "result.json").write_text(json.dumps(result, indent=2) + "\n")
     if as_json:  # one document on one line, as every procedure's --json
         json.dump(result, sys.stdout)
         sys.stdout.write("\n")
     if result["status"] != "completed":
+        if "calibration" in result:  # it ran, and missed its bound: the run's own exit code
+            click.echo(f"rig {CALIBRATION_PROCEDURE}: failed: {result['error']} (run folder {run})", err=True)
+            sys.exit(EXIT_MISSED)
         raise click.ClickException(f"load-cell calibration failed: {result['error']} (recorded in {run})")
     cal = result["calibration"]
     report(f"calibration: {cal['newtons_per_count'] * 1e3:.5f} mN/count "

@@ -34,10 +34,14 @@ from calibration.registration import invert, pose_error, register_from_touch_poi
 from procedures.mocap_sweep import _Collector, open_devices, settle
 from rig import psm_kinematics as K
 from rig.params import Parameter, with_parameters
-from rig.paths import latest_result
-from rig.run import Run, config_from_context, emit_result, exit_on_abort, json_option, yes_option
+from rig import provenance
+from rig.run import Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option, yes_option
 
 PROCEDURE = "register"
+#: m: touch-point residual RMS above which a registration is not used. The tips meet within
+#: the touch accuracy (a person guiding them: ~1 mm); 2 mm is the RCM calibration's own
+#: bound (Table 6.1 scale), past it the tension's direction errs by more than a degree.
+RESIDUAL_BOUND = 0.002
 STEPS = ("open the rig and take the object off", "measure", "fit the transforms", "save")
 PARAMETERS = [
     Parameter("method", "touch", "", "touch: tool tips on common points; mocap: RCM frames from calibrate-rcm",
@@ -94,16 +98,21 @@ def measure_touch(dev, run, cfg, arms: list[str], parameters: dict) -> dict:
 
 
 def rcm_frames_from_calibration(cfg, dev, run, arms: list[str], parameters: dict) -> tuple[dict, str]:
-    """Each arm's RCM frame in the mocap frame: from the newest calibrate-rcm run holding
-    every arm, or measured now (calibrate_rcm's phases in this run)."""
+    """Each arm's RCM frame in the mocap frame: from the newest calibrate-rcm run of every
+    arm on this rig (rig.provenance), or measured now (calibrate_rcm's phases in this run)."""
     from procedures import calibrate_rcm as C
 
-    found = latest_result(C.PROCEDURE)
-    if found and not parameters["remeasure"]:
-        run_dir, data = found
-        frames = {a: np.array(r["rcm_frame"]) for a, r in data.get("arms", {}).items() if "rcm_frame" in r}
-        if all(a in frames for a in arms):
-            return frames, str(run_dir)
+    def frames_of(data: dict) -> dict:
+        return {a: np.array(r["rcm_frame"]) for a, r in data.get("arms", {}).items()
+                if isinstance(r, dict) and "rcm_frame" in r}
+
+    if not parameters["remeasure"]:
+        found = provenance.find(C.PROCEDURE, cfg, arms=arms,
+                                usable=lambda run, data: all(a in frames_of(data) for a in arms))
+        for line in found.skipped:
+            run._write(f"rig {PROCEDURE}: {line}\n")
+        if found.run_dir is not None:
+            return frames_of(found.data), str(found.run_dir)
     p = {pp.name: pp.default for pp in C.PARAMETERS}
     frames = {}
     with run.step(STEPS[1]):
@@ -161,7 +170,12 @@ def run_register(cfg, parameters: dict, run_root=None, progress: bool = True) ->
                 if dev.world is not None:
                     result["truth"] = truth_errors(cfg, arms, T_rcm)
                 result["summary"] = {f"{ref}->{a} translation (m)": T_rcm[a][:3, 3].tolist() for a in arms[1:]}
-                run.finish(result)
+                result["provenance"] = provenance.live(cfg, arms, run.dir)
+                high = [f"{a} {t['residual_rms'] * 1e3:.2f} mm" for a, t in result["transforms"].items()
+                        if t.get("residual_rms") is not None and not t["residual_rms"] <= RESIDUAL_BOUND]
+                missed = (f"touch-point residual {', '.join(high)} RMS above the bound {RESIDUAL_BOUND * 1e3:g} mm: "
+                          "touch the points again (the tips must meet)") if high else None
+                run.finish(result, "failed" if missed else "completed", missed)
     finally:
         dev.close()
     return run.result
@@ -219,3 +233,4 @@ def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
         click.echo(f"rig {PROCEDURE}: refused: {exc}{where}", err=True)
         sys.exit(1)
     emit_result(result, as_json, report(result) + f"\nrun folder: {result['run_dir']}")
+    exit_for_status(PROCEDURE, result)

@@ -117,6 +117,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "arm": {
         "driver": Key("str", "sim", "arm driver", *_DRIVER_ARM),
         "namespace": Key("str", "", "ROS 2 namespace of the arm's CRTK topics (default /<name>)"),
+        "serial": Key("str", "", "serial number of a dVRK arm (as in its sawIntuitiveResearchKit configuration "
+                      "file, e.g. '28007'): results measured on it name it, and are used only on it"),
         "base_xyz": Key("vec3", [0.0, 0.0, 0.0], "position of the arm's frame 0 in the world, m"),
         "base_rpy": Key("vec3", [0.0, 0.0, 0.0], "orientation of frame 0 in the world (roll, pitch, yaw), rad"),
         "q0": Key("vec3", [0.0, 0.0, 0.12], "initial joints of a simulated arm (rad, rad, m)"),

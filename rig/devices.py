@@ -180,7 +180,7 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
         if "loadcell" in uses:
             if lc["driver"] == "serial" and lc["ports"]:
                 # a cell per object element: each with its own calibration
-                rig.forces = {k: _open_loadcell(dict(lc, port=port), rig, strict=True)
+                rig.forces = {k: _open_loadcell(dict(lc, port=port), rig)
                               for k, port in enumerate(lc["ports"])}
                 rig.force = rig.forces[min(lc["element"], len(lc["ports"]) - 1)]
             elif lc["driver"] in ("serial", "can"):
@@ -270,12 +270,12 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say) -> dict:
     return rates
 
 
-def _open_loadcell(lc: dict, rig: Rig, strict: bool = False):
-    """The configured cell, with the newest calibration made on its port (`strict`: only
-    that one; else the newest of any port when none was made on it)."""
+def _open_loadcell(lc: dict, rig: Rig):
+    """The configured cell, with the newest calibration of that cell (made on its port;
+    drivers.loadcell.load_latest_calibration)."""
     from drivers.loadcell import LoadCell, load_latest_calibration
 
-    calibration = load_latest_calibration(lc["port"] if lc["driver"] == "serial" else None, strict=strict)
+    calibration = load_latest_calibration(lc["port"] if lc["driver"] == "serial" else None)
     if lc["driver"] == "serial":
         from drivers.loadcell import open_serial_port
 

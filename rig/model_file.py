@@ -379,8 +379,14 @@ def save_model(path, *, standard, names, slope: float, gravity, base_values=None
 
 
 def _write_json(path: Path, doc: dict) -> None:
+    """Write atomically; a document with a rig provenance (rig.provenance) is sealed with
+    its digest, so a later hand edit is seen."""
+    from rig import provenance as P
     from rig.run import result_json
 
+    doc = json.loads(result_json(doc))
+    if isinstance(doc.get(P.KEY), dict) and doc[P.KEY].get("arms"):
+        P.seal(doc)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(result_json(doc) + "\n")
@@ -437,11 +443,13 @@ def load_model(path) -> IdentifiedModel:
     return IdentifiedModel(path, standard, names, slope, gravity, doc, stick)
 
 
-def update_stick_slip(path, stick: StickSlip) -> IdentifiedModel:
-    """Write (or replace) the stick-slip section of an existing model file atomically."""
-    model = load_model(path)
+def with_stick_slip(path, model: IdentifiedModel, stick: StickSlip, provenance_info: dict) -> IdentifiedModel:
+    """Write to `path` a new model file: `model`'s document with `stick` as its stick-slip
+    section and `provenance_info` (the rigid body's file is named in it); the earlier file
+    is left as it was (a run's files are its record)."""
     doc = dict(model.document)
     doc["stick_slip"] = stick.to_dict()
+    doc["provenance"] = {**provenance_info, "rigid_body_from": str(model.path)}
     _write_json(Path(path), doc)
     return load_model(path)
 
@@ -452,18 +460,67 @@ def friction_only_model(path, stick: StickSlip, gravity, slope: float, provenanc
                       provenance_info=provenance_info, stick_slip=stick, kind="friction-only")
 
 
-def latest_model(with_friction_ramp: bool = True) -> IdentifiedModel | None:
+def _model_document(run_dir: Path, result: dict) -> dict | None:
+    """The model file a completed identify run's result names, as JSON (None if unreadable)."""
+    path = Path(result.get("model") or run_dir / MODEL_FILENAME)
+    if not path.is_absolute():
+        path = run_dir / path
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+def ramp_stick_slip(run_dir: Path, result: dict) -> StickSlip | None:
+    """A friction-ramp run's stick-slip terms: from its (sealed) result, else its file."""
+    if isinstance(result.get("stick_slip"), dict):
+        return StickSlip.from_dict(result["stick_slip"], str(run_dir / "result.json"))
+    f = run_dir / STICK_SLIP_FILENAME
+    if not f.exists():
+        return None
+    try:
+        return StickSlip.from_dict(json.loads(f.read_text()), str(f))
+    except json.JSONDecodeError as exc:
+        raise ModelFileError(f"{f}: corrupt ({exc.msg})") from None
+
+
+def latest_model(with_friction_ramp: bool = True, cfg=None, arm: str | None = None,
+                 skipped: list | None = None) -> IdentifiedModel | None:
     """The newest completed `rig identify` run's model, or None when there is none.
 
+    With `cfg` (the rig a procedure runs on) only results that belong to it are taken
+    (rig.provenance: same rig configuration, same arm identity, file not edited; with `arm`,
+    a result of that arm): a newer result that does not is passed over and named in
+    `skipped`. Without `cfg` the newest result is taken unchecked (tools and tests).
+
     When a completed `rig friction-ramp` run is newer than the stick-slip terms the model
-    carries (or it carries none), its terms are merged into the returned model (not into
-    the identify run's file), so the order in which the two procedures ran does not matter. With no identify run, the
-    newest friction-ramp run's friction-only model is returned, if any.
+    carries (or it carries none), its terms are merged into the returned model (in memory:
+    no run's file is rewritten), so the order in which the two procedures ran does not
+    matter. With no identify run, the newest friction-ramp run's friction-only model is
+    returned, if any.
     """
+    from rig import provenance as P
     from rig.paths import latest_result
 
-    found = latest_result("identify")
-    ramp = latest_result("friction-ramp") if with_friction_ramp else None
+    notes: list[str] = skipped if skipped is not None else []
+
+    def has_model(run: Path, result: dict) -> bool:
+        return (run / MODEL_FILENAME).exists() or bool(result.get("model"))
+
+    if cfg is None:
+        found = latest_result("identify")
+        ramp = latest_result("friction-ramp") if with_friction_ramp else None
+    else:
+        f = P.find("identify", cfg, arm=arm, document=_model_document, usable=has_model)
+        notes.extend(f.skipped)
+        found = (f.run_dir, f.data) if f.run_dir is not None else None
+        ramp = None
+        if with_friction_ramp:
+            r = P.find("friction-ramp", cfg, arm=arm,
+                       usable=lambda run, res: "stick_slip" in res or (run / STICK_SLIP_FILENAME).exists())
+            notes.extend(r.skipped)
+            ramp = (r.run_dir, r.data) if r.run_dir is not None else None
     if found is None:
         if ramp is not None and (ramp[0] / MODEL_FILENAME).exists():
             return load_model(ramp[0] / MODEL_FILENAME)
@@ -473,16 +530,11 @@ def latest_model(with_friction_ramp: bool = True) -> IdentifiedModel | None:
     if not path.is_absolute():
         path = run_dir / path
     model = load_model(path)
-    if ramp is not None and (ramp[0] / STICK_SLIP_FILENAME).exists():
-        ramp_dir = str(ramp[0])
+    if ramp is not None:
+        stick = ramp_stick_slip(*ramp)
         have = model.stick_slip_terms.provenance.get("run_dir") if model.stick_slip_terms else None
         # Run folders sort by their UTC start time: merge only a newer friction-ramp result.
-        if have is None or Path(have).name < Path(ramp_dir).name:
-            try:
-                stick = StickSlip.from_dict(json.loads((ramp[0] / STICK_SLIP_FILENAME).read_text()),
-                                            str(ramp[0] / STICK_SLIP_FILENAME))
-            except json.JSONDecodeError as exc:
-                raise ModelFileError(f"{ramp[0] / STICK_SLIP_FILENAME}: corrupt ({exc.msg})") from None
+        if stick is not None and (have is None or Path(have).name < ramp[0].name):
             doc = dict(model.document)
             doc["stick_slip"] = stick.to_dict()
             model = dataclasses.replace(model, document=doc, stick_slip_terms=stick)

@@ -280,6 +280,7 @@ class Run:
             doc["hold_errors"] = hold_errors
         if recorder_error:
             doc["recording_error"] = recorder_error
+        _seal_provenance(doc)
         self.result = doc
         try:
             write_result(self.dir / "result.json", doc)
@@ -399,6 +400,19 @@ def _finite(value: Any) -> Any:
     return value
 
 
+def _seal_provenance(doc: dict) -> None:
+    """Seal a result that carries a rig provenance (rig.provenance) with its digest, as
+    result.json will read back: a later hand edit is then seen by the procedure that would
+    take the result."""
+    from rig import provenance as P
+
+    prov = doc.get(P.KEY)
+    if isinstance(prov, dict) and prov.get("arms"):
+        doc[P.KEY] = dict(prov)
+        canonical = json.loads(result_json(doc))
+        doc[P.KEY][P.DIGEST] = P.seal(canonical)[P.KEY][P.DIGEST]
+
+
 def result_json(result: dict, indent: int | None = 2) -> str:
     """The result as strict JSON (numpy values converted, NaN and inf as null)."""
     return to_json(_finite(json.loads(to_json(result, allow_nan=True))), indent=indent, allow_nan=False)
@@ -449,6 +463,19 @@ def _short(value: Any) -> str:
     if isinstance(value, float):
         return f"{value:.6g}"
     return str(value)
+
+
+def exit_for_status(name: str, result: dict) -> None:
+    """End a procedure's command after its report: a run that missed its purpose (status
+    "failed") prints one last line with the reason on stderr and exits EXIT_MISSED; any
+    other status but "completed" and "dry-run" exits EXIT_FAILED."""
+    status = result.get("status")
+    if status == "failed":
+        where = f" (run folder {result['run_dir']})" if result.get("run_dir") else ""
+        click.echo(f"rig {name}: failed: {result.get('error')}{where}", err=True)
+        sys.exit(EXIT_MISSED)
+    if status not in ("completed", "dry-run"):
+        sys.exit(EXIT_FAILED)
 
 
 def _remember_yes(ctx: click.Context, _param, value: bool) -> bool:

@@ -503,12 +503,42 @@ def test_each_port_gets_the_calibration_made_on_it(tmp_path, monkeypatch):
         (run / "result.json").write_text(json.dumps(
             {"status": "completed", "calibration": LoadCellCalibration(k, 5.0, device=device).to_dict()}))
     assert load_latest_calibration("/dev/ttyACM1").newtons_per_count == 0.02
-    assert load_latest_calibration("/dev/ttyACM0", strict=True).newtons_per_count == 0.03
-    # a port never calibrated: the newest of any port for the one cell of a rig, an error
-    # naming the port where each element has its own cell
-    assert load_latest_calibration("/dev/ttyACM2").newtons_per_count == 0.03
+    assert load_latest_calibration("/dev/ttyACM0").newtons_per_count == 0.03
+    # a port never calibrated: another cell's calibration is never taken; the error names
+    # the port and the command
     with pytest.raises(LoadCellNotCalibrated, match="on /dev/ttyACM2.*--port /dev/ttyACM2"):
-        load_latest_calibration("/dev/ttyACM2", strict=True)
+        load_latest_calibration("/dev/ttyACM2")
+
+
+def test_a_calibration_edited_by_hand_or_of_another_usb_cell_is_not_taken(tmp_path, monkeypatch):
+    """The sealed provenance of a calibration: a hand edit, or another cell (USB serial)
+    now on the same port, makes the procedure refuse it and say why."""
+    from datetime import datetime, timedelta, timezone
+
+    import drivers.loadcell as L
+    from rig import provenance
+    from rig.paths import run_dir_name
+
+    monkeypatch.setenv("RIG_LOGS", str(tmp_path))
+    now = datetime.now(timezone.utc)
+    old_run = tmp_path / run_dir_name("loadcell-calibrate", now)
+    new_run = tmp_path / run_dir_name("loadcell-calibrate", now + timedelta(seconds=1))
+    for run, k in ((old_run, 0.01), (new_run, 0.02)):
+        run.mkdir()
+        doc = {"status": "completed", "calibration": LoadCellCalibration(k, 5.0, device="/dev/ttyACM0").to_dict(),
+               "provenance": {"cell": {"port": "/dev/ttyACM0", "usb_serial": "A1"}, "source": {"run": run.name}}}
+        (run / "result.json").write_text(json.dumps(provenance.seal(doc)))
+    monkeypatch.setattr(L, "usb_serial_number", lambda port: "A1")
+    assert load_latest_calibration("/dev/ttyACM0").newtons_per_count == 0.02
+    # the newest calibration's gain edited by hand: skipped, the older one taken
+    doc = json.loads((new_run / "result.json").read_text())
+    doc["calibration"]["newtons_per_count"] = 0.05
+    (new_run / "result.json").write_text(json.dumps(doc))
+    assert load_latest_calibration("/dev/ttyACM0").newtons_per_count == 0.01
+    # another cell (serial B7) now on the port: neither calibration is of it
+    monkeypatch.setattr(L, "usb_serial_number", lambda port: "B7")
+    with pytest.raises(LoadCellNotCalibrated, match=r"edited after.*USB serial A1.*serial B7.*rig loadcell-calibrate"):
+        load_latest_calibration("/dev/ttyACM0")
 
 
 # ----------------------------------------------------------------- the sketch itself

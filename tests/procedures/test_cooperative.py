@@ -294,15 +294,18 @@ def test_rotate_turns_the_object_about_its_centroid_and_holds_the_tension():
 def test_uses_the_registration_run_and_the_model_file_and_says_which(tmp_path):
     """After `rig register` the arms' RCM frames come from that run, and --model FILE is
     the controllers' model; the result names both."""
+    from rig import config, provenance
     from rig.model_file import save_model
     from rig.psm_dynamics import PSMDynamics, standard_parameter_names
 
     reg = CliRunner().invoke(main, ["register", "--json"])
     assert reg.exit_code == 0, reg.output
     reg_dir = json.loads([x for x in reg.stdout.splitlines() if x.startswith("{")][-1])["run_dir"]
+    # a model of this rig's PSM1 (its provenance says so), parameters scaled by 1.1
     path = save_model(tmp_path / "model.json", standard=PSMDynamics().standard_params() * 1.1,
                       names=standard_parameter_names(), slope=400.0, gravity=np.array([0.0, 0.0, -9.81]),
-                      provenance_info={"data_source": "test: nominal parameters scaled by 1.1"})
+                      provenance_info={"data_source": "test: nominal parameters scaled by 1.1",
+                                       **provenance.live(config.load(), ["PSM1"], tmp_path)})
     res, data = _invoke(["--model", str(path), "--duration", "2", "--settle", "1.5", "--hold-after", "0.5"])
     assert res.exit_code == 0, res.output
     assert data["model"] == f"identified model {path}"
@@ -327,10 +330,13 @@ def test_model_file_effects_are_fed_forward_and_the_rest_named(tmp_path):
     toml = tmp_path / "rig.toml"
     toml.write_text('[arms.PSM1]\nplant_model = "model.json"\n[arms.PSM2]\nplant_model = "model.json"\n'
                     'base_xyz = [1.0728, 0.0, 0.0]\nbase_rpy = [0.0, 0.0, 3.141592653589793]\n')
+    # the file was not measured on a rig: using it for this one's controllers is a choice
     res = CliRunner().invoke(main, ["--config", str(toml), "cooperative", "--model", str(path), "--duration", "2",
-                                    "--settle", "1.5", "--hold-after", "0.5", "--json"])
+                                    "--settle", "1.5", "--hold-after", "0.5", "--json", "--force-model"])
     assert res.exit_code == 0, res.output
     data = json.loads([x for x in res.stdout.splitlines() if x.startswith("{")][-1])
+    assert data["warnings"] == [f"--force-model: {path} used although it carries no provenance (written by an "
+                                "older dvrk-rig or by hand)"]
     assert data["model"] == f"identified model {path} with its effects spring@3, position_friction@3, backlash@1"
     assert data["model_effects"]["fed_forward"] == ["spring@3", "position_friction@3"]
     assert [s["name"] for s in data["model_effects"]["not_fed_forward"]] == ["backlash"]

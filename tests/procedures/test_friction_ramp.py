@@ -130,7 +130,7 @@ def test_stribeck_fit_reports_no_excess_where_friction_dips_below_coulomb_at_low
 
 def test_model_file_round_trip_and_errors(tmp_path):
     from rig.model_file import (ModelFileError, StickSlip, latest_model, load_model, save_model,
-                                update_stick_slip)
+                                with_stick_slip)
     from rig.psm_dynamics import PSMDynamics, standard_parameter_names
 
     pi = PSMDynamics().standard_params() * 1.1
@@ -148,7 +148,11 @@ def test_model_file_round_trip_and_errors(tmp_path):
     assert m.stick_slip() is None
     stick = StickSlip(3, 1.02, -0.98, {"viscous_coulomb": {"Fo": 0.1, "Fv": 0.7, "Fc": 0.5}},
                       {"velocity": 0.005, "position": 0.0003})
-    m2 = update_stick_slip(path, stick)
+    before = path.read_bytes()
+    m2 = with_stick_slip(tmp_path / "ramp" / "model.json", m, stick, {"data_source": "ramp test"})
+    assert path.read_bytes() == before  # the earlier model's file is its run's record
+    assert m2.provenance["rigid_body_from"] == str(path)
+    assert np.array_equal(m2.standard, pi)
     assert m2.stick_slip().fs_pos == 1.02
     assert m2.stick_slip().compensation(0.0, 0.001) == 1.02
     assert m2.stick_slip().compensation(0.0, -0.001) == -0.98

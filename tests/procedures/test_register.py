@@ -37,15 +37,15 @@ def test_register_mocap_meets_targets_on_the_rcm_frames():
 
 
 def test_register_mocap_uses_the_latest_rcm_calibration(monkeypatch):
-    # a calibrate-rcm run with every arm's RCM frame is used without moving anything
-    from rig import config
+    # a calibrate-rcm run of this rig with every arm's RCM frame is used without moving anything
+    from rig import config, provenance
     from rig import psm_kinematics as K
     from rig.run import Run
 
     cfg = config.load()
     arms = {a: {"rcm_frame": (cfg.base_matrix(a) @ K.RCM_FRAME).tolist()} for a in cfg.arms}
     with Run("calibrate-rcm", progress=False) as run:
-        run.finish({"arms": arms})
+        run.finish({"arms": arms, "provenance": provenance.live(cfg, list(cfg.arms), run.dir)})
     code, r, err = run_cli("register", "--method", "mocap", "--json")
     assert code == 0, err
     assert r["rcm_source"] == str(run.dir)

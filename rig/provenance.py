@@ -1,0 +1,215 @@
+"""Where a result came from, and whether it belongs to the rig a procedure runs on.
+
+Every result a later procedure may take (the identified model, the registration, the RCM
+frames, the link lengths, a load-cell calibration) carries a ``provenance`` section::
+
+    "provenance": {
+        "arms": [{"name": "PSM1", "identity": "simulated PSM1 (plant 9c1f03aa2b7e)"}],
+        "rig": "5d0e8c41a9b2",                  # rig_identity() of the configuration
+        "source": {"run": "20261125T160203123456Z-identify"}
+                  # or {"csv": "/abs/path.csv", "sha256": "<hex>"} for a recording
+        "package_version": "0.1.0",
+        "time": "2026-11-25T16:02:03+00:00",
+        "digest": "<sha256 of the whole document without this field>"
+    }
+
+An arm's identity is what the configuration and its driver can tell about the hardware:
+a simulated arm by its plant (nominal, hidden effects, plant model file), a dVRK arm by
+the serial number the configuration gives (`[arms.X] serial`), else by its ROS namespace.
+A recording in a CSV file has no arm the rig can recognise.
+
+The rig identity is a stable hash of the sections that decide whether a geometric or
+dynamic result still holds: each arm's identity and mounting (base pose) and gravity.
+Seeds, rates, the object, the load cell, mocap and ROS settings are left out: changing
+them does not move an arm.
+
+The digest seals the document: a file edited by hand (provenance or numbers) no longer
+matches it and is treated as foreign until it is passed explicitly with the flag that
+says so (e.g. `--force-model`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Callable
+
+KEY = "provenance"
+DIGEST = "digest"
+
+
+# ------------------------------------------------------------------ identities
+def _hash(data: Any, n: int = 12) -> str:
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:n]
+
+
+def file_sha256(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _plant_file_digest(path: str) -> str:
+    if not path:
+        return ""
+    try:
+        return file_sha256(path)[:12]
+    except OSError:
+        return f"unreadable {path}"
+
+
+def arm_identity(cfg, name: str) -> str:
+    """What identifies arm `name` of configuration `cfg` (see the module docstring)."""
+    a = cfg.arms[name]
+    if a["driver"] == "sim":
+        plant = {"effects": cfg.effects.get(name, {}), "plant_model": _plant_file_digest(a.get("plant_model", ""))}
+        return f"simulated {name} (plant {_hash(plant)})"
+    if a.get("serial"):
+        return f"dVRK {name} serial {a['serial']}"
+    return f"dVRK arm on {a['namespace'] or '/' + name} (no serial in the configuration)"
+
+
+def rig_identity(cfg) -> str:
+    """Stable hash of the arms' identities and mountings and of gravity."""
+    arms = {n: {"identity": arm_identity(cfg, n), "base_xyz": [round(float(x), 6) for x in a["base_xyz"]],
+                "base_rpy": [round(float(x), 6) for x in a["base_rpy"]]}
+            for n, a in sorted(cfg.arms.items())}
+    return _hash({"arms": arms, "gravity": [round(float(x), 6) for x in cfg.rig["gravity"]]})
+
+
+# ------------------------------------------------------------------ making it
+def _base(arms: list[dict], rig: str | None, source: dict) -> dict:
+    from rig.records import package_version
+
+    return {"arms": arms, "rig": rig, "source": source, "package_version": package_version(),
+            "time": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+
+
+def live(cfg, arms, run_dir) -> dict:
+    """Provenance of a result measured on the rig `cfg` with `arms`, in run `run_dir`."""
+    return _base([{"name": n, "identity": arm_identity(cfg, n)} for n in arms], rig_identity(cfg),
+                 {"run": Path(run_dir).name})
+
+
+def recording(csv_path, arm_label: str = "recorded arm") -> dict:
+    """Provenance of a result computed from a CSV recording: no rig, the file's hash."""
+    p = Path(csv_path).resolve()
+    sha = file_sha256(p)
+    return _base([{"name": arm_label, "identity": f"recording {p.name} (sha256 {sha[:12]})"}], None,
+                 {"csv": str(p), "sha256": sha})
+
+
+def from_run(run_dir, recorded: dict) -> dict:
+    """Provenance of a result computed offline from a recorded run: the run's own arms and
+    rig (`recorded`: that run's provenance), the run as source."""
+    out = _base(list(recorded.get("arms", [])), recorded.get("rig"), {"run": Path(run_dir).name})
+    return out
+
+
+# ------------------------------------------------------------------ the seal
+def _canonical(doc: dict) -> str:
+    body = dict(doc)
+    prov = dict(body.get(KEY) or {})
+    prov.pop(DIGEST, None)
+    body[KEY] = prov
+    return json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def seal(doc: dict) -> dict:
+    """Set the digest of `doc` (a JSON-ready document holding a provenance section)."""
+    doc[KEY][DIGEST] = hashlib.sha256(_canonical(doc).encode()).hexdigest()
+    return doc
+
+
+def sealed(doc: dict) -> bool:
+    """True when `doc` (as read from its file) still matches its digest."""
+    prov = doc.get(KEY)
+    if not isinstance(prov, dict) or not prov.get(DIGEST):
+        return False
+    try:
+        return hashlib.sha256(_canonical(doc).encode()).hexdigest() == prov[DIGEST]
+    except (TypeError, ValueError):
+        return False
+
+
+# ------------------------------------------------------------------ belonging
+def mismatch(doc: dict, cfg, arm: str | None = None, arms: list[str] | None = None) -> str | None:
+    """Why the result `doc` does not belong to arm `arm` (or the arms `arms`) of rig `cfg`,
+    or None when it does."""
+    prov = doc.get(KEY)
+    if not isinstance(prov, dict) or not prov.get("arms"):
+        return "it carries no provenance (written by an older dvrk-rig or by hand)"
+    if not sealed(doc):
+        return "it was edited after it was written (its digest does not match)"
+    source = prov.get("source") or {}
+    if prov.get("rig") is None:
+        where = source.get("csv", "a recording")
+        return f"it was computed from {where}, not measured on this rig"
+    if prov["rig"] != rig_identity(cfg):
+        return (f"it was measured on another rig configuration (rig {prov['rig']}, this one is "
+                f"{rig_identity(cfg)}: an arm, its mounting or gravity differ)")
+    have = {a.get("name"): a.get("identity") for a in prov["arms"]}
+    want = [arm] if arm is not None else list(arms or [])
+    for n in want:
+        if n not in have:
+            return f"it holds no result for {n} (it has {', '.join(map(str, have))})"
+        if n in cfg.arms and have[n] != arm_identity(cfg, n):
+            return f"its {n} is {have[n]}, this rig's is {arm_identity(cfg, n)}"
+    return None
+
+
+def describe(doc: dict) -> str:
+    """One phrase naming where a result came from."""
+    prov = doc.get(KEY) or {}
+    arms = ", ".join(f"{a.get('name')}" for a in prov.get("arms", [])) or "unknown arm"
+    source = prov.get("source") or {}
+    src = source.get("run") or source.get("csv") or "unknown source"
+    return f"{arms} from {src}"
+
+
+@dataclass
+class Found:
+    """A result taken implicitly, and the newer ones skipped on the way."""
+
+    run_dir: Path | None
+    data: dict | None
+    skipped: list[str] = field(default_factory=list)
+
+
+def find(procedure: str, cfg, *, arm: str | None = None, arms: list[str] | None = None,
+         document: Callable[[Path, dict], dict | None] | None = None,
+         usable: Callable[[Path, dict], bool] | None = None) -> Found:
+    """The newest completed run of `procedure` whose result belongs to `arm`/`arms` of rig
+    `cfg`; each newer completed run skipped is named with the reason in `skipped`.
+
+    `document(run_dir, result)` gives the document that carries the provenance (default:
+    the result itself; a model lives in its own file); `usable(run_dir, result)` filters out
+    results that do not hold what the caller needs (they are skipped silently).
+    """
+    from rig.paths import run_dirs
+
+    out = Found(None, None)
+    for run in reversed(run_dirs(procedure)):
+        try:
+            data = json.loads((run / "result.json").read_text())
+        except (OSError, ValueError):
+            continue
+        if not isinstance(data, dict) or data.get("status", "completed") != "completed":
+            continue
+        if usable is not None and not usable(run, data):
+            continue
+        doc = data if document is None else document(run, data)
+        if doc is None:
+            continue
+        why = mismatch(doc, cfg, arm=arm, arms=arms)
+        if why is None:
+            out.run_dir, out.data = run, data
+            return out
+        out.skipped.append(f"skipped {procedure} run {run.name}: {why}")
+    return out

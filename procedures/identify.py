@@ -886,6 +886,38 @@ def load_timed_csv(path, rate: float, joints: int):
                                  t=grid, source=f"{path} [resampled to {rate:g} Hz]")
 
 
+#: s: the shortest training or validation block accepted. A few periods of the excitation's
+#: fundamental (0.1-0.5 Hz on the dVRK) are what a good fit wants; this is the floor under
+#: which there is no fit at all: at 200 Hz 100 rows, 300 equations for some 40 base
+#: parameters, and the 3.5 Hz filter's output is still correlated over tens of rows.
+MIN_BLOCK_SECONDS = 0.5
+
+
+def _enough_rows(data, parameters: dict, held_out: bool) -> None:
+    """Raise a DataError saying how many rows are needed when `data` is too short to
+    filter (its ends are trimmed) and split into training and held-out blocks."""
+    from calibration.datasets import DataError
+    from calibration.signals import settling_samples
+
+    rate = parameters["rate"]
+    trim = settling_samples(rate, parameters["cutoff"], parameters["filter_order"])
+    block = int(math.ceil(MIN_BLOCK_SECONDS * rate))
+    if held_out:
+        h = parameters["heldout"]
+        need = 2 * trim + int(math.ceil(max(block / h, (block + trim) / (1.0 - h))))
+        why = (f"{trim} at each end for the {parameters['cutoff']:g} Hz filter to settle, a {trim}-row guard, and "
+               f"{block} rows ({MIN_BLOCK_SECONDS:g} s) in each of the training and held-out "
+               f"({h * 100:.0f} %) blocks")
+    else:
+        need = 2 * trim + block
+        why = (f"{trim} at each end for the {parameters['cutoff']:g} Hz filter to settle and {block} rows "
+               f"({MIN_BLOCK_SECONDS:g} s) to use")
+    n = data.n_samples
+    if n < need:
+        raise DataError(f"{data.source}: {n} rows ({n / rate:.1f} s at {rate:g} Hz) are too few: identification "
+                        f"needs at least {need} ({need / rate:.1f} s): {why}")
+
+
 def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
     """`rig identify --csv`: identification of recorded data. Returns the result."""
     from calibration.datasets import load_csv, processed, split_blocks
@@ -905,6 +937,9 @@ def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
             raw = loader(parameters["csv"], parameters["rate"], parameters["joints"])
             raw_val = (loader(parameters["validate_csv"], parameters["rate"], parameters["joints"])
                        if parameters["validate_csv"] else None)
+            _enough_rows(raw, parameters, held_out=raw_val is None)
+            if raw_val is not None:
+                _enough_rows(raw_val, parameters, held_out=False)
         with run.step(STEPS_CSV[1]):
             proc = processed(raw, parameters["cutoff"], parameters["filter_order"])
             if raw_val is not None:

@@ -102,12 +102,19 @@ class Parameter:
         bits = []
         if self.units:
             bits.append(self.units)
+        if self.minimum is not None and self.minimum == self.maximum:
+            # one legal value: say it plainly (the option exists for the CSV format's sake)
+            bits.append(f"only {self.minimum} is supported")
+            return f"{self.help} [{'; '.join(bits)}]"
         if self.minimum is not None or self.maximum is not None:
             lo = "" if self.minimum is None else f"{self.minimum} <= "
             hi = "" if self.maximum is None else f" <= {self.maximum}"
             bits.append(f"{lo}x{hi}")
-        bits.append("required" if self.default is None else f"default: {self.default}")
-        return f"{self.help} [{'; '.join(bits)}]"
+        if self.default is None:
+            bits.append("required")
+        elif self.default != "":  # an empty text default means "not given": nothing to show
+            bits.append(f"default: {self.default}")
+        return f"{self.help} [{'; '.join(bits)}]" if bits else self.help
 
     def describe(self, value: Any) -> dict:
         """The start-metadata entry: value, units, default, help."""

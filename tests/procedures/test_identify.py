@@ -86,11 +86,14 @@ def _synthetic_rows(n=1200, rate=200.0, seed=0):
     return np.hstack([q, dq, tau])
 
 
-@pytest.mark.parametrize("case", ["columns", "nan", "time", "not_exciting", "joint_still"])
+@pytest.mark.parametrize("case", ["columns", "nan", "time", "not_exciting", "joint_still", "short"])
 def test_bad_csv_clear_error(tmp_path, case):
     rows = _synthetic_rows()
     extra = []
-    if case == "columns":
+    if case == "short":  # 0.5 s: the filter's settling alone trims more at each end
+        f = _write(tmp_path / "bad.csv", rows[:100])
+        expect = "100 rows (0.5 s at 200 Hz) are too few: identification needs at least 917 (4.6 s)"
+    elif case == "columns":
         f = _write(tmp_path / "bad.csv", rows[:, :-1])  # 8 columns
         expect = "not a multiple of 3"
     elif case == "nan":
@@ -166,11 +169,21 @@ def test_live_simulated_short(tmp_path):
     """A 10 s excitation on the simulated rig with sensor noise and joint-3 stiction:
     the SDP model must predict the true parameters' torques within 5 % per joint, and the
     measured ones where the joints move."""
+    from procedures.friction_ramp import PARAMETERS as RAMP, run_friction_ramp
     from rig.model_file import latest_model
     from rig.psm_dynamics import PSMDynamics
 
+    # friction-ramp first, then identify: the identified model file carries the ramp's
+    # stick-slip terms (either order gives the same model)
+    (tmp_path / "rig.toml").write_text(STICTION_RIG)
+    ramp = run_friction_ramp(config.load(tmp_path / "rig.toml"), resolve(RAMP, {"plots": False}), progress=False)
+    assert ramp["status"] == "completed" and ramp["provenance"]["arms"][0]["name"] == "PSM1"
     r = _live(tmp_path, {"duration": 10.0, "starts": 1, "iterations": 5, "plots": False})
     assert r["status"] == "completed"
+    written = json.loads(Path(r["model"]).read_text())
+    assert written["stick_slip"]["Fs_pos"] == ramp["Fs_pos"]
+    assert Path(written["stick_slip"]["provenance"]["run_dir"]).name == Path(ramp["run_dir"]).name
+    assert r["stick_slip_from"] == f"stick-slip terms of joint 3 taken from friction-ramp run {Path(ramp['run_dir']).name}"
     truth = np.array(r["truth"]["sdp_vs_true_relative_error"])
     assert np.all(truth <= 0.05), truth
     assert r["checks"]["sdp"] is True

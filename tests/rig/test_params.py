@@ -1,5 +1,7 @@
 """Parameters declared once: click options, checks, defaults, start metadata."""
 
+import re
+
 import click
 import pytest
 from click.testing import CliRunner
@@ -47,6 +49,21 @@ def test_help_shows_units_range_and_default():
     assert "--dry-run / --no-dry-run" in text
     # declaration order is kept
     assert text.index("--force") < text.index("--cycles") < text.index("--joint") < text.index("--mode")
+
+
+def test_help_of_every_command_says_one_legal_value_plainly_and_shows_no_empty_default():
+    """`--joints [3 <= x <= 3]` and `[default: ]` in a command's help are noise: an option
+    with one legal value says so, an empty text default is not shown."""
+    from rig.cli import COMMANDS, main
+
+    for name in COMMANDS:
+        text = " ".join(CliRunner().invoke(main, [name, "--help"]).output.split())
+        assert "[default: ]" not in text and "default: ;" not in text, name
+        for lo, hi in re.findall(r"\[(?:[^\]]*; )?([-0-9.e]+) <= x <= ([-0-9.e]+)", text):
+            assert lo != hi, f"{name}: {lo} <= x <= {hi}"
+        assert "issue " not in text.lower(), f"{name} --help names an issue"
+    text = " ".join(CliRunner().invoke(main, ["identify", "--help"]).output.split())
+    assert "(the model has joints 1-3) [only 3 is supported]" in text
 
 
 @pytest.mark.parametrize("args, message", [

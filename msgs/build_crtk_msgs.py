@@ -139,13 +139,15 @@ def build(venv: Path, jobs: int) -> Path:
             shutil.rmtree(d)
     env = dict(os.environ, AMENT_PREFIX_PATH=str(venv), PATH=f"{venv / 'bin'}{os.pathsep}{os.environ['PATH']}")
     # RUNPATH $ORIGIN: the shipped libraries find each other beside themselves; the ROS
-    # wheels' libraries come from LD_LIBRARY_PATH as for every ROS wheel. The prefix map
-    # keeps this machine's build paths out of the binaries (the C code uses __FILE__).
-    prefix_map = f"-ffile-prefix-map={WORK}=crtk_msgs-build -ffile-prefix-map={venv}=venv"
+    # wheels' libraries come from LD_LIBRARY_PATH as for every ROS wheel. Linking with it
+    # (not with a build-tree RPATH that install rewrites) and mapping the checkout's path
+    # away (the C code uses __FILE__) make the binaries, build IDs included, the same
+    # byte for byte from any checkout.
+    prefix_map = f"-ffile-prefix-map={REPO}=dvrk-rig"
     run(["cmake", "-S", SOURCE, "-B", build_dir,
          f"-DCMAKE_PREFIX_PATH={venv}", f"-DCMAKE_INSTALL_PREFIX={install}",
          f"-DPython3_EXECUTABLE={venv / 'bin' / 'python'}", "-DCMAKE_BUILD_TYPE=Release",
-         "-DBUILD_TESTING=OFF", "-DCMAKE_INSTALL_RPATH=$ORIGIN",
+         "-DBUILD_TESTING=OFF", "-DCMAKE_INSTALL_RPATH=$ORIGIN", "-DCMAKE_BUILD_WITH_INSTALL_RPATH=ON",
          f"-DCMAKE_C_FLAGS={prefix_map}", f"-DCMAKE_CXX_FLAGS={prefix_map}"], env=env)
     run(["cmake", "--build", build_dir, "--parallel", str(jobs)], env=env)
     run(["cmake", "--install", build_dir], env=env)

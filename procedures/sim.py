@@ -16,6 +16,10 @@ One process, paced to the wall clock:
   `drivers.mocap_sim.SimTracker` (noise, occlusion, latency; quaternions on the wire are
   geometry_msgs' (x, y, z, w)); an occluded body is simply not published in that frame,
   as mocap bridges do;
+* with `--natnet`, the mocap system as OptiTrack Motive's NatNet stream as well
+  (`drivers.natnet_server.SimMotive`: its own SimTracker, FakeMotive's bytes) on the
+  loopback at [mocap] server, command_port and data_port, unicast or to [mocap] multicast,
+  stamped on the same timeline as the ROS messages;
 * the operator's side channel (`drivers.operator`): the manual steps of a procedure done
   by the simulation;
 * the load cell: `drivers.loadcell.FakeLoadCellFirmware`, each in its own process
@@ -122,6 +126,7 @@ class SimServer:
                                                    cells={c.element: c for c in cells or []}), node)
         self.cells = list(cells or [])
         self.tracker = None
+        self.natnet = None  # a drivers.natnet_server.SimMotive when serving NatNet (`--natnet`)
         self._mocap_msg: dict = {}
         self._mocap_pub: dict = {}
         self._mocap = mocap
@@ -335,6 +340,8 @@ class SimServer:
                 self._refresh_watched()
             if self.tracker is not None:
                 self._publish_mocap()
+            if self.natnet is not None:
+                self.natnet.pump(self._epoch0)  # Motive's clock is the stamps' timeline
             lag = time.perf_counter() - (perf0 + t)
             if lag > self.max_lag:
                 self.max_lag = lag
@@ -401,6 +408,12 @@ def _link_port(path: str, pty: str) -> str | None:
               help="Serve a load cell (firmware fake) per object element on a pseudo-terminal and print the paths; "
                    "the configured [loadcell] port, if free, becomes a link to the first.")
 @click.option("--mocap/--no-mocap", default=True, show_default=True, help="Publish mocap rigid-body poses.")
+@click.option("--natnet/--no-natnet", default=None,
+              help="Serve mocap as OptiTrack Motive's NatNet stream on [mocap] server (a loopback address), "
+                   "command_port and data_port (multicast to [mocap] multicast if set) (default: when [mocap] "
+                   "driver = 'natnet').")
+@click.option("--natnet-version", default="4.1", show_default=True, type=click.Choice(["3.0", "3.1", "4.0", "4.1"]),
+              help="NatNet bitstream version the fake Motive streams (3.x: Motive 2.x, 4.x: Motive 3.x).")
 @click.option("--console", "console", type=click.Choice(["/console", "/system"]), default=None,
               help="Namespace of the console topics (power_on, power_off, home): /console as dVRK 2.3, /system as "
                    "dVRK 2.4 (default: the configuration's [ros] console, else /console).")
@@ -409,7 +422,8 @@ def _link_port(path: str, pty: str) -> str | None:
                    "its parameters and added effects (default: each arm's plant_model, else the nominal PSM).")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit.")
 @click.pass_context
-def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, console, plant_model, list_steps):
+def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, natnet, natnet_version, console, plant_model,
+            list_steps):
     """Serve the simulated rig as the dVRK's ROS 2 topics (/<ARM>/measured_js ... at RATE Hz),
     mocap poses on /mocap/<body>/pose and the load cell on a pty, paced to the wall clock.
 
@@ -449,6 +463,20 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, console, 
             raise click.BadParameter(str(exc), param_hint="--plant-model") from None
     if console is None:
         console = cfg.ros["console"] if cfg.ros["console"] != "auto" else "/console"
+    if natnet is None:
+        natnet = cfg.mocap["driver"] == "natnet"
+    natnet_host = None
+    if natnet:
+        import socket as _socket
+
+        from drivers.natnet_server import check_loopback
+
+        try:
+            natnet_host = check_loopback(_socket.gethostbyname(cfg.mocap["server"]))
+        except (ValueError, OSError):
+            raise click.BadParameter(f"the fake Motive serves on this machine's loopback only, and [mocap] server in "
+                                     f"{cfg.source} is {cfg.mocap['server']!r}: set it to '127.0.0.1'",
+                                     param_hint="--natnet") from None
     world = world_from_config(cfg, arms=names, seed=seed)
 
     stop = threading.Event()
@@ -502,6 +530,25 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, console, 
         server = SimServer(world, node, list(world.names), cp_rate=cp_rate, mocap=mocap_cfg, seed=world.seed,
                            console=console, cells=cells, executor=cfg.ros["executor"])
         server.stop = stop
+        if natnet:
+            from drivers.natnet_server import SimMotive, parse_version
+
+            m = cfg.mocap
+            try:
+                # Motive's clock counts from before its first frame, as a PC's counter does
+                server.natnet = SimMotive(world, server.clock, noise=m["noise"], latency=m["latency"],
+                                          occlusion=m["occlusion"], rate=m["rate"], seed=world.seed + 1,
+                                          host=natnet_host, command_port=m["command_port"], data_port=m["data_port"],
+                                          multicast=m["multicast"], version=parse_version(natnet_version),
+                                          epoch=time.time() - 3600.0).start()
+            except OSError as exc:
+                raise click.ClickException(
+                    f"cannot serve NatNet on {natnet_host}:{m['command_port']} (data {m['data_port']}): "
+                    f"{exc.strerror or exc}; another Motive or `rig sim --natnet` serves there: stop it, or set "
+                    f"[mocap] command_port and data_port in {cfg.source}") from None
+            _say(f"natnet: {natnet_host}:{m['command_port']} (data {m['data_port']}, "
+                 f"{'multicast ' + m['multicast'] if m['multicast'] else 'unicast'}, NatNet {natnet_version}, "
+                 f"{m['rate']:g} Hz)")
         # Installed after rclpy is up: its initialisation replaces SIGINT/SIGTERM handlers.
         signal.signal(signal.SIGINT, on_signal)
         signal.signal(signal.SIGTERM, on_signal)
@@ -512,6 +559,8 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, console, 
     finally:
         if server is not None:
             server.close()
+            if server.natnet is not None:
+                server.natnet.close()
         for fw in firmwares:
             fw.close()
         for link in links:

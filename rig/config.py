@@ -77,13 +77,29 @@ def _nonneg3(v) -> bool:
     return all(x >= 0 for x in v)
 
 
+def _port(x) -> bool:
+    return 1 <= x <= 65535
+
+
+def _multicast_group(x) -> bool:
+    import ipaddress
+
+    if x == "":
+        return True
+    try:
+        addr = ipaddress.ip_address(x)
+    except ValueError:
+        return False
+    return addr.version == 4 and addr.is_multicast
+
+
 def _choice(*options: str) -> tuple[Callable[[Any], bool], str]:
     return (lambda x: x in options), "one of " + ", ".join(repr(o) for o in options)
 
 
 _DRIVER_ARM = _choice("sim", "ros")
 _DRIVER_LOADCELL = _choice("sim", "serial", "can", "none")
-_DRIVER_MOCAP = _choice("sim", "ros", "none")
+_DRIVER_MOCAP = _choice("sim", "ros", "natnet", "none")
 _OBJECT_KIND = _choice("spring", "string")
 _OPERATOR = _choice("console", "ros")
 
@@ -148,6 +164,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "mocap": {
         "driver": Key("str", "sim", "motion-capture driver", *_DRIVER_MOCAP),
         "prefix": Key("str", "mocap", "ROS 2 topic prefix: /<prefix>/<body>/pose"),
+        "server": Key("str", "127.0.0.1", "NatNet (driver = natnet): address of the Motive PC (127.0.0.1: `rig sim "
+                      "--natnet` on this machine)", lambda x: bool(x.strip()), "a host name or IPv4 address"),
+        "command_port": Key("int", 1510, "NatNet command port (Motive's default 1510)", _port, "a port in [1, 65535]"),
+        "data_port": Key("int", 1511, "NatNet data port (Motive's default 1511)", _port, "a port in [1, 65535]"),
+        "multicast": Key("str", "", "NatNet multicast group as set in Motive (e.g. '239.255.42.99'); empty: unicast",
+                         _multicast_group, "'' (unicast) or an IPv4 multicast address (224.0.0.0-239.255.255.255)"),
         "rate": Key("float", 120.0, "frame rate, Hz", lambda x: 1 <= x <= 1000, "a rate in [1, 1000] Hz"),
         "noise": Key("float", 0.00025, "simulated marker noise, m rms", _nonneg, "a noise >= 0 m"),
         "latency": Key("float", 0.005, "simulated latency, s", _nonneg, "a latency >= 0 s"),

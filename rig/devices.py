@@ -128,6 +128,9 @@ def _open_simulated(cfg, names: list[str], seed: int | None, uses) -> Rig:
 
     from drivers.sim_arm import SimArm
 
+    if "mocap" in uses and cfg.mocap["driver"] == "natnet":
+        raise ConfigError(f"{cfg.source}: mocap.driver = 'natnet' needs ROS arms on the wall clock; run `rig sim "
+                          "--natnet` and give the arms driver = 'ros' (or use mocap.driver = 'sim' in one process)")
     world = world_from_config(cfg, arms=names, seed=seed)
     clock = SimClock(world)
     rig = Rig(clock=clock, arms={n: SimArm(world, n, clock) for n in names}, world=world)
@@ -197,6 +200,14 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
             bodies = [mb.name for n in names for mb in default_marker_bodies(n)] + ["world"]
             rig.tracker = RosMocapTracker(session.node, bodies, prefix=m["prefix"], polled=session.executor_time)
             rig._closers.append(rig.tracker.close)
+        elif "mocap" in uses and m["driver"] == "natnet":
+            from drivers.natnet import open_natnet_tracker
+            from rig.sim import default_marker_bodies
+
+            # the handshake (server info, model definitions) happens here; frames are awaited in connect()
+            bodies = [mb.name for n in names for mb in default_marker_bodies(n)] + ["world"]
+            rig.tracker = open_natnet_tracker(m, bodies, timeout=cfg.ros["connect_timeout"])
+            rig._closers.append(rig.tracker.close)
         rig.operator = open_operator(cfg, session)
         session.start()
     except BaseException:
@@ -232,6 +243,9 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say) -> dict:
         if now > deadline:
             first = missing[0]
             more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+            hint = getattr(rig.tracker, "connect_hint", None)
+            if hint and first in rig.tracker.topics.values():  # a tracker of its own protocol (NatNet)
+                raise ConnectError(f"{first}: no frame within {timeout:g} s{more}; {hint}")
             raise ConnectError(
                 f"{first}: no message within {timeout:g} s on {domain_text()}{more}; check that the dVRK "
                 "(or `rig sim`) is running and publishing it, and that ROS_DOMAIN_ID and "

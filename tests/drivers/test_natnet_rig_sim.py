@@ -1,0 +1,56 @@
+"""`rig sim --natnet` in one process, a procedure reading mocap through NatNet in another.
+
+The lab's rig.toml of tests/hil (ROS arms, rig sim's operator) with `[mocap] driver =
+"natnet"` on ports of its own: `rig calibrate-rcm` finds the RCM through the fake Motive
+as it does through ROS mocap (tests/hil/test_chain.py), and with nobody serving NatNet it
+stops with one line naming the address and what to do.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+
+from tests.hil.harness import ServedRig, completed, lab_toml  # noqa: E402
+
+pytestmark = [pytest.mark.ros, pytest.mark.hil]
+
+
+def natnet_toml(folder, port: int, extra: str = "") -> str:
+    text = lab_toml(folder).replace('[mocap]\ndriver = "ros"\n',
+                                    f'[mocap]\ndriver = "natnet"\ncommand_port = {port}\ndata_port = {port + 1}\n')
+    assert 'driver = "natnet"' in text
+    return text + extra
+
+
+def test_calibrate_rcm_through_the_fake_motive(tmp_path):
+    from rig import config
+    from rig import psm_kinematics as K
+
+    domain = 140 + os.getpid() % 29
+    port = 24000 + 2 * (os.getpid() % 500)
+    with ServedRig(tmp_path / "lab", domain, toml=natnet_toml(tmp_path / "lab", port),
+                   sim_args=("--no-loadcell",)) as rig:
+        assert f"natnet: 127.0.0.1:{port} (data {port + 1}, unicast, NatNet 4.1, 120 Hz)" in rig.sim_lines
+        out = rig.run("calibrate-rcm", "--arm", "PSM1", "--duration", "6", "--q1-range", "0.5", "--q2-range", "0.4")
+    doc = completed(out, "calibrate-rcm")
+    assert "mocap 6 bodies" in out.stderr  # connected to PSM1's five and the world body
+    cfg = config.load(tmp_path / "lab" / "rig.toml")
+    true = (cfg.base_matrix("PSM1") @ K.RCM_FRAME)[:3, 3]
+    assert np.linalg.norm(np.array(doc["arms"]["PSM1"]["rcm"]) - true) < 0.002
+
+
+def test_no_natnet_server_is_one_line(tmp_path):
+    domain = 170 + os.getpid() % 29
+    port = 25000 + 2 * (os.getpid() % 500)
+    toml = natnet_toml(tmp_path / "lab", port, "\n[ros]\nconnect_timeout = 3.0\n")
+    with ServedRig(tmp_path / "lab", domain, toml=toml, sim_args=("--no-loadcell", "--no-natnet")) as rig:
+        out = rig.run("calibrate-rcm", "--arm", "PSM1")
+    assert out.code == 3 and "Traceback" not in out.stderr
+    assert out.last_line.startswith(f"rig calibrate-rcm: aborted: no NatNet server answered at 127.0.0.1:{port} "
+                                    "within 3 s")
+    assert "rig sim --natnet" in out.last_line

@@ -24,6 +24,7 @@ sent. Its timestamp field is s since the first frame. Unicast clients that send 
 
 from __future__ import annotations
 
+import dataclasses
 import ipaddress
 import socket
 import threading
@@ -263,9 +264,11 @@ class FakeMotive:
                                                                            self.ticks(sent)),
                            transmit_ticks=self.ticks(sent))
 
-    def send(self, frame, captured: float, sent: float) -> int:
-        """Stream one frame to every client (or the group); returns the datagrams sent."""
-        data = self.frame_of(frame, captured, sent)
+    def send(self, frame, captured: float, sent) -> int:
+        """Stream one frame to every client (or the group); returns the datagrams sent.
+        sent: the transmit time, or a function giving it (read when the frame is ready to
+        go, as Motive stamps it)."""
+        data = self.frame_of(frame, captured, captured if callable(sent) else sent)
         self.stats.frames += 1
         now = time.monotonic()
         with self._lock:
@@ -275,6 +278,10 @@ class FakeMotive:
             targets = [(self.multicast, self.data_port)] if self.multicast else list(self._clients)
         if not targets:
             return 0
+        if callable(sent):
+            t = sent()
+            data = dataclasses.replace(data, transmit_ticks=self.ticks(t),
+                                       data_received_ticks=min(data.data_received_ticks, self.ticks(t)))
         datagram = encode_frame(data, self.version)
         self._last_frame = datagram
         sent_n = 0
@@ -316,9 +323,10 @@ class SimMotive:
         self.motive.start()
         return self
 
-    def pump(self, offset: float = 0.0, sent: float | None = None) -> int:
+    def pump(self, offset: float = 0.0, sent=None) -> int:
         """Send the frames the tracker delivered since the last call. offset: the caller's
-        timeline minus the clock's (s); sent: the transmit time (default: offset + now)."""
+        timeline minus the clock's (s); sent: the transmit time, or a function giving it
+        (default: offset + now)."""
         n = 0
         for f in self.tracker.frames():
             n += 1

@@ -874,6 +874,7 @@ class NatNetTracker:
         self._last_frame_rx = t0
         self._polled = t0
         self._last_keepalive = t0
+        self._modeldef_asked = -math.inf
         self._ever_frame = False
         self._reader_error: BaseException | None = None
         self._stop = threading.Event()
@@ -1027,7 +1028,9 @@ class NatNetTracker:
                 self._buffer.append(frame)
                 self._latest = accepted = frame
                 self._cond.notify_all()
-                if data.models_changed:
+                if data.models_changed and rx_mono - self._modeldef_asked >= 0.5:
+                    # Motive's asset list changed: names by id may have too (asked at most twice a second)
+                    self._modeldef_asked = rx_mono
                     self.transport.send(pack_message(NAT_REQUEST_MODELDEF))
             elif message_id == NAT_UNRECOGNIZED_REQUEST:
                 self.stats.unrecognized += 1

@@ -575,9 +575,9 @@ def decode_frame(payload: bytes, version: Version) -> FrameOfData:
         sets[name] = k
     _close_section(r, "marker sets", start, size)
 
-    n, size = _open_section(r, version, "other markers", 12)
+    others, size = _open_section(r, version, "other markers", 12)
     start = r.pos
-    r.skip(12 * n, "other marker positions")
+    r.skip(12 * others, "other marker positions")
     _close_section(r, "other markers", start, size)
 
     n, size = _open_section(r, version, "rigid bodies", _RB.size)
@@ -588,9 +588,9 @@ def decode_frame(payload: bytes, version: Version) -> FrameOfData:
         bodies.append(RigidBodyData(rid, (x, y, z), (qx, qy, qz, qw), err, params & 0xFFFF))
     _close_section(r, "rigid bodies", start, size)
 
-    n, size = _open_section(r, version, "skeletons", 8)
+    skeletons, size = _open_section(r, version, "skeletons", 8)
     start = r.pos
-    for _ in range(n):
+    for _ in range(skeletons):
         r.i32("skeleton id")
         r.skip(_RB.size * r.count("skeleton bone count", _RB.size), "skeleton bones")
     _close_section(r, "skeletons", start, size)
@@ -631,7 +631,7 @@ def decode_frame(payload: bytes, version: Version) -> FrameOfData:
     r.unpack(_I32, "end-of-data tag")
     r.done()
     return FrameOfData(number, tuple(bodies), tuple(markers), stamp, mid, rx, tx, timecode, sub, prec[0], prec[1],
-                       params, sets, 0, 0, assets, plates, devices)
+                       params, sets, others, skeletons, assets, plates, devices)
 
 
 # --------------------------------------------------------------------------- clock mapping
@@ -964,7 +964,7 @@ class NatNetTracker:
                         and now - self._last_keepalive >= self.keepalive):
                     self._last_keepalive = now
                     self.transport.send(pack_message(NAT_KEEPALIVE))
-        except (OSError, ValueError) as exc:  # the transport was closed under us, or failed
+        except Exception as exc:  # noqa: BLE001 - the transport failed (or a bug): reads report it
             if not self._stop.is_set():
                 with self._cond:
                     self._reader_error = exc

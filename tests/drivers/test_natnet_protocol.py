@@ -205,7 +205,7 @@ def test_a_hand_built_frame_with_every_section_decodes_to_known_values(version):
     f = decode_frame(split_message(hand_frame(version, params=FRAME_MODELS_CHANGED))[1], version)
     assert f.frame_number == 1234
     assert f.marker_sets == {"PSM1_tool": 2}
-    assert (f.skeletons, f.force_plates, f.devices) == (0, 1, 1)
+    assert (f.other_markers, f.skeletons, f.force_plates, f.devices) == (1, 1, 1, 1)
     assert f.assets == (1 if version >= V41 else 0)
     tool, yaw = f.rigid_bodies
     assert (tool.id, tool.position, tool.tracking_valid) == (5, (0.5, -0.25, 1.0), True)

@@ -25,7 +25,7 @@ from drivers.mocap import MocapStaleError
 from drivers.natnet import (
     COMMAND, DATA, FRAME_MODELS_CHANGED, NAT_FRAMEOFDATA, NAT_KEEPALIVE, NAT_MODELDEF, NAT_REQUEST_MODELDEF,
     NAT_UNRECOGNIZED_REQUEST, ConnectRequest, FrameOfData, ModelDefinitions, NatNetConnectError, NatNetDecodeError,
-    NatNetError, NatNetTracker, NatNetVersionError, RigidBodyData, RigidBodyDescription, ServerInfo, UdpTransport,
+    NatNetError, NatNetTracker, NatNetVersionError, RigidBodyData, ServerInfo, UdpTransport,
     decode_connect, decode_frame, decode_modeldef, decode_server_info, encode_connect, encode_frame, encode_modeldef,
     encode_server_info, pack_message, split_message)
 from drivers.quaternion import quat_xyzw_to_matrix
@@ -314,7 +314,15 @@ class ExpectedTransport:
             self._rx.append((datagram, channel))
             self._cond.notify_all()
 
+    def fail(self) -> None:
+        """The socket goes away under the reader (an interface down, a closed descriptor)."""
+        with self._cond:
+            self.failed = True
+            self._cond.notify_all()
+
     def recv(self, timeout: float):
+        if getattr(self, "failed", False):
+            raise OSError(9, "Bad file descriptor")
         with self._cond:
             if not self._rx:
                 self._cond.wait(timeout)
@@ -443,6 +451,16 @@ def test_frames_that_stop_decoding_stop_the_run_with_one_line():
     with pytest.raises(NatNetError) as e:
         tr.frames()
     assert "did not decode as NatNet 4.1" in str(e.value) and "\n" not in str(e.value)
+    tr.close()
+
+
+def test_a_transport_that_fails_under_the_reader_is_one_line_at_the_next_read():
+    t, tr = connected(V41, [DISCONNECT], stale_timeout=1e9)
+    t.fail()
+    wait_for(lambda: tr._reader_error is not None)
+    with pytest.raises(NatNetError) as e:
+        tr.frames()
+    assert str(e.value) == "NatNet stream from 127.0.0.1:1510 failed: [Errno 9] Bad file descriptor"
     tr.close()
 
 

@@ -138,3 +138,12 @@ def fit_joint_axis_sara(R_a: np.ndarray, p_a: np.ndarray, R_b: np.ndarray, p_b: 
                         point_cov_a=cov[:3, :3], point_cov_b=cov[3:, 3:], direction_std=dir_std,
                         residual_rms=float(np.sqrt(np.mean(rn ** 2))), range=rng,
                         singular_ratio=ratio, n_frames=N, condition=cond)
+
+
+def joint_sign(R: np.ndarray, q: np.ndarray, n: np.ndarray) -> float:
+    """+1 if rotations R (N, 3, 3) turn about +n as the joint position q (N,) grows, else -1:
+    the sign that makes a fitted axis direction the joint's positive axis."""
+    ok = np.all(np.isfinite(R.reshape(len(R), -1)), axis=1)
+    R, q = R[ok], q[ok]
+    ang = np.unwrap(Rotation.from_matrix(R @ R[0].T).as_rotvec() @ n)
+    return 1.0 if np.cov(ang, q)[0, 1] >= 0 else -1.0

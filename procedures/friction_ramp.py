@@ -79,7 +79,6 @@ def compensation_model(cfg, arm: str, say=None):
     """(PSMDynamics, description, model or None): the newest identified model of this arm
     on this rig, else nominal with the configuration's gravity. Newer models that belong to
     another arm or rig are named through `say` and passed over."""
-    from procedures.identify import config_gravity
     from rig import model_file
     from rig.psm_dynamics import PSMDynamics
 
@@ -90,7 +89,7 @@ def compensation_model(cfg, arm: str, say=None):
     info = {"skipped": skipped} if skipped else {}
     if found is not None and found.standard is not None:
         return found.dynamics(), {"model": str(found.path), "kind": "identified", **info}, found
-    return (PSMDynamics(gravity=config_gravity(cfg, arm)),
+    return (PSMDynamics(gravity=cfg.gravity_in_base(arm)),
             {"model": "nominal PSM parameters", "kind": "nominal", **info}, None)
 
 

@@ -146,12 +146,6 @@ def make_model(gravity, slope: float):
     return PSMDynamics(PSMParameters(drive=DriveParameters(slope=float(slope))), gravity=np.asarray(gravity, float))
 
 
-def config_gravity(cfg, arm: str) -> np.ndarray:
-    """World gravity of the configuration in the arm's frame 0 (m/s^2)."""
-    R = cfg.base_matrix(arm)[:3, :3]
-    return R.T @ np.asarray(cfg.rig["gravity"], float)
-
-
 def parse_gravity(text: str) -> str | np.ndarray:
     """'auto', 'config' or three numbers 'gx,gy,gz' (m/s^2)."""
     t = text.strip().lower()
@@ -976,7 +970,7 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
     arm_name = parameters["arm"]
     if arm_name not in cfg.arms:
         raise click.ClickException(f"no arm {arm_name!r} in {cfg.source}; arms: {', '.join(cfg.arms)}")
-    g_config = config_gravity(cfg, arm_name)
+    g_config = cfg.gravity_in_base(arm_name)
     gmode = parse_gravity(parameters["gravity"] or "config")
     if isinstance(gmode, str) and gmode == "config":
         gmode = g_config

@@ -62,9 +62,9 @@ from scipy.spatial.transform import Rotation
 from calibration.axis_fit import (AxisFit, axis_angle, axis_distance, common_perpendicular,
                                   distance_in_plane, fit_axis_bias_compensated, fit_axis_gamage_lasenby)
 from calibration.fit_error import FitError
-from calibration.joint_axis import JointAxisFit, fit_joint_axis_sara
+from calibration.joint_axis import JointAxisFit, fit_joint_axis_sara, joint_sign
 from calibration.registration import invert, mean_pose
-from procedures.mocap_sweep import (Capture, _Collector, body_points, move_capture, open_devices, settle)
+from rig.mocap_capture import Capture, Collector, body_points, move_capture, open_devices, settle
 from rig import provenance
 from rig import psm_kinematics as K
 from rig.params import Parameter, with_parameters
@@ -121,14 +121,6 @@ def _poses_in(T_m_W: np.ndarray, cap: Capture, body: str) -> tuple[np.ndarray, n
     return np.einsum("ij,kjl->kil", Ti[:3, :3], R), p @ Ti[:3, :3].T + Ti[:3, 3]
 
 
-def _joint_sign(R: np.ndarray, q: np.ndarray, n: np.ndarray) -> float:
-    """+1 if rotations R (N, 3, 3) turn about +n as q grows, else -1."""
-    ok = np.all(np.isfinite(R.reshape(len(R), -1)), axis=1)
-    R, q = R[ok], q[ok]
-    ang = np.unwrap(Rotation.from_matrix(R @ R[0].T).as_rotvec() @ n)
-    return 1.0 if np.cov(ang, q)[0, 1] >= 0 else -1.0
-
-
 def reference_pose(cap: Capture, world_body: str) -> np.ndarray:
     """Mean pose (4x4) of the static world body over a phase (mocap frame)."""
     if world_body not in cap.poses or not cap.valid(world_body).any():
@@ -151,7 +143,7 @@ def fit_fixed_axis(cap: Capture, T_m_W: np.ndarray, body: str, joint: int, arm: 
         except FitError as exc:
             raise FitError(f"{label} ({body} in the {cap.name} phase): {exc}", exc.condition) from None
     R, _ = _poses_in(T_m_W, cap, body)
-    s = _joint_sign(R, cap.joints[arm][:, joint - 1], fits["bias_compensated"].direction)
+    s = joint_sign(R, cap.joints[arm][:, joint - 1], fits["bias_compensated"].direction)
     for f in fits.values():
         if f.direction @ fits["bias_compensated"].direction * s < 0:
             f.direction = -f.direction
@@ -564,17 +556,17 @@ def run_link_lengths(cfg, parameters: dict, run_root=None, progress: bool = True
                     f = getattr(arm, fn, None)
                     if f is not None:
                         f()
-                home = _Collector("home", all_bodies)
+                home = Collector("home", all_bodies)
                 move_capture(dev, run, arm, [np.array([0.0, 0.0, q3h])], home)
             phases = {}
             for idx, (joint, span) in ((1, (0, parameters["q1_range"])), (2, (1, parameters["q2_range"]))):
                 goals = _symmetric_sweep(joint, span, parameters["passes"] if joint == 1 else 1, q3h)
-                col = _Collector(f"q{joint + 1} sweep", all_bodies)
+                col = Collector(f"q{joint + 1} sweep", all_bodies)
                 with run.step(STEPS[idx], total=len(goals)) as st:
                     move_capture(dev, run, arm, goals, col, step=st)
                     settle(dev, run, col, [arm], 0.2)
                 phases[joint] = col.capture()
-            col = _Collector("q3 stroke", all_bodies)
+            col = Collector("q3 stroke", all_bodies)
             # three strokes: the insertion direction's noise falls with the frames on it
             goals = [np.array([0.0, 0.0, q3h + f * parameters["q3_stroke"]]) for f in (1, 0) * 3]
             with run.step(STEPS[3], total=len(goals)) as st:

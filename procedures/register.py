@@ -31,13 +31,16 @@ import numpy as np
 
 from calibration.fit_error import FitError
 from calibration.registration import invert, pose_error, register_from_touch_points
-from procedures.mocap_sweep import _Collector, open_devices, settle
+from calibration.rcm import DEFAULTS as RCM_DEFAULTS, arm_bodies, calibrate_arm
 from rig import psm_kinematics as K
 from rig.params import Parameter, with_parameters
 from rig import provenance
+from rig.mocap_capture import Collector, measure_rcm_phases, open_devices, settle
 from rig.run import Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option, yes_option
 
 PROCEDURE = "register"
+#: the procedure whose results hold each arm's RCM frame in the mocap frame
+CALIBRATE_RCM = "calibrate-rcm"
 #: m: touch-point residual RMS above which a registration is not used. The tips meet within
 #: the touch accuracy (a person guiding them: ~1 mm); 2 mm is the RCM calibration's own
 #: bound (Table 6.1 scale), past it the tension's direction errs by more than a degree.
@@ -80,7 +83,7 @@ def measure_touch(dev, run, cfg, arms: list[str], parameters: dict) -> dict:
     with run.step(STEPS[1], total=len(pts)) as st:
         for i, goal in enumerate(pts):
             dev.person.touch({a: dev.arms[a] for a in arms}, i, goal)
-            col = _Collector(f"touch {i + 1}", [])
+            col = Collector(f"touch {i + 1}", [])
             # Read while the tips are held together: the last 3 ms. Over the wire the first
             # samples after the touch may still be from before it (in flight), so a real or
             # served rig waits longer and keeps only the newest.
@@ -100,26 +103,24 @@ def measure_touch(dev, run, cfg, arms: list[str], parameters: dict) -> dict:
 def rcm_frames_from_calibration(cfg, dev, run, arms: list[str], parameters: dict) -> tuple[dict, str]:
     """Each arm's RCM frame in the mocap frame: from the newest calibrate-rcm run of every
     arm on this rig (rig.provenance), or measured now (calibrate_rcm's phases in this run)."""
-    from procedures import calibrate_rcm as C
-
     def frames_of(data: dict) -> dict:
         return {a: np.array(r["rcm_frame"]) for a, r in data.get("arms", {}).items()
                 if isinstance(r, dict) and "rcm_frame" in r}
 
     if not parameters["remeasure"]:
-        found = provenance.find(C.PROCEDURE, cfg, arms=arms,
+        found = provenance.find(CALIBRATE_RCM, cfg, arms=arms,
                                 usable=lambda run, data: all(a in frames_of(data) for a in arms))
         for line in found.skipped:
             run._write(f"rig {PROCEDURE}: {line}\n")
         if found.run_dir is not None:
             return frames_of(found.data), str(found.run_dir)
-    p = {pp.name: pp.default for pp in C.PARAMETERS}
+    p = dict(RCM_DEFAULTS)
     frames = {}
     with run.step(STEPS[1]):
         for a in arms:
-            bodies = C.arm_bodies(a, getattr(dev.tracker, "bodies", ()))
-            caps = C.measure_arm(dev, run, a, p, sorted(set(bodies.values())))
-            res, _ = C.calibrate_arm(caps, a, bodies, p)
+            bodies = arm_bodies(a, getattr(dev.tracker, "bodies", ()))
+            caps = measure_rcm_phases(dev, run, a, p, sorted(set(bodies.values())))
+            res, _ = calibrate_arm(caps, a, bodies, p)
             frames[a] = np.array(res["rcm_frame"])
     return frames, "measured in this run"
 

@@ -256,6 +256,10 @@ class RigConfig:
         a = self.arms[arm]
         return pose_matrix(a["base_xyz"], a["base_rpy"])
 
+    def gravity_in_base(self, arm: str) -> np.ndarray:
+        """The configured world gravity in the arm's frame 0 (m/s^2)."""
+        return self.base_matrix(arm)[:3, :3].T @ np.asarray(self.rig["gravity"], float)
+
 
 def pose_matrix(xyz, rpy) -> np.ndarray:
     """4x4 from a position (m) and roll-pitch-yaw (rad, R = Rz(yaw) Ry(pitch) Rx(roll))."""

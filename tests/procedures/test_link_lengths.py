@@ -52,7 +52,7 @@ def test_steps_lists_without_moving(tmp_path):
 def test_fit_refuses_an_occluded_body():
     from calibration.fit_error import FitError
     from procedures.link_lengths import fit_fixed_axis
-    from procedures.mocap_sweep import Capture
+    from rig.mocap_capture import Capture
 
     n = 200
     ang = np.linspace(-1, 1, n)

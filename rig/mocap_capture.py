@@ -22,6 +22,7 @@ Units: m, rad (joint 3 in m), s.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
@@ -86,7 +87,7 @@ class Capture:
         return T
 
 
-class _Collector:
+class Collector:
     """Accumulates frames and joint samples of one phase, then makes a Capture."""
 
     def __init__(self, name: str, bodies: list[str]):
@@ -175,7 +176,7 @@ class Rig(Protocol):
     person: object  # drivers.interfaces.Operator
 
 
-def _record_frames(run, collector: _Collector, frames: list[TrackerFrame]) -> None:
+def _record_frames(run, collector: Collector, frames: list[TrackerFrame]) -> None:
     rec = run.recorder
     for f in frames:
         collector.frames.append(f)
@@ -192,7 +193,7 @@ def _record_frames(run, collector: _Collector, frames: list[TrackerFrame]) -> No
                 rec.pose(f"/mocap/markers/{m.replace(':', '/')}", f.t, v, (0.0, 0.0, 0.0, 1.0), "mocap")
 
 
-def _tick(rig, run, collector: _Collector, arms: list) -> dict[str, np.ndarray]:
+def _tick(rig, run, collector: Collector, arms: list) -> dict[str, np.ndarray]:
     """One clock period: tick, record each arm's joint state and new mocap frames."""
     rig.clock.tick()
     q = {}
@@ -205,7 +206,7 @@ def _tick(rig, run, collector: _Collector, arms: list) -> dict[str, np.ndarray]:
     return q
 
 
-def move_capture(rig, run, arm, goals: list[np.ndarray], collector: _Collector,
+def move_capture(rig, run, arm, goals: list[np.ndarray], collector: Collector,
                  step=None, timeout: float = 30.0, others: list | None = None) -> None:
     """move_jp `arm` through `goals` in turn, recording everything until each arrives.
 
@@ -231,7 +232,7 @@ def move_capture(rig, run, arm, goals: list[np.ndarray], collector: _Collector,
 
 
 def servo_capture(rig, run, arm, trajectory: Callable[[float], np.ndarray], duration: float,
-                  collector: _Collector, step=None) -> None:
+                  collector: Collector, step=None) -> None:
     """Stream servo_jp(trajectory(s)) for s in [0, duration] s of clock time, recording.
 
     trajectory: s -> (3,) joints; it must start where the arm is and respect the limits.
@@ -250,7 +251,7 @@ def servo_capture(rig, run, arm, trajectory: Callable[[float], np.ndarray], dura
                 shown = done
 
 
-def settle(rig, run, collector: _Collector, arms: list, duration: float) -> None:
+def settle(rig, run, collector: Collector, arms: list, duration: float) -> None:
     """Tick for `duration` s recording (arms holding where they are)."""
     for _ in range(int(round(duration * rig.clock.rate))):
         _tick(rig, run, collector, arms)
@@ -291,3 +292,66 @@ def open_devices(cfg, seed: int | None = None, arms: list[str] | None = None) ->
         raise click.ClickException(f"{cfg.source}: no motion-capture system ([mocap] driver = 'none'); "
                                    "this procedure tracks marker bodies")
     return Devices(rig.clock, dict(rig.arms), rig.tracker, rig.operator, rig.world, rig)
+
+
+# ------------------------------------------------------------------ RCM calibration phases
+#: the steps of an arm's RCM calibration, as `rig calibrate-rcm` and `rig register` name them
+RCM_PHASES = ("power on and home the arm", "sweep q1 with q2 = 0", "sweep q2 with q1 = 0",
+              "Lissajous of q1 and q2 through the workspace")
+
+
+def lissajous(q1a: float, q2a: float, q3: float, duration: float):
+    """q(s) for s in [0, duration] s: a Lissajous figure, q1 two periods and q2 three,
+    under a raised-cosine envelope so it starts and ends at rest at q1 = q2 = 0; and its
+    peak joint speed (rad/s, sampled), to check against Table 4.2 before anything moves."""
+    w = 2 * math.pi / max(duration, 1e-9)
+    ramp = min(2.0, duration / 4)
+
+    def q(s: float) -> np.ndarray:
+        e = 1.0
+        if s < ramp:
+            e = 0.5 - 0.5 * math.cos(math.pi * s / ramp)
+        elif s > duration - ramp:
+            e = 0.5 - 0.5 * math.cos(math.pi * max(duration - s, 0.0) / ramp)
+        return np.array([e * q1a * math.sin(2 * w * s), e * q2a * math.sin(3 * w * s), q3])
+
+    if duration <= 0:
+        return q, 0.0
+    ss = np.linspace(0.0, duration, 2001)
+    Q = np.array([q(x) for x in ss])
+    vmax = float(np.max(np.abs(np.diff(Q[:, :2], axis=0)) / (ss[1] - ss[0])))
+    return q, vmax
+
+
+def measure_rcm_phases(dev, run, arm_name: str, parameters: dict, bodies: list[str]) -> dict[str, Capture]:
+    """The phases of one arm's RCM calibration (appendix A.2), each a step of `run` named
+    after RCM_PHASES: home, sweep q1, sweep q2 and, with parameters["duration"] > 0, the
+    Lissajous figure (moves the arm; records into the run). `parameters`: q1_range,
+    q2_range (rad), q3 (m), duration (s)."""
+    arm = run.claim(dev.arms[arm_name])
+    q3 = parameters["q3"]
+    zero = np.array([0.0, 0.0, q3])
+    caps = {}
+    with run.step(f"{RCM_PHASES[0]} ({arm_name})"):
+        home = Collector("home", bodies)
+        move_capture(dev, run, arm, [zero], home)
+    for key, j, label in (("q1", 0, RCM_PHASES[1]), ("q2", 1, RCM_PHASES[2])):
+        amp = parameters[f"q{j + 1}_range"]
+        goals = []
+        for s in (-1, 1):
+            g = zero.copy()
+            g[j] = s * amp
+            goals.append(g)
+        goals.append(zero)
+        col = Collector(f"{key} sweep", bodies)
+        with run.step(f"{label} ({arm_name})", total=len(goals)) as st:
+            move_capture(dev, run, arm, goals, col, step=st)
+        caps[key] = col.capture()
+    if parameters["duration"] > 0:
+        traj, _ = lissajous(parameters["q1_range"], parameters["q2_range"], q3, parameters["duration"])
+        col = Collector("lissajous", bodies)
+        with run.step(f"{RCM_PHASES[3]} ({arm_name})", total=20) as st:
+            servo_capture(dev, run, arm, traj, parameters["duration"], col, step=st)
+            move_capture(dev, run, arm, [zero], col)
+        caps["lissajous"] = col.capture()
+    return caps

@@ -3,6 +3,13 @@
 The dVRK 2.3 PSM names its joints as below (the first three are the rig's joints 1-3);
 a `Wrench` is what `body/measured_cf` carries. `StaleStream` is the error every arm
 driver raises when its measured_js stream stopped (DESIGN.md, "Safety").
+
+The operating state (crtk_msgs/OperatingState on `<arm>/operating_state`): `state` is one
+of `OPERATING_STATES`; a dVRK arm obeys motion commands (servo_jp, servo_jf, move_jp) only
+when ENABLED and homed, and drops the others with a warning. Clients change it with the
+`STATE_COMMANDS` on `<arm>/state_command` (crtk_msgs/StringStamped). `ArmFault` is the
+error an arm driver raises when an arm it brought to ENABLED and homed leaves that state
+during a run (a FAULT, a disable from the console, a pause).
 """
 
 from __future__ import annotations
@@ -39,6 +46,47 @@ class StaleStream(DeviceFault):
         super().__init__(f"{topic}: stale stream, {since} (watchdog {watchdog * 1e3:.0f} ms); "
                          "the driver commands the arm to hold. Check that the dVRK console (or `rig sim`) "
                          "is running and ROS_DOMAIN_ID matches")
+
+
+#: crtk_msgs/OperatingState.state values
+OPERATING_STATES = ("DISABLED", "ENABLED", "PAUSED", "FAULT")
+#: what <arm>/state_command accepts (crtk_msgs/StringStamped.string)
+STATE_COMMANDS = ("enable", "disable", "home", "unhome", "pause", "resume")
+
+
+@dataclass(frozen=True)
+class OperatingState:
+    """One crtk_msgs/OperatingState: `t` its header stamp (s), `state` one of
+    OPERATING_STATES, `is_homed`, `is_busy` (a move_jp or a homing under way)."""
+
+    t: float
+    state: str
+    is_homed: bool
+    is_busy: bool
+
+    @property
+    def ready(self) -> bool:
+        """True when the arm obeys motion commands: ENABLED and homed."""
+        return self.state == "ENABLED" and self.is_homed
+
+    def describe(self) -> str:
+        return (f"{self.state}, {'homed' if self.is_homed else 'not homed'}"
+                + (", busy" if self.is_busy else ""))
+
+
+class ArmFault(DeviceFault):
+    """An arm's operating state says it no longer obeys commands (FAULT, DISABLED,
+    PAUSED, not homed), or it never reached ENABLED and homed when asked.
+
+    `topic` is the operating_state topic, `state` the OperatingState seen (None: none came),
+    `reason` the arm's last error message, if it sent one.
+    """
+
+    def __init__(self, text: str, topic: str, state: OperatingState | None = None, reason: str = ""):
+        self.topic = topic
+        self.state = state
+        self.reason = reason
+        super().__init__(text)
 
 
 @dataclass(frozen=True)

@@ -5,12 +5,25 @@ Topics under the arm's namespace (e.g. /PSM1), as the dVRK 2.3 ROS 2 bridge name
   subscribed   measured_js, setpoint_js          sensor_msgs/JointState
                measured_cp, local/measured_cp    geometry_msgs/PoseStamped
                body/measured_cf                  geometry_msgs/WrenchStamped
+               operating_state                   crtk_msgs/OperatingState
+               error                             std_msgs/String (the arm's error messages)
   published    servo_jp, servo_jf, move_jp       sensor_msgs/JointState (servo_jf: effort)
+               state_command                     crtk_msgs/StringStamped
   console      /console/power_on, /console/home  std_msgs/Empty (dVRK 2.3; 2.4 names them
                /system/power_on, /system/home; console="auto" finds which from the graph)
 
-`crtk_msgs` is not on PyPI, so operating states are not read; move_jp(wait=True) waits on
-the measured joints instead (goal within `ARRIVAL_TOLERANCE` and at rest).
+Operating state (crtk_msgs, shipped with the package). A dVRK arm obeys motion commands
+only when ENABLED and homed and drops the others. `ready()` brings the arm there as the
+dVRK's Python client does: `enable`, then `home` on state_command, waiting with a timeout
+for ENABLED and is_homed (a FAULT or PAUSED arm is not cleared: that is for a person at
+the console). From then on the driver is in control: an operating_state that is no longer
+ENABLED and homed (FAULT, DISABLED, PAUSED, unhomed) makes `measured_js()` and
+`drain_js()` raise `ArmFault` with one line (the state and the arm's last message on
+`error`), as a stale stream raises StaleStream, so the run aborts with the arms held.
+`move_jp(wait=True)` waits on is_busy when the arm publishes operating_state: for the
+flag to rise within `BUSY_RISE` s of the command, then to fall; without operating_state
+(or if the flag never rises on an arm that is ready) it waits on the measured joints
+(goal within `ARRIVAL_TOLERANCE` and at rest).
 
 Threading model. The driver is given a node (STYLE item 1) and never creates one. Its
 subscription callbacks only copy the newest message under a lock; they run on whatever
@@ -40,11 +53,19 @@ from typing import Callable
 
 import numpy as np
 
-from drivers.crtk import ARRIVAL_TOLERANCE, REST_VELOCITY, StaleStream, Wrench
+from drivers.crtk import (ARRIVAL_TOLERANCE, REST_VELOCITY, STATE_COMMANDS, ArmFault, OperatingState, StaleStream,
+                          Wrench)
 from drivers.interfaces import JointState, Pose
 from drivers.quaternion import quat_xyzw_to_matrix
 
 StaleCallback = Callable[[StaleStream], None]
+
+#: s within which a move_jp's is_busy must rise before the wait falls back to positions
+#: (the command crosses the wire and waits for the arm's next cycle; 100 Hz state updates)
+BUSY_RISE = 0.5
+#: s between repeats of a state command while `ready()` waits (one sent before the
+#: arm's subscription matched would be lost; enable and home are idempotent on the dVRK)
+RESEND = 1.0
 
 #: the arm's state topics RosArm can subscribe (measured_js is always subscribed)
 ALL_STREAMS = ("measured_js", "setpoint_js", "measured_cp", "local/measured_cp", "body/measured_cf")
@@ -75,16 +96,19 @@ class RosArm:
     less work for the executor); polled: the monotonic time at which the executor last
     looked for messages (`rig.ros_session.RosSession.executor_time`): the staleness age is
     counted up to then, so that a starved process never takes a healthy stream for a stale
-    one (None: up to now, for an executor that is never starved).
+    one (None: up to now, for an executor that is never starved); states: read
+    operating_state and send state_command (False: neither, as on a controller without
+    the CRTK state machine).
     """
 
     def __init__(self, node, namespace: str, watchdog: float = 0.05, *, spin: bool = True,
                  on_stale: StaleCallback | None = None, console: str = "/console", qos_depth: int = 10,
-                 streams: tuple[str, ...] = ALL_STREAMS, polled: Callable[[], float] | None = None):
+                 streams: tuple[str, ...] = ALL_STREAMS, polled: Callable[[], float] | None = None,
+                 states: bool = True):
         from geometry_msgs.msg import PoseStamped, WrenchStamped
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState as JointStateMsg
-        from std_msgs.msg import Empty
+        from std_msgs.msg import Empty, String
 
         if watchdog <= 0:
             raise ValueError(f"watchdog must be > 0 s, got {watchdog}")
@@ -108,7 +132,21 @@ class RosArm:
         self.received = 0
         self.topic = {k: f"{self.namespace}/{k}" for k in
                       ("measured_js", "setpoint_js", "measured_cp", "local/measured_cp",
-                       "body/measured_cf", "servo_jp", "servo_jf", "move_jp")}
+                       "body/measured_cf", "servo_jp", "servo_jf", "move_jp", "operating_state",
+                       "state_command", "error")}
+        # operating state: the newest, how many came, the index of the newest busy and
+        # idle ones (move_jp's wait), and the arm's newest error message
+        self._state: OperatingState | None = None
+        self._state_count = 0
+        self._busy_index = 0
+        self._idle_index = 0
+        self._error: tuple[float, str] | None = None  # (time.monotonic(), text)
+        self._in_control = False  # ready() succeeded: leaving ENABLED and homed is a fault
+        self._fault: OperatingState | None = None
+        self._fault_error: ArmFault | None = None
+        #: how the last move_jp(wait=True) waited: "busy" (operating_state) or "position"
+        self.move_wait: str | None = None
+        self.states_error: str | None = None  # why states are not read, if they are not
         self._command_qos = None
         self._console = console if console == "auto" else "/" + console.strip("/")
         if self._console != "auto":
@@ -134,6 +172,20 @@ class RosArm:
                 msg_type, t[key], lambda m, key=key, convert=convert: self._store(key, convert(m)), sensor_qos))
         self._pubs = {k: node.create_publisher(JointStateMsg, t[k], command_qos)
                       for k in ("servo_jp", "servo_jf", "move_jp")}
+        self._StringStamped = None
+        if states:
+            try:
+                from crtk_msgs.msg import OperatingState as OperatingStateMsg, StringStamped
+            except ImportError as exc:  # a platform the shipped messages were not built for
+                self.states_error = str(exc).splitlines()[0]
+            else:
+                self._StringStamped = StringStamped
+                self._subs.append(node.create_subscription(OperatingStateMsg, t["operating_state"],
+                                                           self._on_operating_state, sensor_qos))
+                self._subs.append(node.create_subscription(String, t["error"], self._on_error, sensor_qos))
+                self._pubs["state_command"] = node.create_publisher(StringStamped, t["state_command"], command_qos)
+        else:
+            self.states_error = "states=False"
         self._command_qos = command_qos
         if self._console != "auto":
             self._console_publishers()
@@ -190,6 +242,24 @@ class RosArm:
     def _store(self, key: str, value) -> None:
         with self._lock:
             self._latest[key] = value
+
+    def _on_operating_state(self, m) -> None:
+        st = OperatingState(_stamp_seconds(m.header), str(m.state), bool(m.is_homed), bool(m.is_busy))
+        with self._cond:
+            self._state = st
+            self._state_count += 1
+            if st.is_busy:
+                self._busy_index = self._state_count
+            else:
+                self._idle_index = self._state_count
+            if self._in_control and self._fault is None and not st.ready:
+                self._fault = st
+            self._cond.notify_all()
+
+    def _on_error(self, m) -> None:
+        with self._cond:
+            self._error = (time.monotonic(), str(m.data))
+            self._cond.notify_all()
 
     # -- watchdog thread ----------------------------------------------------------------
     def _watch(self) -> None:
@@ -258,10 +328,13 @@ class RosArm:
     def measured_js(self) -> JointState:
         """The newest measured joint state, every joint the message carries.
 
-        Raises StaleStream if none arrived within the watchdog interval.
+        Raises StaleStream if none arrived within the watchdog interval, ArmFault once the
+        arm left ENABLED and homed after `ready()`.
         """
         with self._lock:
-            js, rx = self._js, self._js_rx
+            js, rx, fault = self._js, self._js_rx, self._fault
+        if fault is not None:
+            raise self._fault_raised(fault)
         age = float("inf") if rx is None else self._age(rx)
         if js is None or age > self.watchdog:
             raise StaleStream(self.topic["measured_js"], age, self.watchdog)
@@ -269,7 +342,7 @@ class RosArm:
 
     def drain_js(self) -> list[JointState]:
         """Every measured_js received since the last drain, oldest first (the newest 4096 at
-        most); StaleStream as measured_js() when the stream is stale."""
+        most); StaleStream and ArmFault as measured_js()."""
         self.measured_js()
         with self._lock:
             out = list(self._js_log)
@@ -319,32 +392,80 @@ class RosArm:
         self._publish("servo_jf", effort=effort)
 
     def move_jp(self, position, wait: bool = True, timeout: float = 10.0) -> bool:
-        """Start the dVRK's trajectory to `position`; with wait, block until arrived.
+        """Start the dVRK's trajectory to `position`; with wait, block until it is done.
 
-        Arrived: the joints given are within ARRIVAL_TOLERANCE (first three; 2e-3 beyond)
-        of the goal and slower than REST_VELOCITY. Returns False after `timeout` s.
-        Raises StaleStream if measured_js stops while waiting.
+        Done, on an arm that publishes operating_state: is_busy rose within BUSY_RISE s of
+        the command and fell again (the dVRK's trajectory is over), and the joints given
+        are within ARRIVAL_TOLERANCE of the goal (first three; 2e-3 beyond). Without
+        operating_state, or when the flag did not rise on an arm that is ENABLED and
+        homed: the joints are within ARRIVAL_TOLERANCE of the goal and slower than
+        REST_VELOCITY. An arm that is not ENABLED and homed drops the command: False once
+        the flag did not rise. False after `timeout` s. Raises StaleStream if measured_js
+        stops while waiting, ArmFault if the arm faults. `move_wait` says which of the two
+        waits it took.
         """
         goal = np.asarray(_vector(position, "move_jp"))
+        with self._lock:
+            since = self._state_count
+            states = self._state is not None
         self._publish("move_jp", position=goal)
         if not wait:
             return True
+        deadline = time.monotonic() + timeout
+        if states:
+            done = self._wait_busy(since, deadline)
+            if done is not None:
+                self.move_wait = "busy"
+                # The arm's trajectory is over. Its joints settle on the goal under the PID
+                # (joint 3 hovers about the 1 mm tolerance for a while): confirm on them,
+                # for what is left of the timeout.
+                return done and self._wait_arrived(goal, deadline, rest=False)
+        self.move_wait = "position"
+        return self._wait_arrived(goal, deadline)
+
+    @staticmethod
+    def _at(goal: np.ndarray, js: JointState, rest: bool = True) -> bool:
+        """The joints given are within ARRIVAL_TOLERANCE (first three; 2e-3 beyond) of
+        `goal` and, with `rest`, slower than REST_VELOCITY."""
         n = goal.size
         tol = np.concatenate([ARRIVAL_TOLERANCE, np.full(max(0, n - 3), 2e-3)])[:n]
-        rest = np.concatenate([REST_VELOCITY, np.full(max(0, n - 3), 0.05)])[:n]
-        deadline = time.monotonic() + timeout
+        rest_v = np.concatenate([REST_VELOCITY, np.full(max(0, n - 3), 0.05)])[:n]
+        q, dq = js.position[:n], js.velocity[:n]
+        return bool(len(q) == n and np.all(np.abs(q - goal) <= tol)
+                    and (not rest or len(dq) < n or np.all(np.abs(dq) <= rest_v)))
+
+    def _wait_busy(self, since: int, deadline: float) -> bool | None:
+        """Wait for is_busy to rise (an operating_state after index `since` with it set)
+        and fall again. True: it fell; False: the timeout passed, or it did not rise and the
+        arm is not ready (the command was dropped); None: it did not rise on a ready arm
+        (wait on positions instead)."""
+        rise_by = min(deadline, time.monotonic() + BUSY_RISE)
+        rose = None
         while True:
-            js = self.measured_js()
-            q, dq = js.position[:n], js.velocity[:n]
-            if (len(q) == n and np.all(np.abs(q - goal) <= tol)
-                    and (len(dq) < n or np.all(np.abs(dq) <= rest))):
+            self.measured_js()  # stale stream or a fault: raise
+            with self._cond:
+                if rose is None and self._busy_index > since:
+                    rose = self._busy_index
+                if rose is not None and self._idle_index > rose:
+                    return True
+                now = time.monotonic()
+                if rose is None and now >= rise_by:
+                    st = self._state
+                    return None if (st is not None and st.ready) else False
+                if now >= deadline:
+                    return False
+                # wake at least five times per watchdog interval (a stream that stops is
+                # then seen within the watchdog plus a fifth of it)
+                self._cond.wait(min((rise_by if rose is None else deadline) - now, self.watchdog / 5.0))
+
+    def _wait_arrived(self, goal: np.ndarray, deadline: float, rest: bool = True) -> bool:
+        while True:
+            if self._at(goal, self.measured_js(), rest):
                 return True
             left = deadline - time.monotonic()
             if left <= 0:
                 return False
             with self._cond:
-                # wake at least five times per watchdog interval: a stream that stops is
-                # then seen within the watchdog plus a fifth of it
                 self._cond.wait(min(left, self.watchdog / 5.0))
 
     def hold(self) -> None:
@@ -354,6 +475,119 @@ class RosArm:
         if js is None:
             raise StaleStream(self.topic["measured_js"], float("inf"), self.watchdog)
         self._publish("servo_jp", position=js.position)
+
+    # -- operating state ----------------------------------------------------------------
+    def operating_state(self) -> OperatingState | None:
+        """The newest operating_state (None before the first, or when states are not read)."""
+        with self._lock:
+            return self._state
+
+    def wait_for_state(self, timeout: float) -> bool:
+        """Block until an operating_state arrived (True) or `timeout` s passed (False)."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while self._state is None:
+                left = deadline - time.monotonic()
+                if left <= 0 or self._StringStamped is None:
+                    return False
+                self._cond.wait(left)
+        return True
+
+    def state_command(self, command: str) -> None:
+        """Send one of STATE_COMMANDS on state_command (asynchronous, as on the dVRK)."""
+        if command not in STATE_COMMANDS:
+            raise ValueError(f"state command must be one of {', '.join(STATE_COMMANDS)}, got {command!r}")
+        if self._StringStamped is None:
+            raise RuntimeError(f"{self.topic['state_command']}: operating states are off ({self.states_error})")
+        m = self._StringStamped()
+        m.header.stamp = self.node.get_clock().now().to_msg()
+        m.string = command
+        self._pubs["state_command"].publish(m)
+
+    def ready(self, timeout: float = 20.0, say=None) -> OperatingState:
+        """Enable and home the arm (state_command `enable`, then `home`, each repeated every
+        RESEND s while it has not moved on) and wait until it is ENABLED, homed and not
+        busy; from then on leaving that state is a fault (see the module docstring).
+
+        An arm in FAULT or PAUSED is left so: that is a person's call at the console.
+        Raises ArmFault (one line: the state seen and the arm's last error) on FAULT,
+        PAUSED or when `timeout` s pass. `say(line)`, if given, hears each command sent.
+        """
+        deadline = time.monotonic() + timeout
+        with self._lock:
+            self._in_control = False
+            self._fault = self._fault_error = None
+        sent: dict[str, float] = {}
+        while True:
+            if self._js is not None:
+                self.measured_js()  # a stale stream raises
+            st = self.operating_state()
+            if st is not None:
+                if st.state in ("FAULT", "PAUSED"):
+                    raise self._not_ready(st, f"is {st.state}" + (
+                        "; clear the fault at the dVRK console (disable, then re-run)" if st.state == "FAULT"
+                        else "; resume it at the dVRK console, then re-run"))
+                if st.ready and not st.is_busy:
+                    with self._lock:
+                        self._in_control = True
+                        self._fault = self._fault_error = None
+                        if not self._state.ready:  # it changed since
+                            self._fault = self._state
+                    return st
+                want = None
+                if st.state == "DISABLED" and not st.is_busy:
+                    want = "enable"
+                elif st.state == "ENABLED" and not st.is_homed and not st.is_busy:
+                    want = "home"
+                if want is not None and time.monotonic() - sent.get(want, -RESEND) >= RESEND:
+                    if say is not None and want not in sent:
+                        say(f"{self.name}: {want}")
+                    self.state_command(want)
+                    sent[want] = time.monotonic()
+            now = time.monotonic()
+            if now >= deadline:
+                raise self._not_ready(st, f"not ENABLED and homed within {timeout:g} s"
+                                      + ("" if st is None else f" ({st.describe()})")
+                                      + "; check the dVRK console (power, e-stop, homing) or `rig sim`")
+            with self._cond:
+                self._cond.wait(min(deadline - now, 0.05))
+
+    def _last_error(self, within: float = 2.0, locked: bool = False) -> str:
+        """The arm's newest error message if it came within `within` s, else ""."""
+        if locked:  # the caller holds the lock
+            err = self._error
+        else:
+            with self._lock:
+                err = self._error
+        return err[1] if err is not None and time.monotonic() - err[0] <= within else ""
+
+    def _not_ready(self, st: OperatingState | None, what: str) -> ArmFault:
+        error = self._last_error()
+        seen = "no operating_state received" if st is None else ""
+        text = f"{self.topic['operating_state']}: {self.name} {what}"
+        if seen:
+            text += f" ({seen})"
+        if error:
+            text += f"; its last error: {error}"
+        return ArmFault(text, self.topic["operating_state"], st, error)
+
+    def _fault_raised(self, st: OperatingState) -> ArmFault:
+        """The ArmFault for a run whose arm left ENABLED and homed (composed once)."""
+        if self._fault_error is not None:
+            return self._fault_error
+        if st.state == "FAULT":  # its error message may come just after the state
+            until = time.monotonic() + 0.25
+            with self._cond:
+                while not self._last_error(locked=True) and time.monotonic() < until:
+                    self._cond.wait(until - time.monotonic())
+        error = self._last_error()
+        what = {"FAULT": "went to FAULT", "DISABLED": "was disabled", "PAUSED": "was paused"}.get(
+            st.state, f"went to {st.state}") if st.state != "ENABLED" else "was unhomed"
+        text = (f"{self.topic['operating_state']}: {self.name} {what} during the run ({st.describe()})"
+                + (f": {error}" if error else "") + "; it no longer obeys commands. Check the arm at the dVRK "
+                "console (or `rig sim`), then re-run")
+        self._fault_error = ArmFault(text, self.topic["operating_state"], st, error)
+        return self._fault_error
 
     # -- console ------------------------------------------------------------------------
     def _set_console(self, namespace: str) -> None:

@@ -19,8 +19,11 @@ The side channel (served by `drivers.operator_sim.OperatorServer` in `rig sim`):
 ACTION is one of ACTIONS, with its fields: confirm {message}; detach_object {};
 attach_object {kind (optional): "spring" or "string"}; hang_mass {kg, element (optional:
 which object element's cell)}; touch {arms: [names], index, goal: [x, y, z] m in the
-world}; unplug {device: "loadcell"} (a person pulling a cable: fault injection). Both topics are reliable with depth 10; the client matches a reply by its id and
-ignores the others (several clients may share the channel).
+world}; unplug {device: "loadcell"} (a person pulling a cable: fault injection); fault
+{arm, kind: "joint_limit" (with joint: 1-3) or "servo_watchdog" (with timeout: s, 0: off)}
+(an arm fault injected for tests, drivers.operator_sim.SimOperator.fault). Both topics are
+reliable with depth 10; the client matches a reply by its id and ignores the others
+(several clients may share the channel).
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ from rig.faults import DeviceFault
 
 REQUEST_TOPIC = "/rig_sim/operator/request"
 REPLY_TOPIC = "/rig_sim/operator/reply"
-ACTIONS = ("confirm", "detach_object", "attach_object", "hang_mass", "touch", "unplug")
+ACTIONS = ("confirm", "detach_object", "attach_object", "hang_mass", "touch", "unplug", "fault")
 
 
 class OperatorError(DeviceFault):
@@ -156,6 +159,10 @@ class RosOperator:
 
     def unplug(self, device: str) -> None:
         self.request("unplug", device=device)
+
+    def fault(self, arm: str, kind: str, joint: int = 1, timeout: float = 0.1) -> None:
+        """Inject an arm fault in `rig sim` (tests): kind "joint_limit" or "servo_watchdog"."""
+        self.request("fault", arm=arm, kind=kind, joint=int(joint), timeout=float(timeout))
 
     def touch(self, arms: dict, point_index: int, goal_world: np.ndarray) -> None:
         self.request("touch", arms=list(arms), index=int(point_index),

@@ -13,7 +13,11 @@ loads a load cell with the weight of a mass instead of the object's tension (0 k
 empty cell); touch puts every named arm's tip on a world point by inverse kinematics on
 the *true* arm placement (what a person guiding the tips together achieves physically,
 whatever the calibration believes) and holds it there; unplug pulls the load cell's cable
-(a fault for tests: its pty closes).
+(a fault for tests: its pty closes); fault injects an arm fault for tests (`joint_limit`:
+the person pushes a joint of the arm past its upper limit, which a powered arm's limit
+check faults on; `servo_watchdog`: the arm's watchdog on servo commands is armed with a
+timeout, or disarmed with 0), on the arms `rig sim` serves behind their operating state
+(`drivers.sim_arm_state`).
 """
 
 from __future__ import annotations
@@ -64,9 +68,10 @@ class SimOperator:
     """
 
     def __init__(self, world, arms: dict | None = None, cell: CellLoad | None = None, object_spec=None,
-                 cells: dict[int, CellLoad] | None = None):
+                 cells: dict[int, CellLoad] | None = None, states: dict | None = None):
         self.world = world
         self.arms = arms or {}
+        self.states = states or {}  # arm -> drivers.sim_arm_state.SimArmState (rig sim's arms)
         self.cell = cell
         # element -> its cell, where the rig has a cell per object element
         self.cells = dict(cells) if cells else ({cell.element: cell} if cell is not None else {})
@@ -114,6 +119,24 @@ class SimOperator:
         if self.cell is None or self.cell.cable is None:
             raise OperatorError("the simulated rig serves no load cell to unplug")
         self.cell.cable()
+
+    def fault(self, arm: str, kind: str, joint: int = 1, timeout: float = 0.1) -> None:
+        """Inject an arm fault (tests): "joint_limit" pushes `joint` (1-3) past its upper
+        limit; "servo_watchdog" arms the servo-command watchdog with `timeout` s (0: off)."""
+        state = self.states.get(arm)
+        if state is None:
+            raise OperatorError(f"no arm {arm!r} behind an operating state here; "
+                                f"arms: {', '.join(self.states) or 'none (in-process arms have none)'}")
+        if kind == "joint_limit":
+            if joint not in (1, 2, 3):
+                raise OperatorError(f"joint must be 1, 2 or 3, got {joint!r}")
+            state.push_past_limit(joint)
+        elif kind == "servo_watchdog":
+            if not (np.isfinite(timeout) and timeout >= 0):
+                raise OperatorError(f"the watchdog timeout must be >= 0 s (0: off), got {timeout!r}")
+            state.servo_watchdog = float(timeout) if timeout > 0 else None
+        else:
+            raise OperatorError(f"unknown fault {kind!r}; known: joint_limit, servo_watchdog")
 
     def touch(self, arms, point_index: int, goal_world) -> None:
         from rig import psm_kinematics as K
@@ -199,5 +222,8 @@ class OperatorServer:
             op.hang_mass(float(doc["kg"]), doc.get("element"))
         elif action == "unplug":
             op.unplug(str(doc.get("device", "")))
+        elif action == "fault":
+            op.fault(str(doc.get("arm", "")), str(doc.get("kind", "")), int(doc.get("joint", 1)),
+                     float(doc.get("timeout", 0.1)))
         else:
             op.touch(list(doc["arms"]), int(doc.get("index", 0)), doc["goal"])

@@ -9,8 +9,15 @@ One process, paced to the wall clock:
   also keeps the CPU budget for the 1 kHz stream), each while it has a subscriber (looked
   up at 10 Hz); servo_jp, servo_jf and move_jp are subscribed and drive
   `drivers.sim_arm.SimArm` (the same fake the in-process tests use, trajectory generator
-  included); <console>/power_on, power_off and home act on every arm (home: move_jp to the
-  arm's q0), with <console> /console as dVRK 2.3 or /system as 2.4 (`--console`);
+  included), behind the dVRK's operating state (`drivers.sim_arm_state.SimArmState`:
+  each arm starts DISABLED and not homed, is enabled and homed on <arm>/state_command,
+  drops motion commands unless ENABLED and homed with the dVRK's throttled warning, is
+  busy during a homing and a move_jp, faults on a joint past its limit and, with
+  `--servo-watchdog`, on servo commands that stop); crtk_msgs/OperatingState on
+  <arm>/operating_state at 100 Hz and on every change, the arm's warnings and errors
+  on <arm>/warning and <arm>/error (std_msgs/String, as the dVRK) and in this process's
+  log; <console>/power_on, power_off and home send enable, disable and home to every
+  arm, with <console> /console as dVRK 2.3 or /system as 2.4 (`--console`);
 * the mocap system as geometry_msgs/PoseStamped on /<prefix>/<body>/pose at the mocap
   rate (default 120 Hz), running while any body's topic has a subscriber, from
   `drivers.mocap_sim.SimTracker` (noise, occlusion, latency; quaternions on the wire are
@@ -21,7 +28,8 @@ One process, paced to the wall clock:
   loopback at [mocap] server, command_port and data_port, unicast or to [mocap] multicast,
   stamped on the same timeline as the ROS messages;
 * the operator's side channel (`drivers.operator`): the manual steps of a procedure done
-  by the simulation;
+  by the simulation, and the faults a test injects (the load cell's cable pulled, an
+  arm's joint pushed past its limit, an arm's servo watchdog armed);
 * the load cell: `drivers.loadcell.FakeLoadCellFirmware`, each in its own process
   (`drivers.loadcell_process`), on a pseudo-terminal per object
   element, fed by its tension or a hanging mass (printed as `loadcell: /dev/pts/N`; open
@@ -71,17 +79,21 @@ class SimServer:
     cp_rate: Hz of the slower arm topics; mocap: a dict with prefix, rate, noise, latency,
     occlusion (or None for no mocap); console: the console's namespace ("/console" as in
     dVRK 2.3, "/system" as in 2.4); cells: the `CellLoad`s of the served load cells, the
-    configured one first (the operator hangs masses from it).
+    configured one first (the operator hangs masses from it); servo_watchdog: s without a
+    servo command before an arm in servo mode faults (None: no watchdog).
     """
 
     def __init__(self, world, node, arms: list[str], cp_rate: float = 100.0, mocap: dict | None = None,
-                 seed: int = 0, console: str = "/console", cells: list | None = None, executor: str = "events"):
+                 seed: int = 0, console: str = "/console", cells: list | None = None, executor: str = "events",
+                 servo_watchdog: float | None = None):
+        from crtk_msgs.msg import OperatingState, StringStamped
         from geometry_msgs.msg import PoseStamped, WrenchStamped
         from rclpy.qos import QoSProfile
         from sensor_msgs.msg import JointState
-        from std_msgs.msg import Empty
+        from std_msgs.msg import Empty, String
 
         from drivers.crtk import PSM_JOINT_NAMES
+        from drivers.sim_arm_state import OPERATING_STATE_RATE, SimArmState
         from rig.clock import SimClock
         from drivers.sim_arm import SimArm
 
@@ -90,11 +102,15 @@ class SimServer:
         self.node = node
         self.clock = SimClock(world)
         self.arms = {n: SimArm(world, n, self.clock) for n in arms}
+        self.states = {n: SimArmState(self.arms[n], servo_watchdog=servo_watchdog) for n in arms}
         self.rate = self.clock.rate
         self.cp_every = max(1, int(round(self.rate / cp_rate)))
+        self.state_every = max(1, int(round(self.rate / OPERATING_STATE_RATE)))
         self._refresh_every = max(1, int(round(0.1 * self.rate)))  # subscribers looked up at 10 Hz
         self._commands: deque = deque()
-        self._Msg = {"js": JointState, "pose": PoseStamped, "wrench": WrenchStamped}
+        self._Msg = {"js": JointState, "pose": PoseStamped, "wrench": WrenchStamped, "state": OperatingState,
+                     "string": String}
+        self._state_pub = {}
         qos = QoSProfile(depth=10)
         names = list(PSM_JOINT_NAMES[:3])
         self._pub = {}
@@ -112,10 +128,14 @@ class SimServer:
             m.name = names
             m.header.frame_id = n
             self._msgs[n] = m
-            arm = self.arms[n]
-            node.create_subscription(JointState, f"{ns}/servo_jp", self._queued(self._servo_jp, arm), qos)
-            node.create_subscription(JointState, f"{ns}/servo_jf", self._queued(self._servo_jf, arm), qos)
-            node.create_subscription(JointState, f"{ns}/move_jp", self._queued(self._move_jp, arm), qos)
+            state = self.states[n]
+            node.create_subscription(JointState, f"{ns}/servo_jp", self._queued(self._servo_jp, state), qos)
+            node.create_subscription(JointState, f"{ns}/servo_jf", self._queued(self._servo_jf, state), qos)
+            node.create_subscription(JointState, f"{ns}/move_jp", self._queued(self._move_jp, state), qos)
+            node.create_subscription(StringStamped, f"{ns}/state_command", self._queued(self._state_command, state),
+                                     qos)
+            self._state_pub[n] = {k: node.create_publisher(t, f"{ns}/{k}", qos) for k, t in
+                                  (("operating_state", OperatingState), ("warning", String), ("error", String))}
         self.console = "/" + console.strip("/")
         for what in ("power_on", "power_off", "home"):
             node.create_subscription(Empty, f"{self.console}/{what}", self._queued(self._console, what), qos)
@@ -123,7 +143,8 @@ class SimServer:
 
         # the operator's side channel: what a person does by hand, done by the simulation
         self.operator = OperatorServer(SimOperator(world, self.arms, cell=(cells or [None])[0],
-                                                   cells={c.element: c for c in cells or []}), node)
+                                                   cells={c.element: c for c in cells or []}, states=self.states),
+                                       node)
         self.cells = list(cells or [])
         self.tracker = None
         self.natnet = None  # a drivers.natnet_server.SimMotive when serving NatNet (`--natnet`)
@@ -144,6 +165,7 @@ class SimServer:
         self._refresh_watched()
         self.published = {n: 0 for n in arms}
         self.command_errors = 0
+        self.state_commands = 0
         self.superseded = 0
         self.max_lag = 0.0  # s, the longest the loop fell behind the wall clock
         self._last_command: dict[str, int] = {}
@@ -170,26 +192,25 @@ class SimServer:
             self._commands.append((time.perf_counter(), fn, arg, msg))
         return callback
 
-    @staticmethod
-    def _servo_jp(arm, m) -> None:
-        arm.servo_jp(m.position, m.velocity if len(m.velocity) >= 3 else None)
+    # motion commands go through the arm's operating state: True when obeyed
+    def _servo_jp(self, state, m) -> bool:
+        return state.servo_jp(m.position, m.velocity if len(m.velocity) >= 3 else None, self.world.t)
 
-    @staticmethod
-    def _servo_jf(arm, m) -> None:
-        arm.servo_jf(m.effort)
+    def _servo_jf(self, state, m) -> bool:
+        return state.servo_jf(m.effort, self.world.t)
 
-    @staticmethod
-    def _move_jp(arm, m) -> None:
-        arm.move_jp(m.position, wait=False)
+    def _move_jp(self, state, m) -> bool:
+        return state.move_jp(m.position, self.world.t)
+
+    def _state_command(self, state, m) -> None:
+        self.state_commands += 1
+        state.command(str(m.string), self.world.t)
 
     def _console(self, what, _msg) -> None:
-        for arm in self.arms.values():
-            if what == "power_on":
-                arm.power_on()
-            elif what == "power_off":
-                arm.power_off()
-            else:
-                arm.home(wait=False)
+        # the console's buttons act on every arm, through each arm's state machine
+        command = {"power_on": "enable", "power_off": "disable", "home": "home"}[what]
+        for state in self.states.values():
+            state.command(command, self.world.t)
 
     def _apply_commands(self, until: float = float("inf")) -> None:
         """Apply the commands received up to perf_counter time `until`: the wall time the
@@ -211,12 +232,14 @@ class SimServer:
                     continue
                 if stamp:
                     self._last_command[arg.name] = stamp
-                self.operator.operator.release(arg.name)  # the client takes the arm over
             try:
-                fn(arg, msg)
+                obeyed = fn(arg, msg)
             except ValueError as exc:  # a malformed command is refused, reported, counted
                 self.command_errors += 1
                 self.node.get_logger().warning(f"command refused: {exc}")
+                continue
+            if obeyed:
+                self.operator.operator.release(arg.name)  # the client takes the arm over
 
     # -- publishing (main thread) ---------------------------------------------------------
     def _stamp(self, msg, t: float) -> None:
@@ -231,6 +254,26 @@ class SimServer:
         m.position, m.velocity, m.effort = array("d", q), array("d", dq), array("d", effort)
         self._pub[name]["measured_js"].publish(m)
         self.published[name] += 1
+
+    def _publish_states(self, t: float, every: bool) -> None:
+        """Each arm's operating_state when it changed (or `every`), and its messages."""
+        for name, state in self.states.items():
+            if every or state.changed:
+                state.changed = False
+                st = state.operating_state()
+                m = self._Msg["state"]()
+                self._stamp(m, t)
+                m.header.frame_id = name
+                m.state, m.is_homed, m.is_busy = st.state, st.is_homed, st.is_busy
+                self._state_pub[name]["operating_state"].publish(m)
+            while state.messages:
+                level, text = state.messages.pop(0)
+                # (one call site per severity: rclpy ties a call site to its first severity)
+                if level == "error":
+                    self.node.get_logger().error(text)
+                else:
+                    self.node.get_logger().warning(text)
+                self._state_pub[name][level].publish(self._Msg["string"](data=text))
 
     def _refresh_watched(self) -> None:
         """Which of the slower topics have subscribers; start or stop the mocap system to match."""
@@ -311,6 +354,7 @@ class SimServer:
             self._publish_js(name, world.t)
             self._publish_slow(name, world.t)
             self.published[name] = 0
+        self._publish_states(world.t, every=True)
         if self.tracker is not None:
             self._publish_mocap()
         t_start = world.t
@@ -330,9 +374,12 @@ class SimServer:
             t = world.t
             for cell in self.cells:
                 cell.update()
+            for state in self.states.values():
+                state.step(t)
             for name in self.arms:
                 self._publish_js(name, t)
             k += 1
+            self._publish_states(t, every=k % self.state_every == 0)
             if k % self.cp_every == 0:
                 for name in self.arms:
                     self._publish_slow(name, t)
@@ -364,7 +411,8 @@ class SimServer:
         return {"wall_s": wall, "sim_s": sim, "ticks": k,
                 "measured_js_hz": {n: c / wall if wall > 0 else 0.0 for n, c in self.published.items()},
                 "late_ticks": self.late_ticks, "slips": self.slips, "command_errors": self.command_errors,
-                "superseded": self.superseded, "max_lag_s": self.max_lag}
+                "superseded": self.superseded, "max_lag_s": self.max_lag,
+                "dropped": {n: st.dropped for n, st in self.states.items()}}
 
     def close(self) -> None:
         self.stop.set()
@@ -417,13 +465,17 @@ def _link_port(path: str, pty: str) -> str | None:
 @click.option("--console", "console", type=click.Choice(["/console", "/system"]), default=None,
               help="Namespace of the console topics (power_on, power_off, home): /console as dVRK 2.3, /system as "
                    "dVRK 2.4 (default: the configuration's [ros] console, else /console).")
+@click.option("--servo-watchdog", type=float, default=None,
+              help="Seconds without a servo_jp or servo_jf after which an arm in servo mode goes to FAULT, as a "
+                   "controller's watchdog would (default: none; a test arms it on one arm over the operator "
+                   "channel instead).")
 @click.option("--plant-model", type=click.Path(dir_okay=False), default=None,
               help="Model file (model.json of `rig identify` or `rig discrepancy`) the served arms' plants take: "
                    "its parameters and added effects (default: each arm's plant_model, else the nominal PSM).")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit.")
 @click.pass_context
-def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, natnet, natnet_version, console, plant_model,
-            list_steps):
+def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, natnet, natnet_version, console, servo_watchdog,
+            plant_model, list_steps):
     """Serve the simulated rig as the dVRK's ROS 2 topics (/<ARM>/measured_js ... at RATE Hz),
     mocap poses on /mocap/<body>/pose and the load cell on a pty, paced to the wall clock.
 
@@ -448,6 +500,8 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, natnet, n
     rate = cfg.rig["rate"] if rate is None else rate
     if rate <= 0 or cp_rate <= 0:
         raise click.BadParameter("rates must be > 0 Hz")
+    if servo_watchdog is not None and not servo_watchdog > 0:
+        raise click.BadParameter(f"must be > 0 s, got {servo_watchdog}", param_hint="--servo-watchdog")
     cfg = dataclasses.replace(cfg, rig=dict(cfg.rig, rate=float(rate)))
     names = [a.strip() for a in arms.split(",")] if arms else list(cfg.arms)
     for n in names:
@@ -528,7 +582,8 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, natnet, n
         node = rclpy.create_node("rig_sim", context=context)
         mocap_cfg = dict(cfg.mocap) if mocap and cfg.mocap["driver"] != "none" else None
         server = SimServer(world, node, list(world.names), cp_rate=cp_rate, mocap=mocap_cfg, seed=world.seed,
-                           console=console, cells=cells, executor=cfg.ros["executor"])
+                           console=console, cells=cells, executor=cfg.ros["executor"],
+                           servo_watchdog=servo_watchdog)
         server.stop = stop
         if natnet:
             from drivers.natnet_server import SimMotive, parse_version
@@ -578,5 +633,5 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, natnet, n
          f"{stats['sim_s']:.3f} s simulated in {stats['wall_s']:.3f} s wall; late ticks {stats['late_ticks']} (longest "
          f"{stats['max_lag_s'] * 1e3:.1f} ms behind), "
          f"re-anchored {stats['slips']}, refused commands {stats['command_errors']}, superseded "
-         f"{stats['superseded']}, "
+         f"{stats['superseded']}, dropped (arm not ready) {sum(stats['dropped'].values())}, "
          f"operator requests {sum(server.operator.served.values())}")

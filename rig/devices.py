@@ -10,7 +10,10 @@ procedure or driver needs an `if simulated:` branch.
 * Real arms (driver "ros"): a `StreamClock` at `rig.rate` (each tick waits for a fresh
   measured_js of every arm), one rclpy context and node owned
   by the Rig and spun by one executor thread, `RosArm`s on it (watchdog from each arm's
-  config), the serial or CAN `LoadCell` and `RosMocapTracker` on the same node.
+  config), the serial or CAN `LoadCell` and `RosMocapTracker` on the same node. Opening
+  connects (`connect`): it waits for every stream, then enables and homes the arms
+  through their operating state (`ready_arms`), as a procedure moves only arms that are
+  ENABLED and homed.
 
 Mixing simulated and real arms in one rig is refused: they would live on different clocks.
 """
@@ -229,12 +232,15 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say) -> dict:
     deadline = time.monotonic() + timeout
     shown = time.monotonic()
     waiting = {f"{rig.arms[n].topic['measured_js']}": rig.arms[n] for n in names}
+    # an arm is there once it sends measured_js or its operating state (a disabled dVRK
+    # may publish no joints before it is enabled: ready_arms then waits for them)
     say(f"connecting on {domain_text()}: waiting for {', '.join(waiting)}"
         + ("" if rig.force is None else
            ", the load cell" if len(rig.forces) <= 1 else f", {len(rig.forces)} load cells")
         + (", mocap" if rig.tracker is not None else "") + f" (up to {timeout:g} s)")
     while True:
-        missing = [topic for topic, arm in waiting.items() if arm.stream_age() == float("inf")]
+        missing = [topic for topic, arm in waiting.items()
+                   if arm.stream_age() == float("inf") and arm.operating_state() is None]
         if rig.tracker is not None:
             missing += [rig.tracker.topics[b] for b, n in rig.tracker.stats.received.items() if n == 0]
         if not missing:
@@ -255,6 +261,7 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say) -> dict:
             say(f"  still waiting for {', '.join(missing[:4])}{' ...' if len(missing) > 4 else ''} "
                 f"({deadline - now:.0f} s left)")
         time.sleep(0.01)
+    ready_arms(rig, names, timeout, say)
     op_wait = getattr(rig.operator, "wait_for_server", None)
     if op_wait is not None and not op_wait(max(0.0, deadline - time.monotonic())):
         from drivers.operator import REQUEST_TOPIC
@@ -282,6 +289,52 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say) -> dict:
         parts.append(f"mocap {len(rig.tracker.bodies)} bodies {min(body_rates):.0f}-{max(body_rates):.0f} Hz")
     say("connected: " + "; ".join(parts))
     return rates
+
+
+#: s an arm whose measured_js came is given for its first operating_state
+STATE_GRACE = 2.0
+
+
+def ready_arms(rig: Rig, names: list[str], timeout: float, say) -> None:
+    """Enable and home the ROS arms `names` through their operating state, all at once,
+    and wait up to `timeout` s for each to be ENABLED and homed (`RosArm.ready`); then
+    for the measured_js of each.
+
+    An arm that shows no operating_state within STATE_GRACE s of its joints (a controller
+    without the CRTK state machine) is reported and used as before: its state is not read
+    and move_jp waits on positions. Raises ArmFault (an arm in FAULT or PAUSED, or not
+    ready in time) or ConnectError (no measured_js) with one line.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    from rig.ros_session import domain_text
+
+    arms = {n: rig.arms[n] for n in names}
+    grace_end = time.monotonic() + STATE_GRACE
+    for arm in arms.values():
+        arm.wait_for_state(max(0.0, grace_end - time.monotonic()))
+    stateful = {n: a for n, a in arms.items() if a.operating_state() is not None}
+    for n, arm in arms.items():
+        if n not in stateful:
+            why = arm.states_error or f"none within {STATE_GRACE:g} s"
+            say(f"  {arm.topic['operating_state']}: {why}; {n}'s state is not read (move_jp waits on its joints)")
+    if stateful:
+        t0 = time.monotonic()
+        before = {n: a.operating_state() for n, a in stateful.items()}
+        say(f"  enabling and homing {', '.join(stateful)} ("
+            + "; ".join(f"{n} {st.describe()}" for n, st in before.items()) + f"; up to {timeout:g} s)")
+        with ThreadPoolExecutor(max_workers=len(stateful)) as pool:
+            futures = [pool.submit(a.ready, timeout) for a in stateful.values()]
+            errors = [f.exception() for f in futures]
+        first = next((e for e in errors if e is not None), None)
+        if first is not None:
+            raise first
+        say(f"  {', '.join(stateful)}: ENABLED and homed in {time.monotonic() - t0:.1f} s")
+    deadline = time.monotonic() + timeout
+    for n, arm in arms.items():
+        if not arm.wait_for_data(max(0.0, deadline - time.monotonic())):
+            raise ConnectError(f"{arm.topic['measured_js']}: no message within {timeout:g} s of {n} being enabled "
+                               f"on {domain_text()}; check that the dVRK (or `rig sim`) publishes it")
 
 
 def _open_loadcell(lc: dict, rig: Rig):

@@ -75,6 +75,8 @@ def rig_sim():
         for arm in arms.values():
             assert arm.wait_for_data(30.0), f"no measured_js from rig sim on {arm.topic['measured_js']}"
             assert arm.wait_for_subscribers(30.0)
+        for arm in arms.values():  # rig sim's arms start DISABLED, as a dVRK's
+            assert arm.ready(timeout=30.0).ready
         yield {"proc": proc, "arms": arms, "lines": lines, "stale_events": stale_events,
                "watch_node": nodes["watch"], "nodes": nodes}
         for arm in arms.values():
@@ -207,6 +209,8 @@ def test_move_jp_waits_until_arrived_and_times_out(rig_sim):
     t0 = time.monotonic()
     assert arm.move_jp(goal, wait=True, timeout=8.0)
     elapsed = time.monotonic() - t0
+    assert arm.move_wait == "busy"  # rig sim publishes operating_state: the wait is on is_busy
+    assert not arm.operating_state().is_busy
     q = arm.measured_js().position
     assert np.all(np.abs(q - goal) <= 1.5 * np.array([2e-3, 2e-3, 1e-3]))
     # 0.15 rad at half the 2 rad/s limit cannot take less than ~0.3 s with a smooth profile

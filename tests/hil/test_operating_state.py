@@ -1,0 +1,264 @@
+"""The dVRK's operating state over the wire: `rig sim` serves it, `RosArm` and the procedures obey it.
+
+One `rig sim` serves the module from a lab's rig.toml. This process is a client of its
+own (a RosSession with a RosArm on PSM2, the operator channel, and subscriptions that
+record PSM2's operating_state and warnings), and the last test runs a procedure on PSM1 in
+another process. In order: a never-enabled arm drops commands with the dVRK's warning and
+does not move; enable and home through RosArm; move_jp waits on is_busy; the servo
+watchdog faults an arm whose servo commands stop, and the fault is cleared by a disable;
+a FAULT mid-run (PSM1's joint 1 pushed past its limit) aborts the procedure with one line,
+the arm held, the recording closed with the reason.
+
+Domains 20-49 (the console-name tests use 50-99, the arm driver's 100-199, the chain
+201-231; the short single-process pub/sub tests draw from 1-200), localhost discovery.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+
+from tests.hil.harness import ServedRig  # noqa: E402
+
+pytestmark = [pytest.mark.ros, pytest.mark.hil]
+
+
+class _Client:
+    """This process's side: a RosArm on PSM2 (never enabled until the second test), the
+    operator channel, and PSM2's operating_state and warning messages as they arrive."""
+
+    def __init__(self, domain: int):
+        from std_msgs.msg import String
+
+        from crtk_msgs.msg import OperatingState
+        from drivers.dvrk_arm import RosArm
+        from drivers.operator import RosOperator
+        from rig.ros_session import RosSession
+
+        self.session = RosSession("state_test")
+        node = self.session.node
+        self.arm = RosArm(node, "/PSM2", watchdog=1.0, spin=False, polled=self.session.executor_time)
+        self.operator = RosOperator(node, timeout=20.0)
+        self.states: list[tuple[float, str, bool, bool]] = []  # (monotonic, state, homed, busy)
+        self.warnings: list[tuple[float, str]] = []
+        node.create_subscription(OperatingState, "/PSM2/operating_state",
+                                 lambda m: self.states.append((time.monotonic(), m.state, m.is_homed, m.is_busy)), 100)
+        node.create_subscription(String, "/PSM2/warning", lambda m: self.warnings.append((time.monotonic(), m.data)),
+                                 100)
+        self.session.start()
+
+    def close(self) -> None:
+        self.arm.close()
+        self.operator.close()
+        self.session.close()
+
+
+def _settle(arm, timeout: float = 20.0) -> None:
+    """Wait until the arm's joints stay within 0.2 mrad (0.2 mm) over 0.5 s: freed of the
+    object's pull, its PID lets go of the integral that held against it."""
+    deadline = time.monotonic() + timeout
+    q = arm.measured_js().position.copy()
+    while True:
+        time.sleep(0.5)
+        q1 = arm.measured_js().position.copy()
+        if np.all(np.abs(q1 - q) < 2e-4):
+            return
+        assert time.monotonic() < deadline, f"{arm.name} did not settle: {q} -> {q1}"
+        q = q1
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    domain = 20 + (os.getpid() + 11) % 30
+    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
+    os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    try:
+        with ServedRig(tmp_path_factory.mktemp("states"), domain=domain) as rig:
+            client = _Client(domain)
+            try:
+                assert client.arm.wait_for_data(30.0) and client.arm.wait_for_state(30.0)
+                assert client.arm.wait_for_subscribers(30.0)
+                client.operator.detach_object()  # the arms move free of the spring between them
+                _settle(client.arm)
+                rig.client = client
+                yield rig
+            finally:
+                client.close()
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def test_a_never_enabled_arm_drops_commands_warns_and_does_not_move(served):
+    from drivers.sim_arm_state import NOT_READY_PERIOD
+
+    c = served.client
+    arm = c.arm
+    st = arm.operating_state()
+    assert (st.state, st.is_homed, st.is_busy) == ("DISABLED", False, False)
+    q0 = arm.measured_js().position.copy()
+    t0 = time.monotonic()
+    sent = 0
+    while time.monotonic() - t0 < 3.0:  # a client streaming servo_jp at 50 Hz without enabling
+        arm.servo_jp(q0 + np.array([0.1, -0.1, 0.01]))
+        sent += 1
+        time.sleep(0.02)
+    time.sleep(0.5)  # the last warnings on their way
+    q = arm.measured_js().position
+    assert np.all(np.abs(q - q0) < 1e-3), (q0, q)  # held where it was: nothing obeyed
+    said = [text for t, text in c.warnings if t >= t0]
+    # the dVRK's words, throttled to one per NOT_READY_PERIOD (2 s) of the rig's time, the
+    # later ones counting what was dropped since the arm was last ready
+    assert said and said[0] == "PSM2: servo_jp, arm not ready", said
+    assert 1 <= len(said) <= int(3.5 / NOT_READY_PERIOD) + 1, said
+    if len(said) > 1:
+        assert said[1].startswith("PSM2: servo_jp, arm not ready (") and said[1].endswith(" errors)"), said
+    # a move_jp is dropped too: its busy flag never rises, and the wait says so at once
+    t1 = time.monotonic()
+    assert arm.move_jp(q0 + np.array([0.1, 0.0, 0.0]), wait=True, timeout=10.0) is False
+    assert time.monotonic() - t1 < 3.0 and arm.move_wait == "busy"
+    assert arm.operating_state().state == "DISABLED"
+    # and nothing of it reaches the joints
+    assert np.all(np.abs(arm.measured_js().position - q0) < 1e-3)
+
+
+def test_enable_and_home_through_rosarm_within_the_timeout(served):
+    from drivers.sim_arm_state import HOMING
+
+    c = served.client
+    t0 = time.monotonic()
+    st = c.arm.ready(timeout=30.0)
+    took = time.monotonic() - t0
+    assert (st.state, st.is_homed, st.is_busy) == ("ENABLED", True, False)
+    seen = [(s, h, b) for t, s, h, b in c.states if t >= t0]
+    # powering (DISABLED, busy), ENABLED, homing (ENABLED, not homed, busy), homed
+    assert ("DISABLED", False, True) in seen and ("ENABLED", False, True) in seen, sorted(set(seen))
+    assert seen.index(("ENABLED", False, True)) < seen.index(("ENABLED", True, False))
+    assert took >= HOMING  # a homing takes its time (the rig's clock is paced to the wall's)
+    # ENABLED and homed, the arm obeys: a servo_jp moves it
+    q0 = c.arm.measured_js().position.copy()
+    target = q0 + np.array([0.03, 0.0, 0.0])
+    deadline = time.monotonic() + 10.0
+    while abs(c.arm.measured_js().position[0] - target[0]) > 2e-3:
+        assert time.monotonic() < deadline, c.arm.measured_js().position
+        c.arm.servo_jp(target)
+        time.sleep(0.01)
+
+
+def test_move_jp_waits_on_is_busy(served):
+    c = served.client
+    arm = c.arm
+    q0 = arm.measured_js().position.copy()
+    goal = q0 + np.array([-0.1, 0.05, 0.0])
+    t0 = time.monotonic()
+    assert arm.move_jp(goal, wait=True, timeout=15.0)
+    t1 = time.monotonic()
+    assert arm.move_wait == "busy"
+    busy = [(t, b) for t, s, h, b in c.states if t0 <= t <= t1]
+    rise = next(t for t, b in busy if b)
+    assert any(t > rise and not b for t, b in busy), "is_busy did not fall before move_jp returned"
+    # 0.1 rad at half of 2 rad/s on a smooth profile takes more than 0.15 s
+    assert t1 - t0 > 0.15
+    assert np.all(np.abs(arm.measured_js().position - goal) <= np.array([2e-3, 2e-3, 1e-3]))
+    assert not arm.operating_state().is_busy
+
+
+def test_servo_watchdog_faults_an_arm_whose_servo_commands_stop(served):
+    from drivers.crtk import ArmFault
+
+    c = served.client
+    arm = c.arm
+    c.operator.fault("PSM2", "servo_watchdog", timeout=0.2)
+    try:
+        q = arm.measured_js().position.copy()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 1.0:  # a servo stream at 100 Hz keeps it fed
+            arm.servo_jp(q)
+            time.sleep(0.01)
+        assert arm.operating_state().state == "ENABLED"
+        stopped = time.monotonic()  # then the stream stops
+        deadline = stopped + 10.0
+        with pytest.raises(ArmFault) as err:
+            while True:
+                arm.measured_js()
+                assert time.monotonic() < deadline, "the arm did not fault"
+                time.sleep(0.01)
+        line = str(err.value)
+        assert "\n" not in line
+        assert "/PSM2/operating_state: PSM2 went to FAULT during the run" in line, line
+        assert "watchdog: no servo command for" in line, line
+        assert arm.operating_state().state == "FAULT"
+        # a FAULT is not cleared behind a person's back: ready() names it
+        with pytest.raises(ArmFault, match="PSM2 is FAULT"):
+            arm.ready(timeout=5.0)
+    finally:
+        c.operator.fault("PSM2", "servo_watchdog", timeout=0.0)  # disarmed
+    arm.state_command("disable")  # from FAULT only disable leads out, as on the dVRK
+    deadline = time.monotonic() + 10.0
+    while arm.operating_state().state != "DISABLED":
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    st = arm.ready(timeout=20.0)  # enabled again; still homed: no second homing
+    assert st.ready
+    arm.measured_js()  # in control again: no fault raised
+
+
+def _watch_then_inject(arm: str, delay: float, proc, done: threading.Event) -> None:
+    """Wait until the procedure `proc` has enabled and homed `arm` (it connected), let it
+    run `delay` s into its steps, then push the arm's joint 1 past its limit."""
+    from crtk_msgs.msg import OperatingState
+    from drivers.operator import RosOperator
+    from rig.ros_session import RosSession
+
+    session = RosSession("fault_injector")
+    ready = threading.Event()
+    session.node.create_subscription(OperatingState, f"/{arm}/operating_state",
+                                     lambda m: ready.set() if m.state == "ENABLED" and m.is_homed else None, 10)
+    operator = RosOperator(session.node, timeout=20.0)
+    session.start()
+    try:
+        while not ready.wait(0.1):
+            if proc.poll() is not None:
+                return  # it ended before connecting: the test says why
+        time.sleep(delay)
+        if proc.poll() is None:
+            operator.fault(arm, "joint_limit", joint=1)
+    finally:
+        operator.close()
+        session.close()
+        done.set()
+
+
+def test_a_fault_mid_run_aborts_the_procedure_in_one_line(served):
+    """Last: it leaves PSM1 in FAULT, past its limit."""
+    from rig.records import read_recording
+
+    done = threading.Event()
+
+    def inject(proc):
+        threading.Thread(target=_watch_then_inject, args=("PSM1", 3.0, proc, done), daemon=True).start()
+
+    out = served.run("friction-ramp", "--arm", "PSM1", "--ramp-time", "1.5", "--speeds", "0.01,0.02,0.04",
+                     "--no-plots", on_start=inject)
+    assert done.wait(30.0)
+    assert out.code == 3, out.stderr[-3000:]
+    assert "Traceback" not in out.stderr, out.stderr[-3000:]
+    line = out.last_line
+    for words in ("rig friction-ramp: aborted:", "/PSM1/operating_state: PSM1 went to FAULT during the run",
+                  "PSM1: joint 1 at", "past its limit", "run folder"):
+        assert words in line, line
+    assert "PSM1: ENABLED and homed" in out.stderr  # the procedure enabled and homed it when connecting
+    doc = out.doc
+    assert doc is not None and doc["status"] == "aborted" and "went to FAULT" in doc["error"], doc
+    rec = read_recording(os.path.join(doc["run_dir"], "run.mcap"))
+    assert rec.finalised and rec.stop["status"] == "aborted" and rec.stop["error"] == doc["error"]
+    assert rec.stop["held"] == ["PSM1"]

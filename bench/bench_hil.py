@@ -6,7 +6,11 @@ mocap (ROS 2) in one process and each procedure a separate `rig ... --json` proc
 from a rig.toml (tests/hil/harness.py). Prints per procedure the in-process figure, the
 over-the-wire figure, the target and pass/fail (the over-the-wire figure decides), then the
 cooperative loop's timing, the false stale aborts, the time a SIGKILL of rig sim takes to be
-seen, and the longest stall of a sleeping process meanwhile (what the machine imposes).
+seen, and the longest stall of a sleeping process meanwhile (what the machine imposes). The
+arms keep the dVRK's operating state over the wire: the rows on it give how long the
+procedures took to enable and home their arms when connecting (the first homing, and the
+arms already homed) and how many motion commands rig sim dropped because an arm was not
+ready (target 0: every procedure enables and homes what it moves).
 
     .venv/bin/python bench/bench_hil.py [--burners 2] [--rate 500] [--skip-inprocess]
 
@@ -246,9 +250,20 @@ def main() -> int:
                  "not seen" if killed_ms is None else f"{killed_ms:.0f} ms", f"<= {1e3 * watchdog + 50:.0f} ms",
                  killed_ms is not None and killed_ms <= 1e3 * watchdog + 50))
     rows.append(("longest oversleep of a 2 ms sleep (the machine)", f"{1e3 * worst_stall:.0f} ms", "reported", True))
+    readied = [float(x) for name, _ in CHAIN
+               for x in re.findall(r"ENABLED and homed in ([0-9.]+) s", wire[name].stderr)]
+    if readied:
+        later = readied[1:]
+        rows.append(("arms enabled and homed when connecting: first (homing) / later (max)",
+                     f"{readied[0]:.1f} / {max(later) if later else float('nan'):.1f} s", "reported", True))
+    else:
+        rows.append(("arms enabled and homed when connecting", "never reported", "every procedure", False))
     m = re.search(r"measured_js achieved: (.*)", sim_exit)
     if m:
         rows.append(("rig sim at exit", m.group(1)[:110], "held", "NOT held" not in m.group(1)))
+    dropped = re.search(r"dropped \(arm not ready\) (\d+)", sim_exit)
+    rows.append(("motion commands rig sim dropped (arm not ready)", "?" if dropped is None else dropped.group(1),
+                 "0", dropped is not None and dropped.group(1) == "0"))
     ok = print_table(f"bench_hil: rig rate {cfg.rig['rate']:g} Hz over the wire, {args.burners} CPU burners", rows)
     return 0 if ok else 1
 

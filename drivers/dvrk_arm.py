@@ -638,10 +638,12 @@ class RosArm:
         if self._closing.is_set():
             return
         self._closing.set()
-        self._watchdog_thread.join(timeout=1.0)
+        self._watchdog_thread.join(timeout=5.0)
         if self._executor is not None:
-            self._executor.shutdown(timeout_sec=1.0)
-            self._spin_thread.join(timeout=1.0)
+            # endpoints destroyed under a spinning executor crash the process: on a loaded
+            # machine the spin thread may take more than a second to notice the shutdown
+            self._executor.shutdown(timeout_sec=5.0)
+            self._spin_thread.join(timeout=5.0)
         for s in self._subs:
             self.node.destroy_subscription(s)
         for p in self._pubs.values():

@@ -12,8 +12,8 @@ One process, paced to the wall clock:
   included), behind the dVRK's operating state (`drivers.sim_arm_state.SimArmState`:
   each arm starts DISABLED and not homed, is enabled and homed on <arm>/state_command,
   drops motion commands unless ENABLED and homed with the dVRK's throttled warning, is
-  busy during a homing and a move_jp, faults on a joint past its limit and, with
-  `--servo-watchdog`, on servo commands that stop); crtk_msgs/OperatingState on
+  busy during a homing and a move_jp, faults on a joint past its limit and, once a test
+  arms it, on servo commands that stop); crtk_msgs/OperatingState on
   <arm>/operating_state at 100 Hz and on every change, the arm's warnings and errors
   on <arm>/warning and <arm>/error (std_msgs/String, as the dVRK) and in this process's
   log; <console>/power_on, power_off and home send enable, disable and home to every
@@ -79,13 +79,11 @@ class SimServer:
     cp_rate: Hz of the slower arm topics; mocap: a dict with prefix, rate, noise, latency,
     occlusion (or None for no mocap); console: the console's namespace ("/console" as in
     dVRK 2.3, "/system" as in 2.4); cells: the `CellLoad`s of the served load cells, the
-    configured one first (the operator hangs masses from it); servo_watchdog: s without a
-    servo command before an arm in servo mode faults (None: no watchdog).
+    configured one first (the operator hangs masses from it).
     """
 
     def __init__(self, world, node, arms: list[str], cp_rate: float = 100.0, mocap: dict | None = None,
-                 seed: int = 0, console: str = "/console", cells: list | None = None, executor: str = "events",
-                 servo_watchdog: float | None = None):
+                 seed: int = 0, console: str = "/console", cells: list | None = None, executor: str = "events"):
         from crtk_msgs.msg import OperatingState, StringStamped
         from geometry_msgs.msg import PoseStamped, WrenchStamped
         from rclpy.qos import QoSProfile
@@ -102,7 +100,7 @@ class SimServer:
         self.node = node
         self.clock = SimClock(world)
         self.arms = {n: SimArm(world, n, self.clock) for n in arms}
-        self.states = {n: SimArmState(self.arms[n], servo_watchdog=servo_watchdog) for n in arms}
+        self.states = {n: SimArmState(self.arms[n]) for n in arms}
         self.rate = self.clock.rate
         self.cp_every = max(1, int(round(self.rate / cp_rate)))
         self.state_every = max(1, int(round(self.rate / OPERATING_STATE_RATE)))
@@ -465,17 +463,13 @@ def _link_port(path: str, pty: str) -> str | None:
 @click.option("--console", "console", type=click.Choice(["/console", "/system"]), default=None,
               help="Namespace of the console topics (power_on, power_off, home): /console as dVRK 2.3, /system as "
                    "dVRK 2.4 (default: the configuration's [ros] console, else /console).")
-@click.option("--servo-watchdog", type=float, default=None,
-              help="Seconds without a servo_jp or servo_jf after which an arm in servo mode goes to FAULT, as a "
-                   "controller's watchdog would (default: none; a test arms it on one arm over the operator "
-                   "channel instead).")
 @click.option("--plant-model", type=click.Path(dir_okay=False), default=None,
               help="Model file (model.json of `rig identify` or `rig discrepancy`) the served arms' plants take: "
                    "its parameters and added effects (default: each arm's plant_model, else the nominal PSM).")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit.")
 @click.pass_context
-def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, natnet, natnet_version, console, servo_watchdog,
-            plant_model, list_steps):
+def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, natnet, natnet_version, console, plant_model,
+            list_steps):
     """Serve the simulated rig as the dVRK's ROS 2 topics (/<ARM>/measured_js ... at RATE Hz),
     mocap poses on /mocap/<body>/pose and the load cell on a pty, paced to the wall clock.
 
@@ -500,8 +494,6 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, natnet, n
     rate = cfg.rig["rate"] if rate is None else rate
     if rate <= 0 or cp_rate <= 0:
         raise click.BadParameter("rates must be > 0 Hz")
-    if servo_watchdog is not None and not servo_watchdog > 0:
-        raise click.BadParameter(f"must be > 0 s, got {servo_watchdog}", param_hint="--servo-watchdog")
     cfg = dataclasses.replace(cfg, rig=dict(cfg.rig, rate=float(rate)))
     names = [a.strip() for a in arms.split(",")] if arms else list(cfg.arms)
     for n in names:
@@ -582,8 +574,7 @@ def command(ctx, arms, duration, rate, cp_rate, seed, loadcell, mocap, natnet, n
         node = rclpy.create_node("rig_sim", context=context)
         mocap_cfg = dict(cfg.mocap) if mocap and cfg.mocap["driver"] != "none" else None
         server = SimServer(world, node, list(world.names), cp_rate=cp_rate, mocap=mocap_cfg, seed=world.seed,
-                           console=console, cells=cells, executor=cfg.ros["executor"],
-                           servo_watchdog=servo_watchdog)
+                           console=console, cells=cells, executor=cfg.ros["executor"])
         server.stop = stop
         if natnet:
             from drivers.natnet_server import SimMotive, parse_version

@@ -321,8 +321,10 @@ def ready_arms(rig: Rig, names: list[str], timeout: float, say) -> None:
     if stateful:
         t0 = time.monotonic()
         before = {n: a.operating_state() for n, a in stateful.items()}
-        say(f"  enabling and homing {', '.join(stateful)} ("
-            + "; ".join(f"{n} {st.describe()}" for n, st in before.items()) + f"; up to {timeout:g} s)")
+        todo = [n for n, st in before.items() if not st.ready or st.is_busy]
+        if todo:
+            say(f"  enabling and homing {', '.join(todo)} ("
+                + "; ".join(f"{n} {before[n].describe()}" for n in todo) + f"; up to {timeout:g} s)")
         with ThreadPoolExecutor(max_workers=len(stateful)) as pool:
             futures = [pool.submit(a.ready, timeout) for a in stateful.values()]
             errors = [f.exception() for f in futures]

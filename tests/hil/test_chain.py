@@ -1,5 +1,9 @@
 """The lab's whole chain over the wire: `rig sim` in one process, every procedure in another.
 
+rig sim's arms keep the dVRK's operating state (they start DISABLED, drop motion commands
+until enabled and homed): each procedure enables and homes the arms it opens when it
+connects, so the chain runs with state handling on throughout.
+
 One `rig sim` serves the module from a lab's rig.toml (ROS arms, the load cell on a serial
 port that rig sim links to its pty, ROS mocap, rig sim's simulated operator); each test
 runs one `rig <procedure> --json` process in the same folder, in the lab's order, so each
@@ -45,8 +49,12 @@ def test_loadcell_calibrate_hangs_masses_through_the_operator(served):
 def test_link_lengths(served):
     from procedures.link_lengths import nominal_lengths
 
-    doc = completed(served.run("link-lengths", "--q1-range", "0.5", "--q2-range", "0.4", "--passes", "1",
-                         "--q3-stroke", "0.05"), "link-lengths")
+    out = served.run("link-lengths", "--q1-range", "0.5", "--q2-range", "0.4", "--passes", "1", "--q3-stroke", "0.05")
+    doc = completed(out, "link-lengths")
+    # rig sim's arms start DISABLED, as a dVRK's: the first procedure to move PSM1 enabled
+    # and homed it through its operating state when connecting
+    assert "enabling and homing PSM1 (PSM1 DISABLED, not homed;" in out.stderr, out.stderr[-3000:]
+    assert "PSM1: ENABLED and homed in" in out.stderr
     true = nominal_lengths()  # the geometry rig sim's arms have
     for key in ("l1", "l2", "l3", "l4"):
         assert abs(doc["lengths"][key]["value"] - true[key]) < 0.003, (key, doc["lengths"][key], true[key])

@@ -7,7 +7,8 @@ another process. In order: a never-enabled arm drops commands with the dVRK's wa
 does not move; enable and home through RosArm; move_jp waits on is_busy; the servo
 watchdog faults an arm whose servo commands stop, and the fault is cleared by a disable;
 a FAULT mid-run (PSM1's joint 1 pushed past its limit) aborts the procedure with one line,
-the arm held, the recording closed with the reason.
+the arm held, the recording closed with the reason; the next procedure on that arm stops
+when connecting, the FAULT left for a person to clear.
 
 Domains 20-49 (the console-name tests use 50-99, the arm driver's 100-199, the chain
 201-231; the short single-process pub/sub tests draw from 1-200), localhost discovery.
@@ -239,7 +240,7 @@ def _watch_then_inject(arm: str, delay: float, proc, done: threading.Event) -> N
 
 
 def test_a_fault_mid_run_aborts_the_procedure_in_one_line(served):
-    """Last: it leaves PSM1 in FAULT, past its limit."""
+    """It leaves PSM1 in FAULT, past its limit."""
     from rig.records import read_recording
 
     done = threading.Event()
@@ -262,3 +263,13 @@ def test_a_fault_mid_run_aborts_the_procedure_in_one_line(served):
     rec = read_recording(os.path.join(doc["run_dir"], "run.mcap"))
     assert rec.finalised and rec.stop["status"] == "aborted" and rec.stop["error"] == doc["error"]
     assert rec.stop["held"] == ["PSM1"]
+
+
+def test_a_procedure_on_a_faulted_arm_stops_when_connecting(served):
+    """After the test above: PSM1 is still in FAULT. A procedure does not clear a fault
+    behind a person's back; it stops before its run, in one line."""
+    out = served.run("friction-ramp", "--arm", "PSM1", "--ramp-time", "1.5", "--speeds", "0.01,0.02,0.04",
+                     "--no-plots")
+    assert out.code == 3 and "Traceback" not in out.stderr, out.stderr[-3000:]
+    assert "/PSM1/operating_state: PSM1 is FAULT; clear the fault at the dVRK console" in out.last_line, out.last_line
+    assert "recording to" not in out.stderr  # stopped when connecting, before any run began

@@ -331,7 +331,8 @@ def ready_arms(rig: Rig, names: list[str], timeout: float, say) -> None:
         first = next((e for e in errors if e is not None), None)
         if first is not None:
             raise first
-        say(f"  {', '.join(stateful)}: ENABLED and homed in {time.monotonic() - t0:.1f} s")
+        say(f"  {', '.join(stateful)}: ENABLED and homed "
+            + (f"in {time.monotonic() - t0:.1f} s" if todo else "(as the last run left them)"))
     deadline = time.monotonic() + timeout
     for n, arm in arms.items():
         if not arm.wait_for_data(max(0.0, deadline - time.monotonic())):

@@ -186,13 +186,15 @@ class Identification:
     extra : (n * nj, e), optional
         Further columns outside the standard parameters (e.g. a Stribeck term), fitted
         alongside the base parameters; their amplitudes are constrained >= 0 in the SDP (and
-        in the realizability test). ``extra_names`` name them in messages and results.
+        in the realizability test) unless ``extra_signed`` (e,) marks them as signed (the
+        Fourier coefficients of a friction profile). ``extra_names`` name them.
     """
 
     def __init__(self, Wb: np.ndarray, tau: np.ndarray, base: BaseParameters, layout,
                  nominal: np.ndarray | None = None, regressor: Callable | None = None,
                  q_check: np.ndarray | None = None, max_condition: float = MAX_CONDITION,
-                 extra: np.ndarray | None = None, extra_names: list | None = None):
+                 extra: np.ndarray | None = None, extra_names: list | None = None,
+                 extra_signed: list | None = None):
         self.layout = ParamLayout.of(layout)
         self.base = base
         self.tau = np.atleast_2d(np.asarray(tau, dtype=float))
@@ -213,6 +215,11 @@ class Identification:
                             else [f"extra{i + 1}" for i in range(self.n_extra)])
         if len(self.extra_names) != self.n_extra:
             raise ValueError(f"{self.n_extra} extra columns but {len(self.extra_names)} names")
+        signed = np.zeros(self.n_extra, bool) if extra_signed is None else np.asarray(extra_signed, bool)
+        if signed.shape != (self.n_extra,):
+            raise ValueError(f"{self.n_extra} extra columns but {signed.size} signed flags")
+        #: indices of the extra columns whose amplitude must be >= 0
+        self.extra_nonnegative = np.flatnonzero(~signed)
         # The design matrix actually solved: base regressor, then the extra columns.
         self.Wx = np.hstack([self.Wb, X]) if self.n_extra else self.Wb
         self.col_norms = np.linalg.norm(self.Wx, axis=0)
@@ -296,7 +303,7 @@ class Identification:
             mm = lambda q: mass_matrix_from_regressor(self.regressor, q, pi)  # noqa: E731
         physical = check_physical(pi, self.layout, mm, self.q_check)
         if self.n_extra:
-            physical["extra_nonnegative"] = {"pass": bool(np.all(extra >= -1e-9)),
+            physical["extra_nonnegative"] = {"pass": bool(np.all(extra[self.extra_nonnegative] >= -1e-9)),
                                              "values": dict(zip(self.extra_names, extra.tolist()))}
             physical["all_pass"] = all(v["pass"] for v in physical.values() if isinstance(v, dict))
         if method == "sdp":
@@ -409,8 +416,8 @@ class Identification:
             terms.append(mu * (N.T @ pi - N.T @ pi0))
         objective = cp.Minimize(cp.norm(cp.hstack(terms), 2))
         cons = self._constraints(cp, pi, min_mass, mass_bounds, total_mass)
-        if ex is not None:
-            cons.append(ex >= 0)
+        if ex is not None and self.extra_nonnegative.size:
+            cons.append(ex[self.extra_nonnegative] >= 0)
         prob = cp.Problem(objective, cons)
         t1 = time.perf_counter()
         prob.solve(solver=cp.CLARABEL, tol_gap_abs=tol, tol_gap_rel=tol, tol_feas=tol,
@@ -422,7 +429,9 @@ class Identification:
         piv = np.asarray(pi.value, dtype=float)
         theta = K @ piv
         if ex is not None:
-            theta = np.concatenate([theta, np.maximum(np.asarray(ex.value, dtype=float), 0.0)])
+            exv = np.asarray(ex.value, dtype=float).copy()
+            exv[self.extra_nonnegative] = np.maximum(exv[self.extra_nonnegative], 0.0)
+            theta = np.concatenate([theta, exv])
         cond = normalised_condition(self.Wx * self._row_weights(a)[:, None])
         info = {"status": prob.status, "solver": "CLARABEL", "iterations": prob.solver_stats.num_iters,
                 "compile_seconds": t1 - t0, "solve_seconds": t2 - t1,
@@ -456,7 +465,8 @@ class Identification:
         if self.n_extra:
             ex = cp.Variable(self.n_extra)
             model = model + (s * R1[:, self.r:]) @ ex
-            cons.append(ex >= 0)
+            if self.extra_nonnegative.size:
+                cons.append(ex[self.extra_nonnegative] >= 0)
         prob = cp.Problem(cp.Minimize(cp.norm(model - s * target, 2)), cons)
         with warnings.catch_warnings():
             # "optimal_inaccurate" near a zero optimum is expected here; the status is returned.

@@ -130,6 +130,10 @@ PARAMETERS = [
               "reversal is smeared, and so must be the model's", type=bool),
     Parameter("stribeck", True, "", "Identify a Stribeck excess on joint 3 (thesis 5.6): Fst exp(-(dq3/vs)^2) "
               "tanh(a dq3/2) with Fst >= 0 and vs chosen on a grid by the training fit", type=bool),
+    Parameter("position_friction", "off", "", "Joint 3 Coulomb level varying with the insertion, sigma(dq3) f(q3), "
+              "f a Fourier series (the effect `rig discrepancy` names on the real arm): 'off'; 'auto' (period and "
+              "harmonics chosen by cross-validation over blocks in time of the training data, kept only where they "
+              "predict held-out blocks better); or 'P' / 'P,K' (period in m, K harmonics 1-4)", type=str),
     Parameter("fit_deadband", True, "", "Leave joint samples slower than the 7.5.1 velocity deadband (0.01 rad/s, "
               "0.01 rad/s, 0.005 m/s) out of the fit: a stuck joint's effort is not a function of the motion",
               type=bool),
@@ -190,12 +194,33 @@ class FitOutcome:
     seconds: dict = field(default_factory=dict)
     parallel: bool = True
     stribeck_vs: float | None = None  # m/s; None: no Stribeck term identified
+    position_friction: tuple | None = None  # (period m, harmonics) of joint 3's profile; None: none
 
     def extra_rows(self, data, parallel: bool | None = None) -> np.ndarray | None:
-        """The Stribeck column(s) of processed ``data``, or None without the term."""
-        if self.stribeck_vs is None:
+        """The extra columns of processed ``data`` (the Stribeck column, then the position
+        friction profile's), or None without either term."""
+        par = self.parallel if parallel is None else parallel
+        cols = []
+        if self.stribeck_vs is not None:
+            cols.append(stribeck_rows(self.model, data, self.stribeck_vs, par))
+        if self.position_friction is not None:
+            cols.append(position_friction_rows(self.model, data, self.position_friction, par))
+        return np.hstack(cols) if cols else None
+
+    def position_friction_effect(self) -> dict | None:
+        """Joint 3's identified friction profile as a model file ``effects`` entry
+        (calibration.effects position_friction), or None."""
+        if self.position_friction is None:
             return None
-        return stribeck_rows(self.model, data, self.stribeck_vs, self.parallel if parallel is None else parallel)
+        from calibration.effects import CATALOGUE
+
+        eff = CATALOGUE[POSITION_FRICTION]
+        sdp = self.fits["sdp"]
+        theta = sdp.extra[0 if self.stribeck_vs is None else 1:]
+        fc3 = float(sdp.pi[self.model.param_names().index("joint3.Fc")]) if sdp.pi is not None else 0.0
+        params = eff.params(theta, self.position_friction, 3, {"Fc": fc3})
+        return {"name": POSITION_FRICTION, "joint": 3, "params": params, "units": eff.units(3),
+                "source": "identified with the rigid body (rig identify --position-friction)"}
 
     def stribeck(self) -> dict | None:
         """{"Fst": (3,), "vs": (3,)} of the SDP fit (zero on the joints without the term)."""
@@ -252,6 +277,92 @@ def stribeck_rows(model, data, vs: float, parallel: bool) -> np.ndarray:
     return equation_rows(data, parallel)(lambda q, dq, ddq: model.stribeck_columns(dq, vs)[:, [STRIBECK_JOINT]])
 
 
+#: The catalogue effect of joint 3's position-dependent Coulomb level, and the blocks in
+#: time of the cross-validation that decides whether (and with which period and harmonics)
+#: the training data support it.
+POSITION_FRICTION = "position_friction"
+CV_BLOCKS = 5
+#: A profile is kept only when it lowers joint 3's cross-validated relative residual by at
+#: least this share of it (a smaller gain is within what the choice among 36 candidates
+#: finds in noise) and by at least CV_MIN_EXPLAINED of joint 3's effort: a profile that
+#: explains less is immaterial to a controller (25 mN of a 5 N effort) and, on a well-fitted
+#: record, is the filter's end effects being fitted rather than friction.
+CV_MIN_GAIN = 0.02
+CV_MIN_EXPLAINED = 0.005
+
+
+def position_friction_rows(model, data, g: tuple, parallel: bool) -> np.ndarray:
+    """(n*3, 2K) stacked columns of joint 3's friction profile at (period, K) for processed
+    ``data``: sigma(dq3) sin(2 pi k q3 / P), sigma(dq3) cos(...) on joint 3's rows."""
+    from calibration.effects import CATALOGUE, EffectContext
+
+    eff = CATALOGUE[POSITION_FRICTION]
+    k = len(eff.linear_names_at(g))
+    return equation_rows(data, parallel)(
+        lambda q, dq, ddq: eff.columns(EffectContext(q=q, dq=dq, rate=data.rate, slope=model.slope), 3, g
+                                       ).reshape(-1, k))
+
+
+def parse_position_friction(text: str):
+    """'off' -> None, 'auto' -> 'auto', 'P' or 'P,K' -> (P m, K)."""
+    t = str(text).strip().lower()
+    if t in ("off", "", "none"):
+        return None
+    if t == "auto":
+        return "auto"
+    from calibration.effects import FRICTION_HARMONICS
+
+    try:
+        parts = [float(x) for x in t.split(",")]
+    except ValueError:
+        parts = []
+    if len(parts) not in (1, 2) or not parts[0] > 0 or (len(parts) == 2 and parts[1] not in FRICTION_HARMONICS):
+        raise click.BadParameter(f"{text!r}: give off, auto, a period in m (e.g. 0.05) or period,harmonics "
+                                 f"(harmonics {FRICTION_HARMONICS[0]}-{FRICTION_HARMONICS[-1]})",
+                                 param_hint="--position-friction")
+    return (parts[0], int(parts[1]) if len(parts) == 2 else 1)
+
+
+def _cv_joint3(A: np.ndarray, y: np.ndarray, block: np.ndarray) -> float:
+    """Joint 3's relative residual of least squares over ``CV_BLOCKS`` blocks in time, each
+    predicted from a fit on the others (A, y: equation rows; block: each row's block)."""
+    j3 = np.arange(A.shape[0]) % 3 == 2
+    err = 0.0
+    for b in range(CV_BLOCKS):
+        test = block == b
+        x, *_ = np.linalg.lstsq(A[~test], y[~test], rcond=None)
+        r = (y - A @ x)[test & j3]
+        err += float(r @ r)
+    return float(np.sqrt(err / max(float(y[j3] @ y[j3]), 1e-300)))
+
+
+def choose_position_friction(model, data, Wb, extra, mask, parallel: bool) -> tuple[tuple | None, dict]:
+    """The (period, harmonics) of joint 3's friction profile that predicts held-out blocks
+    in time of the training data best, or None when no candidate beats the model without
+    it by CV_MIN_GAIN and CV_MIN_EXPLAINED; and every candidate's cross-validated joint-3
+    residual."""
+    from calibration.effects import CATALOGUE, FRICTION_HARMONICS
+
+    rows = np.ones(Wb.shape[0], bool) if mask is None else mask.reshape(-1)
+    block = np.minimum((np.arange(Wb.shape[0]) // 3) * CV_BLOCKS // max(data.n_samples, 1), CV_BLOCKS - 1)
+    base = Wb if extra is None else np.hstack([Wb, extra])
+    n = np.linalg.norm(base, axis=0)
+    base = base / np.where(n > 0, n, 1.0)
+    y = np.asarray(data.tau, float).reshape(-1)
+    score0 = _cv_joint3(base[rows], y[rows], block[rows])
+    scores = {"none": score0}
+    best = (min(score0 * (1.0 - CV_MIN_GAIN), score0 - CV_MIN_EXPLAINED), None)
+    for period in CATALOGUE[POSITION_FRICTION].grid(3):
+        X = position_friction_rows(model, data, (period, max(FRICTION_HARMONICS)), parallel)
+        for k in FRICTION_HARMONICS:
+            A = np.hstack([base, X[:, :2 * k]])
+            sc = _cv_joint3(A[rows], y[rows], block[rows])
+            scores[f"{period:.4g} m x{k}"] = sc
+            if sc < best[0]:
+                best = (sc, (float(period), int(k)))
+    return best[1], scores
+
+
 def _choose_stribeck_velocity(Wb, tau, X_of, mask) -> tuple[float, dict]:
     """The Stribeck velocity of STRIBECK_VELOCITIES whose column ``X_of(vs)`` (n*3, 1), added
     to the base regressor ``Wb``, leaves the smallest joint-3 least-squares residual on the
@@ -274,19 +385,35 @@ def _choose_stribeck_velocity(Wb, tau, X_of, mask) -> tuple[float, dict]:
     return min(scores, key=scores.get), scores
 
 
-def _masked_identification(model, data, base, mask, parallel: bool, stribeck: bool = False):
+def _masked_identification(model, data, base, mask, parallel: bool, stribeck: bool = False,
+                           position_friction=None):
     """Identification with the joint samples outside ``mask`` turned into 0 = 0 equations.
 
     With ``stribeck`` joint 3's Stribeck column is added, its velocity chosen by
-    :func:`_choose_stribeck_velocity`. Returns (Identification, vs or None, scores)."""
+    :func:`_choose_stribeck_velocity`; with ``position_friction`` ('auto' or (period, K))
+    joint 3's friction profile columns (signed), 'auto' chosen by
+    :func:`choose_position_friction`. Returns (Identification, vs or None, scores, profile
+    (period, K) or None, its scores)."""
     from calibration.estimators import Identification, model_nominal
     from calibration.layout import ParamLayout
 
     Wb = base.regressor(equation_rows(data, parallel)(model.regressor_batch))
     vs, scores, extra = None, {}, None
+    names, signed = [], []
     if stribeck:
         vs, scores = _choose_stribeck_velocity(Wb, data.tau, lambda v: stribeck_rows(model, data, v, parallel), mask)
         extra = stribeck_rows(model, data, vs, parallel)
+        names, signed = [f"joint{STRIBECK_JOINT + 1}.Fst"], [False]
+    profile, pf_scores = position_friction, {}
+    if position_friction == "auto":
+        profile, pf_scores = choose_position_friction(model, data, Wb, extra, mask, parallel)
+    if profile is not None:
+        X = position_friction_rows(model, data, profile, parallel)
+        extra = X if extra is None else np.hstack([extra, X])
+        from calibration.effects import CATALOGUE
+
+        names += [f"joint3.{n}" for n in CATALOGUE[POSITION_FRICTION].linear_names_at(profile)]
+        signed += [True] * X.shape[1]
     tau = data.tau
     if mask is not None:
         rows = mask.reshape(-1)[:, None]
@@ -296,12 +423,13 @@ def _masked_identification(model, data, base, mask, parallel: bool, stribeck: bo
     idx = np.linspace(0, data.n_samples - 1, min(50, data.n_samples)).astype(int)
     ident = Identification(Wb, tau, base, ParamLayout.of(model), nominal=model_nominal(model),
                            regressor=model.regressor, q_check=data.q[idx], extra=extra,
-                           extra_names=None if extra is None else [f"joint{STRIBECK_JOINT + 1}.Fst"])
-    return ident, vs, scores
+                           extra_names=None if extra is None else names, extra_signed=None if extra is None else signed)
+    return ident, vs, scores, profile, pf_scores
 
 
 def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None, progress=None,
-                       deadband=None, parallel: bool = True, stribeck: bool = True) -> FitOutcome:
+                       deadband=None, parallel: bool = True, stribeck: bool = True,
+                       position_friction=None) -> FitOutcome:
     """Base parameters, OLS, WLS and SDP on processed ``train`` data (JointData with ddq).
 
     ``gravity_mode``: 'auto', or a gravity vector (m/s^2, frame 0); ``configured_gravity``
@@ -312,6 +440,8 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
     ``parallel``: filter the regressor like the torques (see :func:`equation_rows`).
     ``stribeck``: add joint 3's Stribeck excess as a column (amplitude >= 0 in the SDP) with
     the Stribeck velocity of STRIBECK_VELOCITIES that fits the training data best (OLS).
+    ``position_friction``: None, 'auto' or (period m, harmonics): joint 3's friction profile
+    (see :func:`choose_position_friction`).
     """
     from calibration.base_params import RankDeficientError, base_parameters_of
     from calibration.model_selection import DEFAULT_SLOPES, STANDARD_GRAVITY, GravitySlopeSearch
@@ -358,7 +488,20 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
         base = base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
         mask = None if deadband is None else moving_mask(train.dq, deadband)
         try:
-            ident, vs, vs_scores = _masked_identification(model, train, base, mask, parallel, stribeck)
+            ident, vs, vs_scores, profile, pf_scores = _masked_identification(model, train, base, mask, parallel,
+                                                                              stribeck, position_friction)
+            if position_friction is not None:
+                selection.setdefault("position_friction", []).append(
+                    {"joint": 3, "chosen": None if profile is None else {"period": profile[0], "harmonics": profile[1]},
+                     "gravity_candidate": k + 1, "cv_blocks": CV_BLOCKS, "cv_min_gain": CV_MIN_GAIN,
+                     "cv_min_explained": CV_MIN_EXPLAINED,
+                     "cv_relative_residual_joint3": pf_scores})
+                if position_friction == "auto":
+                    say("joint 3 position friction: " + ("none beats the model without it in cross-validation"
+                                                        if profile is None else
+                                                        f"period {profile[0]:.4g} m, {profile[1]} harmonic(s)")
+                        + f" (CV joint 3 residual without {pf_scores['none']:.4g}, best "
+                        f"{min(pf_scores.values()):.4g})")
             if stribeck:
                 selection.setdefault("stribeck", []).append(
                     {"joint": STRIBECK_JOINT + 1, "vs": vs, "gravity_candidate": k + 1,
@@ -377,8 +520,8 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
             say(f"gravity candidate {k + 1}: {np.round(g, 3).tolist()} m/s^2, SDP training relative error "
                 f"{np.round(sdp.relative_error, 4).tolist()}")
         if best is None or score < best[0]:
-            best = (score, g, model, base, ident, sdp, vs)
-    _, g, model, base, ident, sdp, vs = best
+            best = (score, g, model, base, ident, sdp, vs, profile)
+    _, g, model, base, ident, sdp, vs, profile = best
     fits = {"ols": ident.ols(), "wls": ident.wls(), "sdp": sdp}
     fits["wls_tau_max"] = ident.wls("tau_max")
     t2 = time.perf_counter()
@@ -387,7 +530,7 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
         tilt = float(np.degrees(np.arccos(np.clip(g @ ref / (np.linalg.norm(g) * np.linalg.norm(ref)), -1, 1))))
         selection["gravity_tilt_deg"] = tilt
     return FitOutcome(model, base, ident, fits, np.asarray(g, float), source, float(slope), selection,
-                      {"selection": t1 - t0, "fit": t2 - t1}, bool(parallel), vs)
+                      {"selection": t1 - t0, "fit": t2 - t1}, bool(parallel), vs, profile)
 
 
 def predict(outcome: FitOutcome, data, method: str, parallel: bool | None = None) -> np.ndarray:
@@ -775,6 +918,12 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
                       "rms": {m: table[m]["rms"] for m in table},
                       "training_relative_error": {m: train_table[m]["relative_error"] for m in train_table}}
     checks = {m: f.checks for m, f in outcome.fits.items() if m in ("ols", "wls", "sdp")}
+    profile = outcome.position_friction_effect()
+    effects_doc = None
+    if profile is not None:
+        from calibration.effects import describe
+
+        effects_doc = {"effects": [profile], "effects_catalogue": describe()["version"]}
     path = model_file.save_model(
         run.dir / model_file.MODEL_FILENAME, standard=sdp.pi, names=list(outcome.model.param_names()),
         slope=outcome.slope, gravity=outcome.gravity, base_values=sdp.beta, stribeck=outcome.stribeck(),
@@ -783,7 +932,8 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
         provenance_info={**model_file.provenance(data_source, run.dir, {"procedure": PROCEDURE,
                                                                          "training_samples": int(train.n_samples),
                                                                          "validation_samples": int(val.n_samples)}),
-                         **origin})
+                         **origin},
+        extra=effects_doc)
     result = {
         "source": source,
         "model": str(path),
@@ -812,6 +962,8 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
                     "model": str(path)},
         "provenance": origin,
     }
+    if profile is not None:
+        result["position_friction"] = profile
     if source == "csv":
         result["published_7dof"] = {"sdp": list(PUBLISHED_7DOF),
                                     "note": "WPI package, 7-DOF model, a different unseen test trajectory of the "
@@ -953,7 +1105,8 @@ def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
         with run.step(STEPS_CSV[2]):
             outcome = fit_identification(train, gmode, smode, progress=say,
                                          deadband=DEADBAND if parameters["fit_deadband"] else None,
-                                         parallel=parameters["parallel_filter"], stribeck=parameters["stribeck"])
+                                         parallel=parameters["parallel_filter"], stribeck=parameters["stribeck"],
+                                         position_friction=parse_position_friction(parameters["position_friction"]))
         with run.step(STEPS_CSV[3]):
             result = _finish_fit(run, outcome, train, val, val_source, "csv", str(parameters["csv"]), parameters,
                                  None, np.array([0.0, 0.0, -9.81]), provenance.recording(parameters["csv"]))
@@ -1017,7 +1170,8 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
             with run.step(STEPS_LIVE[5]):
                 outcome = fit_identification(train, gmode, smode, configured_gravity=g_config, progress=say,
                                              deadband=DEADBAND if parameters["fit_deadband"] else None,
-                                             parallel=parameters["parallel_filter"], stribeck=parameters["stribeck"])
+                                             parallel=parameters["parallel_filter"], stribeck=parameters["stribeck"],
+                                             position_friction=parse_position_friction(parameters["position_friction"]))
             with run.step(STEPS_LIVE[6]):
                 extra = {"arm": arm_name, "excitation": {"cached": exc["cached"], "cache_file": exc["path"],
                                                          "trajectory": traj.to_dict(), **{k: v for k, v in exc["figures"].items() if k != "starts"}},

@@ -220,3 +220,42 @@ def test_live_simulated_full_target(tmp_path):
     unfiltered = np.array(r["validation_moving_unfiltered"]["sdp"])
     assert unfiltered[2] > moving[2], (unfiltered, moving)
     assert r["table_5_1"]["optimisation_condition"] < 300
+
+
+def test_position_friction_of_joint_3_is_identified_where_it_is_and_left_out_where_it_is_not(tmp_path):
+    """`--position-friction auto`: on efforts with a joint-3 Coulomb ripple of 0.3 N and a
+    5.4 cm period (a catalogue period), the profile is chosen by cross-validation over
+    blocks in time, lands in the model file as an effect, and the held-out joint-3 error
+    falls; on the same motion without it, no profile beats the plain model and none is
+    written."""
+    from calibration.effects import CATALOGUE
+    from rig.model_file import load_model
+
+    period = CATALOGUE["position_friction"].grid(3)[4]
+    rows = _synthetic_rows(n=3000, seed=2)
+    rng = np.random.default_rng(5)
+    rows[:, 6:] += rng.normal(scale=[0.02, 0.02, 0.03], size=(len(rows), 3))  # effort noise, N m and N
+    plain = _write(tmp_path / "plain.csv", rows)
+    ripple = rows.copy()
+    q3, dq3 = rows[:, 2], rows[:, 5]
+    ripple[:, 8] += np.tanh(0.5 * 400.0 * dq3) * 0.3 * np.sin(2 * np.pi * q3 / period + 0.4)
+    ripple = _write(tmp_path / "ripple.csv", ripple)
+    out = {}
+    for name, f in (("plain", plain), ("ripple", ripple)):
+        for mode in ("off", "auto"):
+            code, stdout, err = rig_cli("identify", "--csv", str(f), "--position-friction", mode, "--friction-slope",
+                                        "400", "--gravity", "0,0,-9.81", "--no-plots", "--json", cwd=tmp_path)
+            assert code == 0, err
+            out[name, mode] = json.loads(stdout.strip().splitlines()[-1])
+    chosen = out["ripple", "auto"]["selection"]["position_friction"][0]["chosen"]
+    assert chosen is not None and chosen["period"] == pytest.approx(period)
+    effect = out["ripple", "auto"]["position_friction"]
+    assert effect["joint"] == 3 and 0.2 < effect["params"]["amplitude"] < 0.4, effect["params"]
+    assert load_model(out["ripple", "auto"]["model"]).effects[0]["name"] == "position_friction"
+    j3 = {k: v["validation"]["sdp"][2] for k, v in out.items()}
+    assert j3["ripple", "auto"] < 0.7 * j3["ripple", "off"], j3
+    # without a ripple in the data: nothing chosen, nothing written, nothing lost
+    assert out["plain", "auto"]["selection"]["position_friction"][0]["chosen"] is None
+    assert "position_friction" not in out["plain", "auto"]
+    assert not load_model(out["plain", "auto"]["model"]).effects
+    assert j3["plain", "auto"] == pytest.approx(j3["plain", "off"], rel=1e-6)

@@ -4,7 +4,8 @@ Every result a later procedure may take (the identified model, the registration,
 frames, the link lengths, a load-cell calibration) carries a ``provenance`` section::
 
     "provenance": {
-        "arms": [{"name": "PSM1", "identity": "simulated PSM1 (plant 9c1f03aa2b7e)"}],
+        "arms": [{"name": "PSM1", "identity": "simulated PSM1 (plant 9c1f03aa2b7e)",
+                  "mounting": "1f0c9a7e3d21"}],   # mounting(): identity, base pose, gravity
         "rig": "5d0e8c41a9b2",                  # rig_identity() of the configuration
         "source": {"run": "20261125T160203123456Z-identify"}
                   # or {"csv": "/abs/path.csv", "sha256": "<hex>"} for a recording
@@ -18,10 +19,12 @@ a simulated arm by its plant (nominal, hidden effects, plant model file), a dVRK
 the serial number the configuration gives (`[arms.X] serial`), else by its ROS namespace.
 A recording in a CSV file has no arm the rig can recognise.
 
-The rig identity is a stable hash of the sections that decide whether a geometric or
-dynamic result still holds: each arm's identity and mounting (base pose) and gravity.
-Seeds, rates, the object, the load cell, mocap and ROS settings are left out: changing
-them does not move an arm.
+An arm's mounting is a stable hash of what decides whether a geometric or dynamic result
+of it still holds: its identity, its base pose and gravity; the rig identity hashes every
+arm's. A result belongs where each arm it holds has the same identity and mounting: a
+model of PSM1 stays valid when PSM3 is added to the configuration, a registration of PSM1
+and PSM2 does not when PSM2 is moved. Seeds, rates, the object, the load cell, mocap and
+ROS settings are left out: changing them does not move an arm.
 
 The digest seals the document: a file edited by hand (provenance or numbers) no longer
 matches it and is treated as foreign until it is passed explicitly with the flag that
@@ -75,12 +78,18 @@ def arm_identity(cfg, name: str) -> str:
     return f"dVRK arm on {a['namespace'] or '/' + name} (no serial in the configuration)"
 
 
+def mounting(cfg, name: str) -> str:
+    """Stable hash of arm `name`'s identity, its mounting (base pose) and gravity: what a
+    result of that arm depends on besides the arm itself."""
+    a = cfg.arms[name]
+    return _hash({"identity": arm_identity(cfg, name), "base_xyz": [round(float(x), 6) for x in a["base_xyz"]],
+                  "base_rpy": [round(float(x), 6) for x in a["base_rpy"]],
+                  "gravity": [round(float(x), 6) for x in cfg.rig["gravity"]]})
+
+
 def rig_identity(cfg) -> str:
-    """Stable hash of the arms' identities and mountings and of gravity."""
-    arms = {n: {"identity": arm_identity(cfg, n), "base_xyz": [round(float(x), 6) for x in a["base_xyz"]],
-                "base_rpy": [round(float(x), 6) for x in a["base_rpy"]]}
-            for n, a in sorted(cfg.arms.items())}
-    return _hash({"arms": arms, "gravity": [round(float(x), 6) for x in cfg.rig["gravity"]]})
+    """Stable hash of every arm's mounting (identity, base pose) and gravity: the rig."""
+    return _hash({n: mounting(cfg, n) for n in sorted(cfg.arms)})
 
 
 # ------------------------------------------------------------------ making it
@@ -93,8 +102,8 @@ def _base(arms: list[dict], rig: str | None, source: dict) -> dict:
 
 def live(cfg, arms, run_dir) -> dict:
     """Provenance of a result measured on the rig `cfg` with `arms`, in run `run_dir`."""
-    return _base([{"name": n, "identity": arm_identity(cfg, n)} for n in arms], rig_identity(cfg),
-                 {"run": Path(run_dir).name})
+    return _base([{"name": n, "identity": arm_identity(cfg, n), "mounting": mounting(cfg, n)} for n in arms],
+                 rig_identity(cfg), {"run": Path(run_dir).name})
 
 
 def recording(csv_path, arm_label: str = "recorded arm") -> dict:
@@ -151,16 +160,18 @@ def mismatch(doc: dict, cfg, arm: str | None = None, arms: list[str] | None = No
     if prov.get("rig") is None:
         where = source.get("csv", "a recording")
         return f"it was computed from {where}, not measured on this rig"
-    if prov["rig"] != rig_identity(cfg):
-        return (f"it was measured on another rig configuration (rig {prov['rig']}, this one is "
-                f"{rig_identity(cfg)}: an arm, its mounting or gravity differ)")
-    have = {a.get("name"): a.get("identity") for a in prov["arms"]}
-    want = [arm] if arm is not None else list(arms or [])
+    have = {a.get("name"): a for a in prov["arms"]}
+    want = [arm] if arm is not None else list(arms or have)
     for n in want:
         if n not in have:
             return f"it holds no result for {n} (it has {', '.join(map(str, have))})"
-        if n in cfg.arms and have[n] != arm_identity(cfg, n):
-            return f"its {n} is {have[n]}, this rig's is {arm_identity(cfg, n)}"
+        if n not in cfg.arms:
+            return f"it is a result of {n}, which this rig configuration does not have"
+        if have[n].get("identity") != arm_identity(cfg, n):
+            return f"its {n} is {have[n].get('identity')}, this rig's is {arm_identity(cfg, n)}"
+        if have[n].get("mounting") != mounting(cfg, n):
+            return (f"it was measured on another rig configuration ({n}'s mounting or gravity differ: "
+                    f"{have[n].get('mounting')}, here {mounting(cfg, n)})")
     return None
 
 

@@ -145,6 +145,22 @@ def test_a_model_of_another_simulated_plant_is_foreign():
     provenance.seal(doc)
     assert provenance.mismatch(doc, sticky) is None
     why = provenance.mismatch(doc, nominal)
-    assert why is not None and "another rig configuration" in why
+    assert why is not None and why.startswith("its PSM1 is simulated PSM1 (plant ")
     assert provenance.arm_identity(sticky, "PSM1") != provenance.arm_identity(nominal, "PSM1")
     assert provenance.arm_identity(sticky, "PSM2") == provenance.arm_identity(nominal, "PSM2")
+
+
+def test_a_model_of_psm1_still_belongs_when_psm3_joins_but_not_when_psm1_is_moved():
+    """Belonging is per arm: adding an arm to the configuration changes the rig's hash but
+    not PSM1's mounting; moving PSM1's base (or changing gravity) does."""
+    two = config.load()
+    doc = provenance.seal({"provenance": provenance.live(two, ["PSM1"], "run")})
+    pi = 3.141592653589793
+    three = config.parse({"arms": {"PSM1": {}, "PSM2": {"base_xyz": [config.DEFAULT_PSM2_X, 0, 0],
+                                                        "base_rpy": [0, 0, pi]},
+                                   "PSM3": {"base_xyz": [0.5, 0.9, 0], "base_rpy": [0, 0, -pi / 2]}}}, "three.toml")
+    assert provenance.rig_identity(three) != provenance.rig_identity(two)
+    assert provenance.mismatch(doc, three) is None
+    tilted = config.parse({"arms": {"PSM1": {"base_rpy": [0.1, 0, 0]}}}, "tilted.toml")
+    assert provenance.mismatch(doc, tilted).startswith("it was measured on another rig configuration (PSM1's "
+                                                       "mounting or gravity differ")

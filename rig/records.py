@@ -51,7 +51,7 @@ from rig import ros_messages as rm
 JSON_FIELDS = frozenset({"parameters", "config", "seed", "counts", "overflow", "extra",
                          "hold_errors", "held", "steps"})
 
-STATUSES = ("completed", "aborted", "failed")
+STATUSES = ("completed", "aborted", "failed", "dry-run")
 
 
 class RecorderError(RuntimeError):

@@ -258,7 +258,7 @@ class Run:
         except Exception as err:  # reported in result.json; the original error still wins
             recorder_error = f"{type(err).__name__}: {err}"
             self._write(f"rig {self.procedure}: the recording could not be finished: {recorder_error}\n")
-            if status == "completed":
+            if status in ("completed", "dry-run"):  # a run without its record did not do its job
                 status, reason = "failed", recorder_error
                 self.status = status
         utc_stop = datetime.now(timezone.utc)

@@ -45,7 +45,10 @@ def test_holds_five_newtons_on_the_spring_while_moving():
 def test_dry_run_moves_nothing_and_checks_limits():
     res, data = _invoke(["--dry-run"])
     assert res.exit_code == 0, res.output
-    assert data["status"] == "dry-run"
+    assert data["status"] == "dry-run" and "recording_error" not in data
+    rec = read_recording(os.path.join(data["run_dir"], "run.mcap"))
+    assert rec.finalised and rec.stop["status"] == "dry-run"
+    assert not any(t.endswith("servo_jp") or t.endswith("servo_jf") for t in rec.counts()), rec.counts()
     res, data = _invoke(["--dry-run", "--move", "0.6,0,0"])
     assert res.exit_code != 0
     assert "plan:" in res.output

@@ -34,7 +34,7 @@ class _Client:
     """This process's side: a RosArm on PSM2 (never enabled until the second test), the
     operator channel, and PSM2's operating_state and warning messages as they arrive."""
 
-    def __init__(self, domain: int):
+    def __init__(self):
         from std_msgs.msg import String
 
         from crtk_msgs.msg import OperatingState
@@ -81,7 +81,7 @@ def served(tmp_path_factory):
     os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     try:
         with ServedRig(tmp_path_factory.mktemp("states"), domain=domain) as rig:
-            client = _Client(domain)
+            client = _Client()
             try:
                 assert client.arm.wait_for_data(30.0) and client.arm.wait_for_state(30.0)
                 assert client.arm.wait_for_subscribers(30.0)

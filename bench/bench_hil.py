@@ -146,13 +146,10 @@ def in_process(folder: Path) -> dict[str, Outcome]:
 def kill_detection(folder: Path, domain: int, toml: str) -> tuple[float | None, str]:
     """SIGKILL rig sim while identify streams; the age the watchdog reports (ms)."""
     with ServedRig(folder, domain, toml=toml) as rig:
-        def later(proc):
-            threading.Thread(target=lambda: (time.sleep(6.0), rig.kill()), daemon=True).start()
-
-        # the chain's identify options in the chain's folder: the design is cached, so the
-        # kill lands while the excitation streams
+        # the chain's identify options in the chain's folder (the design is cached): killed
+        # once the excitation streams
         out = rig.run("identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5",
-                      "--no-plots", on_start=later)
+                      "--no-plots", when=("run the excitation trajectory [", rig.kill))
     m = re.search(r"no message for (\d+) ms", out.last_line)
     return (float(m.group(1)) if m else None), out.last_line
 

@@ -15,6 +15,7 @@ import selectors
 import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -111,8 +112,13 @@ class ServedRig:
                     return self
 
     def run(self, *args: str, timeout: float = 300.0, json_doc: bool = True, stdin: str | None = None,
-            env: dict | None = None, on_start=None) -> Outcome:
-        """`rig <args> [--json]` in the folder; `on_start(proc)` is called once it runs."""
+            env: dict | None = None, on_start=None, when: tuple[str, object] | None = None) -> Outcome:
+        """`rig <args> [--json]` in the folder; `on_start(proc)` is called once it runs.
+
+        when: (text, fn): `fn()` is called, on a thread of its own, the first time a line
+        of the procedure's stderr contains `text` (e.g. a step's first progress bar), so a
+        fault lands in the step it is meant for however long connecting took.
+        """
         argv = [sys.executable, "-m", "rig.cli", *args] + (["--json"] if json_doc else [])
         t0 = time.monotonic()
         proc = subprocess.Popen(argv, cwd=self.folder, env=env or self.env(), text=True,
@@ -121,7 +127,10 @@ class ServedRig:
         if on_start is not None:
             on_start(proc)
         try:
-            out, err = proc.communicate(stdin, timeout=timeout)
+            if when is None:
+                out, err = proc.communicate(stdin, timeout=timeout)
+            else:
+                out, err = self._watched(proc, stdin, timeout, *when)
         except subprocess.TimeoutExpired:
             proc.kill()
             out, err = proc.communicate()
@@ -129,6 +138,32 @@ class ServedRig:
         docs = [ln for ln in out.splitlines() if ln.startswith("{") and ln.rstrip().endswith("}")]
         doc = json.loads(docs[-1]) if docs else None
         return Outcome(proc.returncode, doc, err, time.monotonic() - t0)
+
+    @staticmethod
+    def _watched(proc: subprocess.Popen, stdin: str | None, timeout: float, text: str, fn) -> tuple[str, str]:
+        """communicate(), calling fn() on a thread once a stderr line contains `text`."""
+        out: list[str] = []
+        err: list[str] = []
+        fired = threading.Event()
+
+        def read(stream, sink: list[str], watch: bool) -> None:
+            for line in stream:
+                sink.append(line)
+                if watch and not fired.is_set() and text in line:
+                    fired.set()
+                    threading.Thread(target=fn, daemon=True).start()
+
+        readers = [threading.Thread(target=read, args=(proc.stdout, out, False), daemon=True),
+                   threading.Thread(target=read, args=(proc.stderr, err, True), daemon=True)]
+        for r in readers:
+            r.start()
+        if stdin is not None:
+            proc.stdin.write(stdin)
+            proc.stdin.close()
+        proc.wait(timeout=timeout)
+        for r in readers:
+            r.join(timeout=10.0)
+        return "".join(out), "".join(err)
 
     def kill(self, sig: int = signal.SIGKILL) -> None:
         if self.proc is not None and self.proc.poll() is None:

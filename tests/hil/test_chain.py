@@ -184,32 +184,31 @@ def test_a_missing_calibration(served, tmp_path):
     _one_clear_line(out, "loadcell-calibrate")
 
 
-def test_load_cell_unplugged_mid_run(served):
-    import threading
-    import time
+#: the first progress bar of the cooperative procedure's hold loop: connected, the object
+#: attached and holding (a fixed delay would depend on how long connecting took)
+HOLDING = "hold the tension while moving ["
 
+
+def test_load_cell_unplugged_mid_run(served):
     from rig.ros_session import RosSession
     from drivers.operator import RosOperator
 
-    def pull_the_cable(proc):
-        def later():
-            time.sleep(6.0)  # connected, object attached, holding
-            old = os.environ.get("ROS_DOMAIN_ID")
-            os.environ["ROS_DOMAIN_ID"] = str(served.domain)
-            os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-            try:
-                session = RosSession("test_person")
-                session.start()
-                RosOperator(session.node, timeout=10.0).unplug("loadcell")
-                session.close()
-            finally:
-                if old is None:
-                    os.environ.pop("ROS_DOMAIN_ID", None)
-                else:
-                    os.environ["ROS_DOMAIN_ID"] = old
-        threading.Thread(target=later, daemon=True).start()
+    def pull_the_cable():
+        old = os.environ.get("ROS_DOMAIN_ID")
+        os.environ["ROS_DOMAIN_ID"] = str(served.domain)
+        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        try:
+            session = RosSession("test_person")
+            session.start()
+            RosOperator(session.node, timeout=10.0).unplug("loadcell")
+            session.close()
+        finally:
+            if old is None:
+                os.environ.pop("ROS_DOMAIN_ID", None)
+            else:
+                os.environ["ROS_DOMAIN_ID"] = old
 
-    out = served.run(*_cooperative_args(10.0), on_start=pull_the_cable)
+    out = served.run(*_cooperative_args(10.0), when=(HOLDING, pull_the_cable))
     _one_clear_line(out, "load cell", "aborted")
     stop = _stopped_recording(out, ("load cell",))
     assert sorted(stop["held"]) == ["PSM1", "PSM2"]
@@ -217,15 +216,9 @@ def test_load_cell_unplugged_mid_run(served):
 
 def test_rig_sim_killed_mid_run_is_seen_within_the_watchdog(served):
     """Last: it kills the module's rig sim. The watchdog (0.25 s on ROS arms) sees it."""
-    import threading
-    import time
-
-    def kill_later(proc):
-        threading.Thread(target=lambda: (time.sleep(6.0), served.kill()), daemon=True).start()
-
-    # the chain's identify options: the design is cached, so the kill lands while it streams
+    # the chain's identify options (the design is cached): killed once the excitation streams
     out = served.run("identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5",
-                     "--no-plots", on_start=kill_later)
+                     "--no-plots", when=("run the excitation trajectory [", served.kill))
     _one_clear_line(out, "aborted", "/PSM1/measured_js", "stale stream")
     stop = _stopped_recording(out, ("stale stream",))
     assert stop["held"] == ["PSM1"]
@@ -240,17 +233,12 @@ def test_rig_sim_killed_mid_run_is_seen_within_the_watchdog(served):
 def test_rig_sim_killed_mid_cooperative_holds_both_arms(served):
     """After the test above: a fresh rig sim on the same folder, killed while the
     cooperative procedure holds the object. Its load cell's pty closes with it and the
-    arms' streams stop: whichever the run sees first ends it, in one line."""
-    import threading
-    import time
-
+    arms' streams stop: whichever the run sees first ends it, in one line. (The fresh rig
+    sim's arms start DISABLED: the procedure enables and homes them when connecting.)"""
     rig = ServedRig(served.folder, served.domain, toml=served.toml)
     rig.start()
     try:
-        def kill_later(proc):
-            threading.Thread(target=lambda: (time.sleep(7.0), rig.kill()), daemon=True).start()
-
-        out = served.run(*_cooperative_args(10.0), on_start=kill_later)
+        out = served.run(*_cooperative_args(10.0), when=(HOLDING, rig.kill))
     finally:
         rig.stop()
     assert out.code == 3 and "Traceback" not in out.stderr, out.stderr[-3000:]

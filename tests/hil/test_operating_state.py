@@ -213,44 +213,19 @@ def test_servo_watchdog_faults_an_arm_whose_servo_commands_stop(served):
     arm.measured_js()  # in control again: no fault raised
 
 
-def _watch_then_inject(arm: str, delay: float, proc, done: threading.Event) -> None:
-    """Wait until the procedure `proc` has enabled and homed `arm` (it connected), let it
-    run `delay` s into its steps, then push the arm's joint 1 past its limit."""
-    from crtk_msgs.msg import OperatingState
-    from drivers.operator import RosOperator
-    from rig.ros_session import RosSession
-
-    session = RosSession("fault_injector")
-    ready = threading.Event()
-    session.node.create_subscription(OperatingState, f"/{arm}/operating_state",
-                                     lambda m: ready.set() if m.state == "ENABLED" and m.is_homed else None, 10)
-    operator = RosOperator(session.node, timeout=20.0)
-    session.start()
-    try:
-        while not ready.wait(0.1):
-            if proc.poll() is not None:
-                return  # it ended before connecting: the test says why
-        time.sleep(delay)
-        if proc.poll() is None:
-            operator.fault(arm, "joint_limit", joint=1)
-    finally:
-        operator.close()
-        session.close()
-        done.set()
-
-
 def test_a_fault_mid_run_aborts_the_procedure_in_one_line(served):
     """It leaves PSM1 in FAULT, past its limit."""
     from rig.records import read_recording
 
-    done = threading.Event()
+    injected = threading.Event()
 
-    def inject(proc):
-        threading.Thread(target=_watch_then_inject, args=("PSM1", 3.0, proc, done), daemon=True).start()
+    def push_joint_1():  # once the first force ramp is under way
+        served.client.operator.fault("PSM1", "joint_limit", joint=1)
+        injected.set()
 
     out = served.run("friction-ramp", "--arm", "PSM1", "--ramp-time", "1.5", "--speeds", "0.01,0.02,0.04",
-                     "--no-plots", on_start=inject)
-    assert done.wait(30.0)
+                     "--no-plots", when=("force ramp, positive direction [", push_joint_1))
+    assert injected.is_set(), out.stderr[-3000:]
     assert out.code == 3, out.stderr[-3000:]
     assert "Traceback" not in out.stderr, out.stderr[-3000:]
     line = out.last_line
@@ -260,6 +235,7 @@ def test_a_fault_mid_run_aborts_the_procedure_in_one_line(served):
     assert "PSM1: ENABLED and homed" in out.stderr  # the procedure enabled and homed it when connecting
     doc = out.doc
     assert doc is not None and doc["status"] == "aborted" and "went to FAULT" in doc["error"], doc
+    assert doc["step"] == "force ramp, positive direction", doc
     rec = read_recording(os.path.join(doc["run_dir"], "run.mcap"))
     assert rec.finalised and rec.stop["status"] == "aborted" and rec.stop["error"] == doc["error"]
     assert rec.stop["held"] == ["PSM1"]

@@ -27,7 +27,8 @@ def natnet_toml(folder, port: int, extra: str = "") -> str:
     return text + extra
 
 
-def test_calibrate_rcm_through_the_fake_motive(tmp_path):
+def test_calibrate_rcm_and_link_lengths_through_the_fake_motive(tmp_path):
+    from procedures.link_lengths import nominal_lengths
     from rig import config
     from rig import psm_kinematics as K
 
@@ -37,7 +38,14 @@ def test_calibrate_rcm_through_the_fake_motive(tmp_path):
                    sim_args=("--no-loadcell",)) as rig:
         assert f"natnet: 127.0.0.1:{port} (data {port + 1}, unicast, NatNet 4.1, 120 Hz)" in rig.sim_lines
         out = rig.run("calibrate-rcm", "--arm", "PSM1", "--duration", "6", "--q1-range", "0.5", "--q2-range", "0.4")
+        lengths = rig.run("link-lengths", "--q1-range", "0.5", "--q2-range", "0.4", "--passes", "1",
+                          "--q3-stroke", "0.05")
     doc = completed(out, "calibrate-rcm")
+    # the same bound as the chain's link-lengths through ROS mocap (tests/hil/test_chain.py)
+    true = nominal_lengths()
+    for key in ("l1", "l2", "l3", "l4"):
+        value = completed(lengths, "link-lengths")["lengths"][key]["value"]
+        assert abs(value - true[key]) < 0.003, (key, value, true[key])
     assert "mocap 6 bodies" in out.stderr  # connected to PSM1's five and the world body
     cfg = config.load(tmp_path / "lab" / "rig.toml")
     true = (cfg.base_matrix("PSM1") @ K.RCM_FRAME)[:3, 3]

@@ -1,5 +1,5 @@
 """`rig discrepancy`: where model and measurement disagree, which catalogue effect explains
-it, the model with it added, and the held-out gap before and after (issue 7).
+it, the model with it added, and the held-out gap before and after.
 
     rig discrepancy (RUN_DIR | --csv FILE [--rate 200]) [--model MODEL.json] [--joints 3] [--json]
 
@@ -302,7 +302,7 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
 @exit_on_abort
 def command(run_dir, parameters, list_steps: bool, as_json: bool) -> None:
     """Find where the model and the measurement disagree, name the missing effect from the
-    catalogue, add it and show the held-out gap shrink (issue 7). RUN_DIR or --csv FILE.
+    catalogue, add it and show the held-out gap shrink. RUN_DIR or --csv FILE.
     """
     if list_steps:
         for i, s in enumerate(STEPS, 1):

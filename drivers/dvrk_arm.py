@@ -519,8 +519,8 @@ class RosArm:
             self._fault = self._fault_error = None
         sent: dict[str, float] = {}
         while True:
-            if self._js is not None:
-                self.measured_js()  # a stale stream raises
+            # (no staleness check here: a stall of the controller while it homes is no fault
+            # of a run that has not begun; the run's first measured_js() checks it)
             st = self.operating_state()
             if st is not None:
                 if st.state in ("FAULT", "PAUSED"):

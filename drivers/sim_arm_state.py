@@ -100,6 +100,8 @@ class SimArmState:
         self._not_ready_count = 0
         self._not_ready_last = -math.inf
         self._sl = arm.world.arms[arm.name].sl
+        self._low = self.limits.q_min - LIMIT_MARGIN  # the limit check runs every step
+        self._high = self.limits.q_max + LIMIT_MARGIN
         arm.hold()  # not powered: held where it is (see the module docstring)
 
     # -- what rig sim publishes ---------------------------------------------------------
@@ -252,8 +254,8 @@ class SimArmState:
         if self.state not in ("ENABLED", "PAUSED") or self._powering_until is not None:
             return
         q = self.arm.world.qm[self._sl]
-        low, high = self.limits.q_min - LIMIT_MARGIN, self.limits.q_max + LIMIT_MARGIN
-        if np.any(q < low) or np.any(q > high):
+        low, high = self._low, self._high
+        if (q < low).any() or (q > high).any():
             j = int(np.argmax((q < low) | (q > high)))
             unit = "m" if j == 2 else "rad"
             self.fault(f"{self.name}: joint {j + 1} at {q[j]:.4f} {unit}, past its limit "

@@ -42,7 +42,6 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-import scipy.linalg
 
 from calibration.base_params import BaseParameters, RankDeficientError
 from calibration.layout import ParamLayout, pseudo_inertia

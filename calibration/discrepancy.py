@@ -24,7 +24,10 @@ discrepancy", and BIC selection):
    filter keeps it exact; filtering first and dropping the stuck samples afterwards would
    leave their effort smeared over ~20 moving samples on each side, a Stribeck- or
    delay-like pattern on every null run). Train and held-out are contiguous blocks (the
-   held-out one at the end) with a guard of one settling length between them.
+   held-out one at the end) with a guard of one settling length between them. A record may
+   be several continuous recordings put end to end (``breaks``: `rig identify`'s excitation
+   and validation trajectories); each is filtered, differentiated and trimmed on its own, and
+   every state carried along the samples (an effect's, the last reversal) restarts with it.
 2. **Baseline.** Without a given model: the thesis model (rigid body + Fc sigma(dq) + Fv dq +
    Fo + Ia ddq) in base parameters, weighted least squares on the training block (weights
    1 / residual std per joint). With a given model: its standard parameters as they are.
@@ -79,7 +82,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -124,6 +127,9 @@ SLOPES = (100.0, 400.0, 1000.0, 3000.0)
 #: band, which no function of (q, dq, ddq) predicts (thesis 7.5.1; `rig identify` leaves
 #: such samples out too). They are left out of every fit and every figure.
 DEADBAND = np.array([0.01, 0.01, 0.002])
+#: Shortest continuous recording (piece) of a record, in the filter's settling lengths: each
+#: piece loses one at each end, so at least half of it is kept.
+MIN_PIECE_TRIMS = 4
 
 
 class DiscrepancyError(ValueError):
@@ -201,11 +207,28 @@ def binned_r2(x_tr, r_tr, x_ho, r_ho, bins: int = 16) -> tuple[float, tuple[floa
 
 
 # ----------------------------------------------------------------------------- preparation
+def pieces_of(n: int, breaks=()) -> list[tuple[int, int]]:
+    """(start, stop) of each continuous recording in ``n`` samples put end to end, a new one
+    beginning at every index of ``breaks`` (0 < index < n)."""
+    cuts = sorted({int(b) for b in breaks})
+    if any(not 0 < b < n for b in cuts):
+        raise DiscrepancyError(f"breaks {cuts} must lie inside the {n} samples (0 < index < {n})")
+    edges = [0] + cuts + [n]
+    return list(zip(edges[:-1], edges[1:]))
+
+
 @dataclass
 class Prepared:
-    """Raw (n, 3) and filtered-and-trimmed (m, 3) signals, the kept slice, train/held-out
+    """Raw (n, 3) and filtered-and-trimmed (m, 3) signals, the kept samples, train/held-out
     index ranges into the kept samples. ``q``, ``dq`` are the measured state ``effort_lag``
-    earlier (aligned with the effort); ``qf``, ``dqf``, ``ddqf`` the filtered measured state."""
+    earlier (aligned with the effort); ``qf``, ``dqf``, ``ddqf`` the filtered measured state.
+
+    The raw samples may be several continuous recordings put end to end (``pieces``, raw
+    index ranges: an identify run's excitation and validation trajectories, with the arm's
+    unrecorded move between them). Filters, derivatives and every state carried along the
+    samples (a Dahl state, a play, a delay, the last reversal) restart at each piece, and each
+    piece's ends are trimmed: nothing is computed across a join. ``kept`` is then an index
+    array (a slice for one piece)."""
 
     rate: float
     q: np.ndarray
@@ -215,7 +238,7 @@ class Prepared:
     dqf: np.ndarray
     ddqf: np.ndarray
     tauf: np.ndarray
-    kept: slice
+    kept: slice | np.ndarray
     train: slice
     heldout: slice
     cutoff: float
@@ -224,12 +247,33 @@ class Prepared:
     qf_all: np.ndarray          # (n, 3) filtered, untrimmed (for the regressor before masking)
     dqf_all: np.ndarray
     ddqf_all: np.ndarray
+    pieces: list = field(default_factory=list)   # [(start, stop)] raw; empty: one piece
+
+    def piecewise(self, fn, x: np.ndarray) -> np.ndarray:
+        """``fn`` (raw samples -> as many samples) applied to each piece of ``x`` (n, ...) on its own."""
+        return piecewise(fn, x, self.pieces)
+
+    def lowpass(self, x: np.ndarray) -> np.ndarray:
+        """The zero-phase filter of raw columns (n, ...), each piece on its own; untrimmed."""
+        return self.piecewise(lambda v: lowpass(v, self.rate, self.cutoff, self.order), x)
+
+    def kept_starts(self) -> list[int]:
+        """Kept-domain index where each piece after the first begins."""
+        if len(self.pieces) < 2:
+            return []
+        trim = settling_samples(self.rate, self.cutoff, self.order)
+        lengths = [b - a - 2 * trim for a, b in self.pieces]
+        return np.cumsum(lengths)[:-1].tolist()
+
+    def raw_starts(self) -> list[int]:
+        """Raw index where each piece after the first begins."""
+        return [a for a, _ in self.pieces[1:]]
 
     def filt(self, x: np.ndarray) -> np.ndarray:
         """Parallel filter of raw columns (n, ...) -> kept (m, ...)."""
         n = x.shape[0]
         flat = x.reshape(n, -1)
-        return lowpass(flat, self.rate, self.cutoff, self.order)[self.kept].reshape((-1,) + x.shape[1:])
+        return self.lowpass(flat)[self.kept].reshape((-1,) + x.shape[1:])
 
     def filt_rows(self, x: np.ndarray) -> np.ndarray:
         """Masked parallel filter of per-joint rows (n, 3, ...) -> kept (m, 3, ...): each joint's
@@ -238,19 +282,45 @@ class Prepared:
         return self.filt(x * mask)
 
 
-def prepare(q, dq, tau, rate: float, settings: Settings) -> Prepared:
+def piecewise(fn, x: np.ndarray, pieces) -> np.ndarray:
+    """``fn`` applied to each piece (raw index ranges) of ``x`` on its own, the results put end
+    to end again; ``fn`` of all of ``x`` for one piece (or none given)."""
+    if len(pieces) < 2:
+        return fn(x)
+    return np.concatenate([fn(x[a:b]) for a, b in pieces], axis=0)
+
+
+def prepare(q, dq, tau, rate: float, settings: Settings, breaks=()) -> Prepared:
+    """Filtered, masked and trimmed signals of measured q, dq, tau (n, 3) at ``rate`` Hz.
+    ``breaks``: sample indices where another continuous recording begins (see `Prepared`)."""
     q, dq, tau = (np.asarray(x, float) for x in (q, dq, tau))
     if q.ndim != 2 or q.shape[1] != 3 or not (q.shape == dq.shape == tau.shape):
         raise DiscrepancyError(f"expected q, dq, tau of shape (n, 3), got {q.shape}, {dq.shape}, {tau.shape}")
     trim = settling_samples(rate, settings.cutoff, settings.order)
     n = q.shape[0]
-    if n < 8 * trim + 200:
+    pieces = pieces_of(n, breaks)
+    for k, (a, b) in enumerate(pieces if len(pieces) > 1 else []):
+        if b - a < MIN_PIECE_TRIMS * trim:
+            raise DiscrepancyError(
+                f"piece {k + 1} of the record (samples {a}-{b - 1}, {(b - a) / rate:.2f} s) is too short: a continuous "
+                f"recording needs at least {MIN_PIECE_TRIMS * trim} samples ({MIN_PIECE_TRIMS * trim / rate:.2f} s) "
+                f"at {rate:g} Hz, {trim} of them trimmed at each end for the filter")
+    m = n - 2 * trim * len(pieces)
+    if m < 6 * trim + 200:
         raise DiscrepancyError(f"{n} samples are too few for the workflow at {rate:g} Hz: it needs at least "
-                               f"{8 * trim + 200} ({(8 * trim + 200) / rate:.1f} s) for the filter, a training and "
-                               "a held-out block")
-    qf = lowpass(q, rate, settings.cutoff, settings.order)
-    dqf = lowpass(dq, rate, settings.cutoff, settings.order)
-    ddqf = np.gradient(dqf, 1.0 / rate, axis=0)
+                               f"{8 * trim + 200 + 2 * trim * (len(pieces) - 1)} "
+                               f"({(8 * trim + 200 + 2 * trim * (len(pieces) - 1)) / rate:.1f} s) for the filter, "
+                               "a training and a held-out block")
+    if not 0.0 <= settings.effort_lag < 1.0 / rate:
+        raise DiscrepancyError(f"effort_lag {settings.effort_lag:g} s: it must be >= 0 (the effort cannot precede "
+                               f"the state) and under one sample ({1.0 / rate:g} s)")
+
+    def filtered(x):
+        return piecewise(lambda v: lowpass(v, rate, settings.cutoff, settings.order), x, pieces)
+
+    qf = filtered(q)
+    dqf = filtered(dq)
+    ddqf = piecewise(lambda v: np.gradient(v, 1.0 / rate, axis=0), dqf, pieces)
     # A stuck joint's effort is whatever the controller left inside the static friction band,
     # no function of (q, dq, ddq). Leaving the stuck samples out after filtering is not
     # enough: the filter has already spread their effort over the moving samples around them
@@ -261,21 +331,25 @@ def prepare(q, dq, tau, rate: float, settings: Settings) -> Prepared:
     # The filter starts every breakaway a few samples early (and rings before it): a sample
     # moves only if the measured velocity is outside the deadband as well.
     moving_raw = ((np.abs(dqf) >= DEADBAND) & (np.abs(dq) >= DEADBAND)).astype(float)
-    if not 0.0 <= settings.effort_lag < 1.0 / rate:
-        raise DiscrepancyError(f"effort_lag {settings.effort_lag:g} s: it must be >= 0 (the effort cannot precede "
-                               f"the state) and under one sample ({1.0 / rate:g} s)")
+
     # The measured state effort_lag before each sample (linear interpolation), which the
     # model columns are built on.
-    t = np.arange(n) / rate
-    q, dq = (np.column_stack([np.interp(t - settings.effort_lag, t, x[:, j]) for j in range(3)]) for x in (q, dq))
-    tauf = lowpass(tau * moving_raw, rate, settings.cutoff, settings.order)
-    kept = slice(trim, n - trim)
-    m = n - 2 * trim
+    def lagged(x):
+        t = np.arange(len(x)) / rate
+        return np.column_stack([np.interp(t - settings.effort_lag, t, x[:, j]) for j in range(3)])
+
+    q, dq = piecewise(lagged, q, pieces), piecewise(lagged, dq, pieces)
+    tauf = filtered(tau * moving_raw)
+    if len(pieces) == 1:
+        kept = slice(trim, n - trim)
+    else:
+        kept = np.concatenate([np.arange(a + trim, b - trim) for a, b in pieces])
     n_ho = int(round(m * settings.heldout))
     train = slice(0, m - n_ho - trim)
     heldout = slice(m - n_ho, m)
     return Prepared(rate, q, dq, tau, qf[kept], dqf[kept], ddqf[kept], tauf[kept], kept, train, heldout,
-                    settings.cutoff, settings.order, moving_raw, qf, dqf, ddqf)
+                    settings.cutoff, settings.order, moving_raw, qf, dqf, ddqf,
+                    pieces if len(pieces) > 1 else [])
 
 
 # ----------------------------------------------------------------------------- the workflow
@@ -302,7 +376,7 @@ class Discrepancy:
     """
 
     def __init__(self, model, base, q, dq, tau, rate: float, given: np.ndarray | None = None,
-                 settings: Settings | None = None):
+                 settings: Settings | None = None, breaks=()):
         self.t0 = time.perf_counter()
         self.model = model
         self.base = base
@@ -313,7 +387,7 @@ class Discrepancy:
         else:
             th, self.threshold_source = self.settings.thresholds, "given"
         self.th = th[self.mode]
-        self.p = prepare(q, dq, tau, rate, self.settings)
+        self.p = prepare(q, dq, tau, rate, self.settings, breaks)
         p = self.p
         self.given = None if given is None else np.asarray(given, float)
         n = p.q.shape[0]
@@ -329,9 +403,9 @@ class Discrepancy:
         z = np.zeros_like(p.dqf_all)
         static = model.regressor_batch(p.qf_all, p.dqf_all, z)
         at_rest = model.regressor_batch(p.qf_all, z, z)
+        ddq_measured = p.piecewise(lambda v: differentiate(v, p.rate, "central4"), p.dq)
         self._chains = {"filtered": static + model.regressor_batch(p.qf_all, z, p.ddqf_all) - at_rest,
-                        "measured": static + model.regressor_batch(p.qf_all, z, differentiate(p.dq, p.rate, "central4"))
-                        - at_rest}
+                        "measured": static + model.regressor_batch(p.qf_all, z, ddq_measured) - at_rest}
         self.inertia = ["filtered"] * 3
         self.W_raw = self._chains["filtered"].copy()
         W = p.filt_rows(self.W_raw.reshape(n, 3, -1))
@@ -427,13 +501,15 @@ class Discrepancy:
         at t - d as well as at t."""
         p = self.p
         j = joint - 1
-        stuck = p.moving_raw[:, j] == 0
-        grown = stuck.copy()
-        for k in range(1, lag + 1):
-            grown[k:] |= stuck[:-k]
-        p.moving_raw[:, j] = (~grown).astype(float)
+        def grow(stuck):
+            grown = stuck.copy()
+            for k in range(1, min(lag, len(stuck) - 1) + 1):
+                grown[k:] |= stuck[:-k]
+            return grown
+
+        p.moving_raw[:, j] = (~p.piecewise(grow, p.moving_raw[:, j] == 0)).astype(float)
         self.mask_lag[j] = lag
-        p.tauf = lowpass(p.tau * p.moving_raw, p.rate, p.cutoff, p.order)[p.kept]
+        p.tauf = p.lowpass(p.tau * p.moving_raw)[p.kept]
         n = p.q.shape[0]
         W = p.filt_rows(self.W_raw.reshape(n, 3, -1))
         self.W = W.reshape(-1, W.shape[2])
@@ -539,14 +615,15 @@ class Discrepancy:
             raw += [p.q[:, i], p.q[:, i] ** 2, s, v, v * np.abs(v), s * np.exp(-(v / vs) ** 2), s * p.q[:, i]]
             # The regime just after a reversal (pre-sliding, play): the direction fading with
             # the travel since the last reversal, over two scales of the joint's stroke.
-            travel = np.abs(p.qf_all[:, i] - _last_reversal_position(p.qf_all[:, i], p.dqf_all[:, i]))
+            travel = np.abs(p.qf_all[:, i] - _last_reversal_position(p.qf_all[:, i], p.dqf_all[:, i],
+                                                                      p.raw_starts()))
             stroke = np.subtract(*np.quantile(p.qf_all[:, i], [0.99, 0.01]))
             raw += [np.sign(p.dqf_all[:, i]) * np.exp(-travel / (f * stroke)) for f in TRAVEL_SCALES]
         F = p.filt(np.column_stack(raw))
         extra = [p.ddqf]
         u = self.tau_model_raw
         lag = int(round(0.02 * p.rate))
-        u_lag = p.filt_rows(np.vstack([u[:1].repeat(lag, 0), u[:-lag]]) - u)
+        u_lag = p.filt_rows(p.piecewise(lambda v: np.vstack([v[:1].repeat(lag, 0), v[:-lag]]) - v, u))
         return np.column_stack([F] + extra + [self.tau_model, u_lag])
 
     def detect(self) -> list[dict]:
@@ -572,7 +649,7 @@ class Discrepancy:
         r = self.residual()[:, joint - 1]
         j = joint - 1
         spacing = max(1, int(round(p.rate / (2.0 * p.cutoff))))
-        travel = np.abs(p.qf[:, j] - _last_reversal_position(p.qf[:, j], p.dqf[:, j]))
+        travel = np.abs(p.qf[:, j] - _last_reversal_position(p.qf[:, j], p.dqf[:, j], p.kept_starts()))
         t = np.arange(self.m) / p.rate
         variables = {f"q{j + 1}": p.qf[:, j], f"dq{j + 1}": p.dqf[:, j], f"ddq{j + 1}": p.ddqf[:, j],
                      f"u{j + 1}": self.tau_model[:, j], f"travel since reversal {j + 1}": travel}
@@ -609,12 +686,12 @@ class Discrepancy:
             if eff.needs_dynamics:
                 ctx.mass_diag, ctx.friction = self._mass_diag(), np.nan_to_num(self._friction())
                 ctx.ddq, ctx.deadband = p.ddqf_all, DEADBAND
-            raw = eff.columns(ctx, joint, g)
+            raw = _effect_columns(eff, ctx, joint, g, p.pieces)
             return raw if unfiltered else p.filt_rows(raw)
         if unfiltered:
-            return eff.columns(self.ctx_raw, joint, g)
+            return _effect_columns(eff, self.ctx_raw, joint, g, self.p.pieces)
         if key not in self._col_cache:
-            self._col_cache[key] = self.p.filt_rows(eff.columns(self.ctx_raw, joint, g))
+            self._col_cache[key] = self.p.filt_rows(_effect_columns(eff, self.ctx_raw, joint, g, self.p.pieces))
         return self._col_cache[key]
 
     def _score(self, E: np.ndarray) -> dict | None:
@@ -973,7 +1050,8 @@ class Discrepancy:
                 "settings": {"cutoff_hz": self.settings.cutoff, "filter_order": self.settings.order,
                              "heldout_fraction": self.settings.heldout, "rate_hz": self.p.rate,
                              "samples": int(self.p.q.shape[0]), "train_samples": self.p.train.stop - self.p.train.start,
-                             "heldout_samples": self.p.heldout.stop - self.p.heldout.start},
+                             "heldout_samples": self.p.heldout.stop - self.p.heldout.start,
+                             "pieces": [list(r) for r in self.p.pieces] or [[0, int(self.p.q.shape[0])]]},
                 "coulomb_slope": self.slope, "inertia_source": self.inertia, "seconds": time.perf_counter() - self.t0, "_reid": reid}
 
     def _catalogue_detection(self, det: list[dict], eligible: list[dict]) -> None:
@@ -1287,29 +1365,51 @@ class Discrepancy:
         return out
 
 
+def _effect_columns(eff, ctx: EffectContext, joint: int, g, pieces) -> np.ndarray:
+    """The effect's columns (n, 3, k) on the raw samples, each piece of the record on its own:
+    a state an effect carries along the samples (a Dahl state, a play's side, a delay's
+    history) starts afresh with each recording instead of running across the join."""
+    if len(pieces) < 2:
+        return eff.columns(ctx, joint, g)
+
+    def part(a, b):
+        cut = {"q": ctx.q[a:b], "dq": ctx.dq[a:b]}
+        for name in ("tau_model", "mass_diag", "ddq"):
+            if getattr(ctx, name) is not None:
+                cut[name] = getattr(ctx, name)[a:b]
+        if ctx.W_standard is not None:
+            cut["W_standard"] = ctx.W_standard[3 * a:3 * b]
+        return replace(ctx, **cut)
+
+    return np.concatenate([eff.columns(part(a, b), joint, g) for a, b in pieces], axis=0)
+
+
 def _variable(w: Discrepancy, name: str) -> np.ndarray:
     p = w.p
     j = int(name[-1]) - 1
     if name.startswith("travel"):
-        return np.abs(p.qf[:, j] - _last_reversal_position(p.qf[:, j], p.dqf[:, j]))
+        return np.abs(p.qf[:, j] - _last_reversal_position(p.qf[:, j], p.dqf[:, j], p.kept_starts()))
     return {"q": p.qf, "dq": p.dqf, "ddq": p.ddqf, "u": w.tau_model}[name[:-1]][:, j]
 
 
-def _last_reversal_position(q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-    """Position at the last velocity reversal before each sample."""
+def _last_reversal_position(q: np.ndarray, dq: np.ndarray, starts=()) -> np.ndarray:
+    """Position at the last velocity reversal before each sample; a recording that begins at
+    an index of ``starts`` begins as if it reversed there (what came before is unknown)."""
     s = np.sign(dq)
     out = np.empty_like(q)
     last = q[0]
+    starts = set(starts)
     for k in range(len(q)):
-        if k and s[k] != 0 and s[k] != s[k - 1]:
+        if k in starts or (k and s[k] != 0 and s[k] != s[k - 1]):
             last = q[k]
         out[k] = last
     return out
 
 
-def run_workflow(model, base, q, dq, tau, rate: float, given=None, settings: Settings | None = None):
-    """Run the workflow; returns (result dict, the Discrepancy object for plots and the model)."""
-    w = Discrepancy(model, base, q, dq, tau, rate, given, settings)
+def run_workflow(model, base, q, dq, tau, rate: float, given=None, settings: Settings | None = None, breaks=()):
+    """Run the workflow; returns (result dict, the Discrepancy object for plots and the model).
+    ``breaks``: sample indices where another continuous recording begins (see `Prepared`)."""
+    w = Discrepancy(model, base, q, dq, tau, rate, given, settings, breaks)
     return w.run(), w
 
 

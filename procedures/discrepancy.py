@@ -5,7 +5,12 @@ it, the model with it added, and the held-out gap before and after.
 
 Input: a recorded run (its /<arm>/measured_js, resampled to --rate) or a CSV in the WPI
 format. Only the measured arrays reach the workflow (`calibration.discrepancy`): a run's
-configuration snapshot and any simulated effects are never read.
+configuration snapshot and any simulated effects are never read. A run that recorded
+several motions with pauses in its stream between them (`rig identify`: the excitation, an
+unrecorded move_jp, the validation trajectory) is taken as that many continuous pieces: each
+is resampled on its own, and the workflow filters and differentiates each on its own, never
+across a pause (interpolated across, a pause became seconds of an arm moving with the
+velocity and effort of neither end).
 
 Baseline: with --model, that identified model as it is; without, the thesis model
 (rigid body + Fc tanh(a dq/2) + Fv dq + Fo + Ia ddq) identified on the training block, the
@@ -23,6 +28,7 @@ Units: SI (rad, m, rad/s, m/s, N m, N, s, Hz).
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import click
@@ -66,12 +72,76 @@ def load_run_arrays(run_dir, arm: str, rate: float):
     return table[:, :3], table[:, 3:6], table[:, 6:9], f"{d / 'run.mcap'} {topic}"
 
 
-def estimate_gravity(q, dq, tau, rate: float, settings, source: str = "the data") -> np.ndarray:
+#: A pause in a run's stream longer than this many periods of the workflow's filter cut-off
+#: (0.5: 50 ms at 10 Hz) ends a piece. Bridged by interpolation, a shorter gap (a publisher
+#: held up) changes nothing the filtered band sees; a longer one would be invented motion.
+PAUSE_CUTOFF_PERIODS = 0.5
+
+
+@dataclass
+class RunRecord:
+    """A run's q, dq, tau (n, 3) at ``rate`` Hz, its continuous pieces put end to end:
+    ``breaks`` the sample indices where a piece after the first begins; ``dropped`` the pieces
+    left out as too short for the workflow's filter ((start, stop) s from the first sample)."""
+
+    q: np.ndarray
+    dq: np.ndarray
+    tau: np.ndarray
+    source: str
+    breaks: list[int]
+    pieces: list[tuple[float, float]]
+    dropped: list[tuple[float, float]]
+
+
+def split_at_pauses(t: np.ndarray, max_gap: float) -> list[tuple[int, int]]:
+    """(start, stop) index ranges of ``t`` (s, increasing) between pauses longer than ``max_gap`` s."""
+    cuts = (np.flatnonzero(np.diff(t) > max_gap) + 1).tolist()
+    edges = [0] + cuts + [len(t)]
+    return list(zip(edges[:-1], edges[1:]))
+
+
+def load_run_pieces(run_dir, arm: str, rate: float, settings) -> RunRecord:
+    """A run's /<arm>/measured_js as continuous pieces, each resampled to ``rate`` Hz on its
+    own grid (pauses in the stream longer than PAUSE_CUTOFF_PERIODS of the filter's cut-off
+    end a piece); pieces too short for the workflow's filter are dropped and listed."""
+    from calibration.discrepancy import MIN_PIECE_TRIMS, DiscrepancyError
+    from calibration.signals import settling_samples
+    from rig.records import read_recording
+    from rig.runs_cli import joint_arrays, resample, resolve_run
+
+    d = resolve_run(str(run_dir))
+    topic = f"/{arm}/measured_js"
+    rec = read_recording(d / "run.mcap", topics=[topic])
+    t, q, dq, tau = joint_arrays(rec, topic)
+    columns = np.hstack((q[:, :3], dq[:, :3], tau[:, :3]))
+    shortest = MIN_PIECE_TRIMS * settling_samples(rate, settings.cutoff, settings.order)
+    tables, breaks, pieces, dropped = [], [], [], []
+    for a, b in split_at_pauses(t, PAUSE_CUTOFF_PERIODS / settings.cutoff):
+        span = (float(t[a] - t[0]), float(t[b - 1] - t[0]))
+        if b - a < 2 or (t[b - 1] - t[a]) * rate + 1 < shortest:
+            dropped.append(span)
+            continue
+        if tables:
+            breaks.append(sum(len(x) for x in tables))
+        tables.append(resample(t[a:b], columns[a:b], rate)[1])
+        pieces.append(span)
+    source = f"{d / 'run.mcap'} {topic}"
+    if not tables:
+        raise DiscrepancyError(f"{source}: no stretch of the stream without a pause longer than "
+                               f"{PAUSE_CUTOFF_PERIODS / settings.cutoff * 1e3:.0f} ms lasts "
+                               f"{shortest / rate:.2f} s, the shortest the workflow's filter can use")
+    table = np.vstack(tables)
+    return RunRecord(table[:, :3], table[:, 3:6], table[:, 6:9], source, breaks, pieces, dropped)
+
+
+def estimate_gravity(q, dq, tau, rate: float, settings, source: str = "the data", breaks=()) -> np.ndarray:
     """Gravity in frame 0 as `rig identify --csv` finds it on the training block: the sphere
     scanned by least squares on the moving samples (a stuck joint's effort is no function of
     the motion), and the best direction of each hemisphere fitted by the physically
     consistent SDP, the better fit deciding the sign (a mirrored direction fits the data
-    almost as well by least squares alone)."""
+    almost as well by least squares alone). With ``breaks`` (continuous pieces put end to end),
+    each piece is filtered on its own and the training block is the first share of the
+    pieces' processed samples, as of one record's."""
     from calibration.base_params import RankDeficientError
     from calibration.datasets import JointData, processed, split_blocks
     from calibration.discrepancy import DiscrepancyError
@@ -82,8 +152,11 @@ def estimate_gravity(q, dq, tau, rate: float, settings, source: str = "the data"
 
     d = resolve(ID_PARAMETERS, {})
     data = JointData(np.arange(len(q)) / rate, np.asarray(q, float), np.asarray(dq, float), np.asarray(tau, float),
-                     rate, "the training block")
-    train, _ = split_blocks(processed(data, d["cutoff"], d["filter_order"]), settings.heldout)
+                     rate, source if len(breaks) else "the training block")
+    if len(breaks):
+        train = _pieces_training_block(data, breaks, d["cutoff"], d["filter_order"], settings.heldout)
+    else:
+        train, _ = split_blocks(processed(data, d["cutoff"], d["filter_order"]), settings.heldout)
     for j, share in slow_joints(train.dq, ID_DEADBAND):
         raise DiscrepancyError(
             f"{source}: joint {j + 1} moves faster than {ID_DEADBAND[j]:g} {'m/s' if j == 2 else 'rad/s'} in only "
@@ -96,6 +169,51 @@ def estimate_gravity(q, dq, tau, rate: float, settings, source: str = "the data"
         raise DiscrepancyError(f"{source}: the gravity direction cannot be estimated ({exc}); give an identified model "
                                "with --model (its gravity is used)") from None
     return np.asarray(outcome.gravity, float)
+
+
+class _PiecesContext:
+    """Parallel filtering over several processed pieces (each its own
+    `calibration.datasets.FilterContext`): a function of the motion becomes each piece's
+    filtered rows, put end to end."""
+
+    def __init__(self, pieces):
+        self.pieces = pieces   # [(FilterContext, samples used)]
+
+    def rows(self, fn, n: int) -> np.ndarray:
+        out = np.vstack([ctx.rows(fn, k) for ctx, k in self.pieces])
+        return out[:n * self.pieces[0][0].q.shape[1]]
+
+
+def _pieces_training_block(data, breaks, cutoff: float, order: int, heldout: float):
+    """The training block of pieces put end to end: each piece processed (filtered, trimmed)
+    on its own, and the first 1 - ``heldout`` of their samples kept, as `split_blocks` keeps
+    of one processed record. Pieces too short for the identification filter are left out."""
+    from dataclasses import replace
+
+    from calibration.datasets import processed
+    from calibration.signals import settling_samples
+
+    trim = settling_samples(data.rate, cutoff, order)
+    edges = [0] + sorted(int(b) for b in breaks) + [data.n_samples]
+    parts = [processed(data.rows(slice(a, b)), cutoff, order) for a, b in zip(edges[:-1], edges[1:])
+             if b - a > 4 * trim]
+    if not parts:
+        from calibration.discrepancy import DiscrepancyError
+
+        raise DiscrepancyError(f"{data.source}: no piece lasts {4 * trim / data.rate:.1f} s, the shortest the "
+                               f"{cutoff:g} Hz identification filter needs to estimate the gravity direction; "
+                               "give an identified model with --model (its gravity is used)")
+    total = sum(p.n_samples for p in parts)
+    keep = total - int(round(total * heldout))
+    used = []
+    for p in parts:
+        k = min(p.n_samples, keep - sum(u.n_samples for u in used))
+        if k <= 0:
+            break
+        used.append(p.rows(slice(0, k)))
+    cat = {name: np.concatenate([getattr(u, name) for u in used]) for name in ("t", "q", "dq", "tau", "ddq")}
+    return replace(used[0], **cat, source=f"{data.source} [{len(used)} pieces, filtered each on its own]",
+                   context=_PiecesContext([(u.context, u.n_samples) for u in used]))
 
 
 def _save(fig, path_dir: Path, name: str, out: dict) -> None:
@@ -181,10 +299,23 @@ def _fmt(v) -> str:
     return str(v)
 
 
+def _pieces_lines(pieces: dict | None) -> list[str]:
+    """The report's line on a run recorded as several continuous pieces (none for one)."""
+    if not pieces or (len(pieces["seconds"]) < 2 and not pieces["dropped_seconds"]):
+        return []
+    spans = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in pieces["seconds"])
+    line = (f"data: {len(pieces['seconds'])} continuous pieces ({spans}; pauses over "
+            f"{pieces['pause_longer_than_s'] * 1e3:.0f} ms end a piece), each filtered on its own")
+    if pieces["dropped_seconds"]:
+        line += "; too short, left out: " + ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in pieces["dropped_seconds"])
+    return [line]
+
+
 def report_text(result: dict) -> str:
     b = result["baseline"]
     lines = [f"rig discrepancy: verdict {result['verdict']}  ({result['data']['source']})",
              f"baseline: {result['baseline_kind']}",
+             *_pieces_lines(result["data"].get("pieces")),
              "inertial term per joint (the smaller training residual): " + ", ".join(result["inertia_source"]),
              "held-out RMS per joint (N m, N m, N):  baseline " + ", ".join(f"{v:.4g}" for v in b["heldout_rms"])
              + "  ->  final " + ", ".join(f"{v:.4g}" for v in result["final"]["heldout_rms"]),
@@ -243,11 +374,15 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
     with Run(PROCEDURE, parameters=parameters, config=None, steps=list(STEPS), root=run_root,
              progress=progress) as rn:
         with rn.step(STEPS[0]):
+            pieces = None
             if parameters["csv"]:
                 data = load_csv(parameters["csv"], parameters["rate"], parameters["joints"])
-                q, dq, tau, source = data.q, data.dq, data.tau, str(parameters["csv"])
+                q, dq, tau, source, breaks = data.q, data.dq, data.tau, str(parameters["csv"]), []
             else:
-                q, dq, tau, source = load_run_arrays(run_dir, parameters["arm"], parameters["rate"])
+                record = load_run_pieces(run_dir, parameters["arm"], parameters["rate"], settings)
+                q, dq, tau, source, breaks = record.q, record.dq, record.tau, record.source, record.breaks
+                pieces = {"seconds": record.pieces, "dropped_seconds": record.dropped, "breaks": breaks,
+                          "pause_longer_than_s": PAUSE_CUTOFF_PERIODS / settings.cutoff}
         with rn.step(STEPS[1]):
             given = None
             if parameters["model"]:
@@ -256,13 +391,13 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
                 given = m.standard
                 kind = f"given model {m.path}"
             else:
-                g = estimate_gravity(q, dq, tau, parameters["rate"], settings, source)
+                g = estimate_gravity(q, dq, tau, parameters["rate"], settings, source, breaks)
                 model = PSMDynamics(PSMParameters(drive=DriveParameters()), gravity=g)
                 kind = ("thesis model identified on the training block (gravity estimated: "
                         + ", ".join(f"{v:.3f}" for v in g) + " m/s^2)")
             base = base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
         with rn.step(STEPS[2]):
-            result, w = run_workflow(model, base, q, dq, tau, parameters["rate"], given, settings)
+            result, w = run_workflow(model, base, q, dq, tau, parameters["rate"], given, settings, breaks)
         with rn.step(STEPS[3]):
             pi, effects = w.augmented(result)
             model_path = save_model(
@@ -282,7 +417,8 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
             pairs = w.residual_pairs(result) if parameters["plots"] else []
             result.pop("_reid")
             result.update({"model": str(model_path), "baseline_kind": kind,
-                           "data": {"source": source, "samples": int(q.shape[0]), "rate_hz": parameters["rate"]},
+                           "data": {"source": source, "samples": int(q.shape[0]), "rate_hz": parameters["rate"]}
+                           | ({} if pieces is None else {"pieces": pieces}),
                            # what `rig runs` lists for this run
                            "summary": {"verdict": result["verdict"],
                                        "effects": " ".join(f"{e['name']}@{e['joint']}" for e in result["effects"])

@@ -1175,6 +1175,7 @@ class Discrepancy:
                 self.notes.append(f"{a.effect}@{a.joint}: {eff.grid_name} refit with the model as it now "
                                   f"stands: {np.round(a.grid, 6).tolist()} -> {np.round(g, 6).tolist()}")
             a.grid = g
+            a.free = free   # all free, but as many as the refit's: a friction profile's harmonics may change
             a.raw_cols = self._columns(eff, a.joint, g)[:, :, free]
             a.unfiltered = self._columns(eff, a.joint, g, unfiltered=True)[:, :, free]
             a.evidence["grid"]["value"] = g

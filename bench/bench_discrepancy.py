@@ -93,7 +93,8 @@ def identify_excitation() -> dict:
     same one; ~1 min), as a dict."""
     from calibration.base_params import base_parameters_of
     from calibration.excitation import ExcitationDesigner
-    from procedures.identify import PARAMETERS, make_model
+    from calibration.identification import make_model
+    from procedures.identify import PARAMETERS
     from rig.params import resolve
     from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 

@@ -232,6 +232,59 @@ def load_csv(path, rate: float = 200.0, joints: int | None = None) -> JointData:
     return data
 
 
+def load_timed_csv(path, rate: float, joints: int):
+    """A CSV whose first column is time (s) and the rest the WPI columns, checked and
+    resampled to a uniform grid at ``rate`` Hz (linear interpolation) as JointData.
+
+    Raises the calibration.datasets errors naming the line (column count, non-numbers,
+    non-finite values) or the sample (time that does not increase).
+    """
+    path = Path(path)
+    try:
+        lines = [ln for ln in path.read_text().splitlines()]
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise DataError(f"{path}: not a text CSV file (binary content): expected rows of "
+                        "t, q1..qn, dq1..dqn, tau1..taun") from None
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if not lines:
+        raise EmptyDataError(f"{path}: file is empty: expected rows of t, q1..qn, dq1..dqn, tau1..taun")
+    rows = [ln.split(",") for ln in lines]
+    ncol = len(rows[0])
+    if ncol < 4 or (ncol - 1) % 3:
+        raise ColumnCountError(f"{path}, line 1: {ncol} columns: with --time-column expected 1 + 3n columns "
+                               "(t, q1..qn, dq1..dqn, tau1..taun)")
+    for i, r in enumerate(rows):
+        if len(r) != ncol:
+            raise ColumnCountError(f"{path}, line {i + 1}: {len(r)} columns where line 1 has {ncol}")
+    try:
+        arr = np.array(rows, dtype=float)
+    except ValueError:
+        for i, r in enumerate(rows):
+            for c, f in enumerate(r):
+                try:
+                    float(f)
+                except ValueError:
+                    raise NonFiniteError(f"{path}, line {i + 1}, column {c + 1}: {f.strip()!r} is not a number") from None
+        raise
+    n_file = (ncol - 1) // 3
+    if joints > n_file:
+        raise ColumnCountError(f"{path}: {joints} joints asked but the file has {n_file}")
+    t = arr[:, 0]
+    q, dq, tau = (arr[:, 1 + g * n_file:1 + g * n_file + joints] for g in range(3))
+    data = JointData.from_arrays(q, dq, tau, t=t, source=str(path))  # checks finite and increasing time
+    grid = np.arange(t[0], t[-1] + 0.5 / rate, 1.0 / rate)
+    grid = grid[grid <= t[-1]]
+
+    def resample(x):
+        return np.column_stack([np.interp(grid, data.t, x[:, j]) for j in range(x.shape[1])])
+
+    return JointData.from_arrays(resample(data.q), resample(data.dq), resample(data.tau), rate=rate,
+                                 t=grid, source=f"{path} [resampled to {rate:g} Hz]")
+
+
 def _column_name(c: int, n_joints: int) -> str:
     return f"{_QUANTITIES[c // n_joints]}{c % n_joints + 1}"
 

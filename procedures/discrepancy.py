@@ -28,12 +28,12 @@ Units: SI (rad, m, rad/s, m/s, N m, N, s, Hz).
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 
 import click
 import numpy as np
 
+from calibration.recorded_runs import PAUSE_CUTOFF_PERIODS, load_run_pieces
 from rig.params import Parameter, with_parameters
 from rig.run import Run, emit_result, exit_on_abort, json_option
 
@@ -59,81 +59,6 @@ PARAMETERS = [
 ]
 
 
-def load_run_arrays(run_dir, arm: str, rate: float):
-    """q, dq, tau (n, 3) of a run's measured_js at ``rate`` Hz."""
-    from rig.records import read_recording
-    from rig.runs_cli import joint_arrays, resample, resolve_run
-
-    d = resolve_run(str(run_dir))
-    topic = f"/{arm}/measured_js"
-    rec = read_recording(d / "run.mcap", topics=[topic])
-    t, q, dq, tau = joint_arrays(rec, topic)
-    _, table = resample(t, np.hstack((q[:, :3], dq[:, :3], tau[:, :3])), rate)
-    return table[:, :3], table[:, 3:6], table[:, 6:9], f"{d / 'run.mcap'} {topic}"
-
-
-#: A pause in a run's stream longer than this many periods of the workflow's filter cut-off
-#: (0.5: 50 ms at 10 Hz) ends a piece. Bridged by interpolation, a shorter gap (a publisher
-#: held up) changes nothing the filtered band sees; a longer one would be invented motion.
-PAUSE_CUTOFF_PERIODS = 0.5
-
-
-@dataclass
-class RunRecord:
-    """A run's q, dq, tau (n, 3) at ``rate`` Hz, its continuous pieces put end to end:
-    ``breaks`` the sample indices where a piece after the first begins; ``dropped`` the pieces
-    left out as too short for the workflow's filter ((start, stop) s from the first sample)."""
-
-    q: np.ndarray
-    dq: np.ndarray
-    tau: np.ndarray
-    source: str
-    breaks: list[int]
-    pieces: list[tuple[float, float]]
-    dropped: list[tuple[float, float]]
-
-
-def split_at_pauses(t: np.ndarray, max_gap: float) -> list[tuple[int, int]]:
-    """(start, stop) index ranges of ``t`` (s, increasing) between pauses longer than ``max_gap`` s."""
-    cuts = (np.flatnonzero(np.diff(t) > max_gap) + 1).tolist()
-    edges = [0] + cuts + [len(t)]
-    return list(zip(edges[:-1], edges[1:]))
-
-
-def load_run_pieces(run_dir, arm: str, rate: float, settings) -> RunRecord:
-    """A run's /<arm>/measured_js as continuous pieces, each resampled to ``rate`` Hz on its
-    own grid (pauses in the stream longer than PAUSE_CUTOFF_PERIODS of the filter's cut-off
-    end a piece); pieces too short for the workflow's filter are dropped and listed."""
-    from calibration.discrepancy import MIN_PIECE_TRIMS, DiscrepancyError
-    from calibration.signals import settling_samples
-    from rig.records import read_recording
-    from rig.runs_cli import joint_arrays, resample, resolve_run
-
-    d = resolve_run(str(run_dir))
-    topic = f"/{arm}/measured_js"
-    rec = read_recording(d / "run.mcap", topics=[topic])
-    t, q, dq, tau = joint_arrays(rec, topic)
-    columns = np.hstack((q[:, :3], dq[:, :3], tau[:, :3]))
-    shortest = MIN_PIECE_TRIMS * settling_samples(rate, settings.cutoff, settings.order)
-    tables, breaks, pieces, dropped = [], [], [], []
-    for a, b in split_at_pauses(t, PAUSE_CUTOFF_PERIODS / settings.cutoff):
-        span = (float(t[a] - t[0]), float(t[b - 1] - t[0]))
-        if b - a < 2 or (t[b - 1] - t[a]) * rate + 1 < shortest:
-            dropped.append(span)
-            continue
-        if tables:
-            breaks.append(sum(len(x) for x in tables))
-        tables.append(resample(t[a:b], columns[a:b], rate)[1])
-        pieces.append(span)
-    source = f"{d / 'run.mcap'} {topic}"
-    if not tables:
-        raise DiscrepancyError(f"{source}: no stretch of the stream without a pause longer than "
-                               f"{PAUSE_CUTOFF_PERIODS / settings.cutoff * 1e3:.0f} ms lasts "
-                               f"{shortest / rate:.2f} s, the shortest the workflow's filter can use")
-    table = np.vstack(tables)
-    return RunRecord(table[:, :3], table[:, 3:6], table[:, 6:9], source, breaks, pieces, dropped)
-
-
 def estimate_gravity(q, dq, tau, rate: float, settings, source: str = "the data", breaks=()) -> np.ndarray:
     """Gravity in frame 0 as `rig identify --csv` finds it on the training block: the sphere
     scanned by least squares on the moving samples (a stuck joint's effort is no function of
@@ -145,25 +70,22 @@ def estimate_gravity(q, dq, tau, rate: float, settings, source: str = "the data"
     from calibration.base_params import RankDeficientError
     from calibration.datasets import JointData, processed, split_blocks
     from calibration.discrepancy import DiscrepancyError
-    from procedures.identify import DEADBAND as ID_DEADBAND
-    from procedures.identify import PARAMETERS as ID_PARAMETERS
-    from procedures.identify import fit_identification, slow_joints
-    from rig.params import resolve
+    from calibration.identification import CUTOFF_HZ, FILTER_ORDER, fit_identification, slow_joints
+    from calibration.identification import DEADBAND as ID_DEADBAND
 
-    d = resolve(ID_PARAMETERS, {})
     data = JointData(np.arange(len(q)) / rate, np.asarray(q, float), np.asarray(dq, float), np.asarray(tau, float),
                      rate, source if len(breaks) else "the training block")
     if len(breaks):
-        train = _pieces_training_block(data, breaks, d["cutoff"], d["filter_order"], settings.heldout)
+        train = _pieces_training_block(data, breaks, CUTOFF_HZ, FILTER_ORDER, settings.heldout)
     else:
-        train, _ = split_blocks(processed(data, d["cutoff"], d["filter_order"]), settings.heldout)
+        train, _ = split_blocks(processed(data, CUTOFF_HZ, FILTER_ORDER), settings.heldout)
     for j, share in slow_joints(train.dq, ID_DEADBAND):
         raise DiscrepancyError(
             f"{source}: joint {j + 1} moves faster than {ID_DEADBAND[j]:g} {'m/s' if j == 2 else 'rad/s'} in only "
             f"{share * 100:.1f} % of the training block: too little motion to estimate the gravity direction "
             "from; give an identified model with --model (its gravity is used)")
     try:
-        outcome = fit_identification(train, "auto", 400.0, deadband=ID_DEADBAND, parallel=d["parallel_filter"],
+        outcome = fit_identification(train, "auto", 400.0, deadband=ID_DEADBAND, parallel=True,
                                      stribeck=False)
     except RankDeficientError as exc:
         raise DiscrepancyError(f"{source}: the gravity direction cannot be estimated ({exc}); give an identified model "

@@ -74,7 +74,7 @@ def load_recording(parameters: dict, run_dir: str | None):
     rate = parameters["rate"]
     if parameters["csv"]:
         if parameters["time_column"]:
-            from procedures.identify import load_timed_csv
+            from calibration.datasets import load_timed_csv
 
             data = load_timed_csv(parameters["csv"], rate, parameters["joints"])
         else:
@@ -82,7 +82,7 @@ def load_recording(parameters: dict, run_dir: str | None):
         return data.q, data.dq, data.tau, rate, str(parameters["csv"])
     from mcap.exceptions import McapError
 
-    from procedures.discrepancy import load_run_arrays
+    from calibration.recorded_runs import load_run_arrays
 
     try:
         q, dq, tau, source = load_run_arrays(run_dir, parameters["arm"], rate)

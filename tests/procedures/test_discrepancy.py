@@ -184,7 +184,7 @@ def test_a_run_is_read_as_its_continuous_pieces(tmp_path):
     import numpy as np
 
     from calibration.discrepancy import Settings
-    from procedures.discrepancy import load_run_pieces
+    from calibration.recorded_runs import load_run_pieces
     from rig.run import Run
 
     def q_of(t):

@@ -129,7 +129,7 @@ def test_bad_csv_clear_error(tmp_path, case):
 
 
 def test_timed_csv_is_resampled(tmp_path):
-    from procedures.identify import load_timed_csv
+    from calibration.datasets import load_timed_csv
 
     rows = _synthetic_rows(n=400)
     t = np.arange(400) / 200.0 + np.random.default_rng(2).uniform(-1e-4, 1e-4, 400)

@@ -322,3 +322,45 @@ def processed(data: JointData, cutoff: float = 3.5, order: int = 8, trim: int | 
     return replace(data, t=data.t[k], q=p.q, dq=p.dq, tau=p.tau, ddq=p.ddq, context=ctx,
                    source=f"{data.source} [filtered {order}th-order {cutoff} Hz, rows "
                           f"{k.start + 1}-{k.stop}]")
+
+
+class PiecesContext:
+    """Parallel filtering over several processed pieces (each its own
+    `calibration.datasets.FilterContext`): a function of the motion becomes each piece's
+    filtered rows, put end to end."""
+
+    def __init__(self, pieces):
+        self.pieces = pieces   # [(FilterContext, samples used)]
+
+    def rows(self, fn, n: int) -> np.ndarray:
+        out = np.vstack([ctx.rows(fn, k) for ctx, k in self.pieces])
+        return out[:n * self.pieces[0][0].q.shape[1]]
+
+
+def pieces_training_block(data, breaks, cutoff: float, order: int, heldout: float):
+    """The training block of pieces put end to end: each piece processed (filtered, trimmed)
+    on its own, and the first 1 - ``heldout`` of their samples kept, as `split_blocks` keeps
+    of one processed record. Pieces too short for the identification filter are left out."""
+    from dataclasses import replace
+
+    from calibration.signals import settling_samples
+
+    trim = settling_samples(data.rate, cutoff, order)
+    edges = [0] + sorted(int(b) for b in breaks) + [data.n_samples]
+    parts = [processed(data.rows(slice(a, b)), cutoff, order) for a, b in zip(edges[:-1], edges[1:])
+             if b - a > 4 * trim]
+    if not parts:
+        raise DataError(f"{data.source}: no piece lasts {4 * trim / data.rate:.1f} s, the shortest the "
+                               f"{cutoff:g} Hz identification filter needs to estimate the gravity direction; "
+                               "give an identified model with --model (its gravity is used)")
+    total = sum(p.n_samples for p in parts)
+    keep = total - int(round(total * heldout))
+    used = []
+    for p in parts:
+        k = min(p.n_samples, keep - sum(u.n_samples for u in used))
+        if k <= 0:
+            break
+        used.append(p.rows(slice(0, k)))
+    cat = {name: np.concatenate([getattr(u, name) for u in used]) for name in ("t", "q", "dq", "tau", "ddq")}
+    return replace(used[0], **cat, source=f"{data.source} [{len(used)} pieces, filtered each on its own]",
+                   context=PiecesContext([(u.context, u.n_samples) for u in used]))

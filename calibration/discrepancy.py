@@ -372,11 +372,14 @@ class Discrepancy:
 
     ``model``: a PSMDynamics (gravity, slope) giving the regressor; ``base``: its
     BaseParameters; ``given``: standard parameters (82,) of a given model (None: identify
-    the baseline on the training block).
+    the baseline on the training block); ``given_extra``: ``fn(Prepared) -> (n, 3)`` the given
+    model's effort beyond what its standard parameters' regressor gives, on the raw samples
+    (a model file's Stribeck excess and effects: `calibration.prediction.extra_effort`), so
+    that a given model is taken whole.
     """
 
     def __init__(self, model, base, q, dq, tau, rate: float, given: np.ndarray | None = None,
-                 settings: Settings | None = None, breaks=()):
+                 settings: Settings | None = None, breaks=(), given_extra=None):
         self.t0 = time.perf_counter()
         self.model = model
         self.base = base
@@ -390,6 +393,7 @@ class Discrepancy:
         self.p = prepare(q, dq, tau, rate, self.settings, breaks)
         p = self.p
         self.given = None if given is None else np.asarray(given, float)
+        self.given_extra_raw = None if given_extra is None else np.asarray(given_extra(p), float)
         n = p.q.shape[0]
         # The regressor on every raw sample (unfiltered, unmasked; the model's torque there is
         # what delay and backlash columns are built from) and masked-filtered (the fits).
@@ -431,8 +435,7 @@ class Discrepancy:
             if best is None or score < best[0]:
                 best = (score, a)
         self._set_slope(best[1])
-        self.fixed = np.zeros_like(self.y) if given is None else W @ self.given
-        self.fixed_raw = np.zeros(3 * n) if given is None else self.W_raw @ self.given
+        self._set_fixed()
         self._index_samples()
         for j in range(3):
             if len(self.mov_tr[j]) < 0.2 * (p.train.stop - p.train.start) or len(self.mov_ho[j]) < 50:
@@ -457,9 +460,18 @@ class Discrepancy:
         W = self.p.filt_rows(Wr.reshape(n, 3, -1))
         self.W = W.reshape(-1, W.shape[2])
         self._set_slope(self.slope)
-        if self.given is not None:
-            self.fixed = self.W @ self.given
-            self.fixed_raw = self.W_raw @ self.given
+        self._set_fixed()
+
+    def _set_fixed(self) -> None:
+        """The given model's effort, filtered (``fixed``, kept rows) and on the raw samples
+        (``fixed_raw``); zero without a given model."""
+        if self.given is None:
+            self.fixed, self.fixed_raw = np.zeros_like(self.y), np.zeros(self.W_raw.shape[0])
+            return
+        self.fixed, self.fixed_raw = self.W @ self.given, self.W_raw @ self.given
+        if self.given_extra_raw is not None:
+            self.fixed = self.fixed + self.p.filt_rows(self.given_extra_raw).reshape(-1)
+            self.fixed_raw = self.fixed_raw + self.given_extra_raw.reshape(-1)
 
     def _choose_inertia(self) -> None:
         """Per joint, the inertial term's source with the smaller training residual of the
@@ -516,7 +528,7 @@ class Discrepancy:
         self.Wb = self.base.regressor(self.W)
         self.y = p.tauf.reshape(-1)
         self.moving = p.moving_raw[p.kept] > 0
-        self.fixed = np.zeros_like(self.y) if self.given is None else self.W @ self.given
+        self._set_fixed()
         self._index_samples()
         self._col_cache = {}
         for a in self.added:
@@ -1191,6 +1203,27 @@ class Discrepancy:
         for a, params in zip(self.added, self._effect_params(coef, k0, standard)):
             a.params = params
 
+    def add_named(self, named) -> None:
+        """Add effects named by another run of the workflow (each an `Added` of it, or anything
+        with its effect, joint, grid, free and params) at their non-linear parameters, and fit
+        their linear ones with the current model: with a given model, on top of it, which
+        stays as it is. An effort delay extends the joint's stuck mask first, as when accepted."""
+        for a in named:
+            eff = CATALOGUE[a.effect]
+            if eff.id == "time_delay":
+                lag = int(np.ceil(a.params["delay"] * self.p.rate))
+                if lag > self.mask_lag[a.joint - 1]:
+                    self._remask(a.joint, lag)
+            free = np.asarray(a.free, bool)
+            cols = self._columns(eff, a.joint, a.grid)[:, :, free]
+            unfiltered = self._columns(eff, a.joint, a.grid, unfiltered=True)[:, :, free]
+            before = self.heldout_rms().tolist()
+            self.added.append(Added(eff.id, a.joint, a.grid, cols, unfiltered, free, dict(a.params),
+                                    {"grid": {"name": eff.grid_name, "value": a.grid}}, before, []))
+            self._fit_current()
+            self.added[-1].rms_after = self.heldout_rms().tolist()
+        self._refresh_params()
+
     def _reidentify(self) -> dict:
         """Identified mode: the loop's fits are already joint. Given model: re-identify the
         baseline's base parameters with the effects when the effects are separable from them."""
@@ -1407,10 +1440,12 @@ def _last_reversal_position(q: np.ndarray, dq: np.ndarray, starts=()) -> np.ndar
     return out
 
 
-def run_workflow(model, base, q, dq, tau, rate: float, given=None, settings: Settings | None = None, breaks=()):
+def run_workflow(model, base, q, dq, tau, rate: float, given=None, settings: Settings | None = None, breaks=(),
+                 given_extra=None):
     """Run the workflow; returns (result dict, the Discrepancy object for plots and the model).
-    ``breaks``: sample indices where another continuous recording begins (see `Prepared`)."""
-    w = Discrepancy(model, base, q, dq, tau, rate, given, settings, breaks)
+    ``breaks``: sample indices where another continuous recording begins (see `Prepared`);
+    ``given_extra``: see `Discrepancy`."""
+    w = Discrepancy(model, base, q, dq, tau, rate, given, settings, breaks, given_extra)
     return w.run(), w
 
 

@@ -295,3 +295,25 @@ def predict(model, q, dq, tau, rate: float, settings: Settings | None = None, so
     return Prediction(rate, t, p.tauf.copy(), predicted, moving, raw_chosen, effects_raw, blocks, choice,
                       _effect_docs(entries),
                       stribeck=bool(np.any(dyn.Fst != 0)), seconds=time.perf_counter() - t0, notes=notes)
+
+
+def extra_effort(model, p: Prepared) -> np.ndarray:
+    """(n, 3) the part of a model file's effort on the raw samples of ``p`` that its 82
+    standard parameters' regressor does not give: the Stribeck excess and the effects (in the
+    file's order, stateful ones run through the samples in time order; a payload is in the
+    standard parameters, see `standard_parameters`). With it, `calibration.discrepancy`
+    takes a given model whole (`Discrepancy(..., given_extra=...)`)."""
+    dyn = model.dynamics()
+    pi, _ = _standard(model)
+    efforts, mass_diag = _rigid_and_friction(dyn, pi, p)
+    base = efforts["filtered"]
+    total = _effects(model, model.effects, p, base, dyn.slope, mass_diag, {})
+    extra = total - base
+    if np.any(dyn.Fst != 0):
+        extra = extra + dyn.Fst * np.exp(-(p.dq / dyn.vs) ** 2) * np.tanh(0.5 * dyn.slope * p.dq)
+    return extra
+
+
+def standard_parameters(model) -> np.ndarray:
+    """The model file's 82 standard parameters with a payload entry not yet in them folded in."""
+    return _standard(model)[0]

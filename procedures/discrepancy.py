@@ -44,6 +44,9 @@ STEPS = ("load the measured data", "baseline model", "detect, attribute, name an
 PARAMETERS = [
     Parameter("csv", "", "", "Measured data in the WPI CSV format (q1..qn, dq1..dqn, tau1..taun) instead of RUN_DIR",
               type=str),
+    Parameter("validate_csv", "", "", "A second recording of the same arm (WPI CSV format) on which effects must improve "
+              "prediction to be written; default: an identify run's last piece, else cross-validation over blocks in "
+              "time", type=str),
     Parameter("rate", 200.0, "Hz", "Sampling rate of the CSV rows; a run's samples are resampled to it",
               minimum=20.0, maximum=5000.0),
     Parameter("model", "", "", "Identified model file (model.json) to use as the baseline; default: identify the "
@@ -59,83 +62,39 @@ PARAMETERS = [
 ]
 
 
-def estimate_gravity(q, dq, tau, rate: float, settings, source: str = "the data", breaks=()) -> np.ndarray:
-    """Gravity in frame 0 as `rig identify --csv` finds it on the training block: the sphere
-    scanned by least squares on the moving samples (a stuck joint's effort is no function of
-    the motion), and the best direction of each hemisphere fitted by the physically
-    consistent SDP, the better fit deciding the sign (a mirrored direction fits the data
-    almost as well by least squares alone). With ``breaks`` (continuous pieces put end to end),
-    each piece is filtered on its own and the training block is the first share of the
-    pieces' processed samples, as of one record's."""
+def identify_plain(q, dq, tau, rate: float, settings, source: str = "the data", breaks=()):
+    """The plain model: `rig identify --csv`'s fit at its defaults on the training block
+    (`calibration.generalisation.plain_fit`), a FitOutcome. Its gravity direction is the one
+    the workflow's baseline uses: the sphere scanned by least squares on the moving samples
+    (a stuck joint's effort is no function of the motion), and the best direction of each
+    hemisphere fitted by the physically consistent SDP, the better fit deciding the sign (a
+    mirrored direction fits the data almost as well by least squares alone). With ``breaks``
+    (continuous pieces put end to end), each piece is filtered on its own and the training
+    block is the first share of the pieces' processed samples, as of one record's."""
     from calibration.base_params import RankDeficientError
-    from calibration.datasets import JointData, processed, split_blocks
     from calibration.discrepancy import DiscrepancyError
-    from calibration.identification import CUTOFF_HZ, FILTER_ORDER, fit_identification, slow_joints
+    from calibration.generalisation import plain_fit, plain_training_block
     from calibration.identification import DEADBAND as ID_DEADBAND
+    from calibration.identification import slow_joints
 
-    data = JointData(np.arange(len(q)) / rate, np.asarray(q, float), np.asarray(dq, float), np.asarray(tau, float),
-                     rate, source if len(breaks) else "the training block")
-    if len(breaks):
-        train = _pieces_training_block(data, breaks, CUTOFF_HZ, FILTER_ORDER, settings.heldout)
-    else:
-        train, _ = split_blocks(processed(data, CUTOFF_HZ, FILTER_ORDER), settings.heldout)
+    train = plain_training_block(q, dq, tau, rate, settings.heldout, breaks,
+                                 source if len(breaks) else "the training block")
     for j, share in slow_joints(train.dq, ID_DEADBAND):
         raise DiscrepancyError(
             f"{source}: joint {j + 1} moves faster than {ID_DEADBAND[j]:g} {'m/s' if j == 2 else 'rad/s'} in only "
-            f"{share * 100:.1f} % of the training block: too little motion to estimate the gravity direction "
-            "from; give an identified model with --model (its gravity is used)")
+            f"{share * 100:.1f} % of the training block: too little motion to identify the plain model and "
+            "estimate the gravity direction; give an identified model with --model (its gravity is used)")
     try:
-        outcome = fit_identification(train, "auto", 400.0, deadband=ID_DEADBAND, parallel=True,
-                                     stribeck=False)
+        return plain_fit(train)
     except RankDeficientError as exc:
-        raise DiscrepancyError(f"{source}: the gravity direction cannot be estimated ({exc}); give an identified model "
+        raise DiscrepancyError(f"{source}: the plain model cannot be identified ({exc}); give an identified model "
                                "with --model (its gravity is used)") from None
-    return np.asarray(outcome.gravity, float)
 
 
-class _PiecesContext:
-    """Parallel filtering over several processed pieces (each its own
-    `calibration.datasets.FilterContext`): a function of the motion becomes each piece's
-    filtered rows, put end to end."""
-
-    def __init__(self, pieces):
-        self.pieces = pieces   # [(FilterContext, samples used)]
-
-    def rows(self, fn, n: int) -> np.ndarray:
-        out = np.vstack([ctx.rows(fn, k) for ctx, k in self.pieces])
-        return out[:n * self.pieces[0][0].q.shape[1]]
-
-
-def _pieces_training_block(data, breaks, cutoff: float, order: int, heldout: float):
-    """The training block of pieces put end to end: each piece processed (filtered, trimmed)
-    on its own, and the first 1 - ``heldout`` of their samples kept, as `split_blocks` keeps
-    of one processed record. Pieces too short for the identification filter are left out."""
-    from dataclasses import replace
-
-    from calibration.datasets import processed
-    from calibration.signals import settling_samples
-
-    trim = settling_samples(data.rate, cutoff, order)
-    edges = [0] + sorted(int(b) for b in breaks) + [data.n_samples]
-    parts = [processed(data.rows(slice(a, b)), cutoff, order) for a, b in zip(edges[:-1], edges[1:])
-             if b - a > 4 * trim]
-    if not parts:
-        from calibration.discrepancy import DiscrepancyError
-
-        raise DiscrepancyError(f"{data.source}: no piece lasts {4 * trim / data.rate:.1f} s, the shortest the "
-                               f"{cutoff:g} Hz identification filter needs to estimate the gravity direction; "
-                               "give an identified model with --model (its gravity is used)")
-    total = sum(p.n_samples for p in parts)
-    keep = total - int(round(total * heldout))
-    used = []
-    for p in parts:
-        k = min(p.n_samples, keep - sum(u.n_samples for u in used))
-        if k <= 0:
-            break
-        used.append(p.rows(slice(0, k)))
-    cat = {name: np.concatenate([getattr(u, name) for u in used]) for name in ("t", "q", "dq", "tau", "ddq")}
-    return replace(used[0], **cat, source=f"{data.source} [{len(used)} pieces, filtered each on its own]",
-                   context=_PiecesContext([(u.context, u.n_samples) for u in used]))
+def estimate_gravity(q, dq, tau, rate: float, settings, source: str = "the data", breaks=()) -> np.ndarray:
+    """Gravity in frame 0 as `rig identify --csv` finds it on the training block (see
+    :func:`identify_plain`)."""
+    return np.asarray(identify_plain(q, dq, tau, rate, settings, source, breaks).gravity, float)
 
 
 def _save(fig, path_dir: Path, name: str, out: dict) -> None:
@@ -270,16 +229,52 @@ def report_text(result: dict) -> str:
                 why.append(f"removes {c['heldout_variance_removed']:.2f} of the held-out residual variance, needs "
                            f"{c['heldout_gain_needed']:.2f} (the generic library explains {c['library_r2']:.2f})")
             lines.append(f"    joint {item['joint']}: closest catalogue effect {c['effect']}, not added: " + "; ".join(why))
-    sc = result.get("standard_consistency")
-    if sc and sc["projected"]:
-        lines.append("model file: the fitted rigid-body parameters are not physically consistent; written as the "
-                     "best consistent ones fitted again with the effects on the training block (the effects' "
-                     "parameters are that fit's; model torque change " + ", ".join(
-                         f"{v:.3g}" for v in sc["training_torque_change_rms"]) + "), held-out RMS as written "
-                     + ", ".join(f"{v:.4g}" for v in sc["heldout_rms"]))
+    g = result.get("generalisation")
+    if g:
+        lines.append(f"written model: the plain model + {', '.join(g['kept']) or 'no effect'}; effects judged on "
+                     f"{g['method']}" + (f" ({g['note']})" if g.get("note") else ""))
+        lines.append("    relative error per joint, plain -> written: "
+                     + ", ".join(f"{a:.3f} -> {b:.3f}" for a, b in zip(g["relative_error"]["plain"],
+                                                                       g["relative_error"]["written"])))
+        hb = g.get("heldout_block")
+        if hb:
+            lines.append("    on the held-out block, plain -> written: "
+                         + ", ".join(f"{a:.3f} -> {b:.3f}" for a, b in zip(hb["rel_plain"], hb["rel_written"])))
+        for d in g["not_confirmed"]:
+            gain = d.get("gain_on_new_motion")
+            lines.append(f"    {d['effect']}@{d['joint']}: {d['why']}"
+                         + (f" (it lowers joint {d['joint']}'s error there by {gain * 100:.1f} %, needs "
+                            f"{g['confirm_gain'] * 100:g} %)" if gain is not None else ""))
+        for d in g["implausible"]:
+            lines.append(f"    {d['effect']}@{d['joint']}: left out, implausible beside the plain model: {d['why']}")
+        lines.append("    guards: " + "; ".join(g["guards"]))
     lines.append(f"model: {result['model']}")
     lines.append(f"time: {result['seconds']:.1f} s")
     return "\n".join(lines)
+
+
+def _other_motion(parameters: dict, settings, q, dq, tau, breaks, pieces):
+    """The motion the effects are confirmed on (`calibration.generalisation`): the
+    --validate-csv recording, or the last continuous piece of a run recorded as several
+    (`rig identify`'s validation trajectory) when it is long enough to predict; the training
+    arrays without that piece. Returns (motions, q, dq, tau, breaks, note)."""
+    from calibration.datasets import load_csv
+    from calibration.generalisation import Motion
+    from calibration.prediction import minimum_samples
+
+    rate = parameters["rate"]
+    if parameters["validate_csv"]:
+        v = load_csv(parameters["validate_csv"], rate, parameters["joints"])
+        return [Motion(v.q, v.dq, v.tau, rate, f"{parameters['validate_csv']} (second recording)")], q, dq, tau, \
+            breaks, None
+    if len(breaks) and len(q) - breaks[-1] >= minimum_samples(rate, settings) \
+            and breaks[-1] >= minimum_samples(rate, settings):
+        k = breaks[-1]
+        a, b = pieces["seconds"][-1]
+        motion = Motion(q[k:], dq[k:], tau[k:], rate, f"the run's last continuous piece ({a:.1f}-{b:.1f} s)")
+        return [motion], q[:k], dq[:k], tau[:k], breaks[:-1], \
+            f"the run's last piece ({a:.1f}-{b:.1f} s) is kept out of the training data as the other motion"
+    return [], q, dq, tau, breaks, None
 
 
 def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: bool = True) -> dict:
@@ -287,69 +282,122 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
     from calibration.datasets import load_csv
     from calibration.discrepancy import Settings, run_workflow
     from calibration.effects import describe
+    from calibration.generalisation import EffectGate
+    from calibration.prediction import extra_effort, standard_parameters
     from rig.model_file import load_model, provenance, save_model
     from rig.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
     from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
     settings = Settings(cutoff=parameters["cutoff"], heldout=parameters["heldout"],
                         effort_lag=parameters["effort_lag"] * 1e-3)
+    rate = parameters["rate"]
     with Run(PROCEDURE, parameters=parameters, config=None, steps=list(STEPS), root=run_root,
              progress=progress) as rn:
         with rn.step(STEPS[0]):
             pieces = None
             if parameters["csv"]:
-                data = load_csv(parameters["csv"], parameters["rate"], parameters["joints"])
+                data = load_csv(parameters["csv"], rate, parameters["joints"])
                 q, dq, tau, source, breaks = data.q, data.dq, data.tau, str(parameters["csv"]), []
             else:
-                record = load_run_pieces(run_dir, parameters["arm"], parameters["rate"], settings)
+                record = load_run_pieces(run_dir, parameters["arm"], rate, settings)
                 q, dq, tau, source, breaks = record.q, record.dq, record.tau, record.source, record.breaks
                 pieces = {"seconds": record.pieces, "dropped_seconds": record.dropped, "breaks": breaks,
                           "pause_longer_than_s": PAUSE_CUTOFF_PERIODS / settings.cutoff}
+            motions, q, dq, tau, breaks, split_note = _other_motion(parameters, settings, q, dq, tau, breaks, pieces)
         with rn.step(STEPS[1]):
-            given = None
+            given, given_extra = None, None
             if parameters["model"]:
-                m = load_model(parameters["model"])
-                model = m.dynamics()
-                given = m.standard
-                kind = f"given model {m.path}"
+                plain = load_model(parameters["model"])
+                model = plain.dynamics()
+                given = standard_parameters(plain)
+                given_extra = lambda p: extra_effort(plain, p)   # noqa: E731  the model whole
+                kind = f"given model {plain.path} (whole: Stribeck excess and effects included)"
             else:
-                g = estimate_gravity(q, dq, tau, parameters["rate"], settings, source, breaks)
+                outcome = identify_plain(q, dq, tau, rate, settings, source, breaks)
+                sdp = outcome.fits["sdp"]
+                plain_path = save_model(
+                    rn.dir / "plain_model.json", standard=sdp.pi, names=list(outcome.model.param_names()),
+                    slope=outcome.slope, gravity=outcome.gravity, stribeck=outcome.stribeck(),
+                    gravity_source=outcome.gravity_source, checks=sdp.checks,
+                    provenance_info=provenance(source, rn.dir, {"procedure": PROCEDURE, "model": "plain"}),
+                    extra={"note": "the model `rig identify --csv` fits at its defaults on this training block"})
+                plain = load_model(plain_path)
+                g = outcome.gravity
                 model = PSMDynamics(PSMParameters(drive=DriveParameters()), gravity=g)
                 kind = ("thesis model identified on the training block (gravity estimated: "
                         + ", ".join(f"{v:.3f}" for v in g) + " m/s^2)")
             base = base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
         with rn.step(STEPS[2]):
-            result, w = run_workflow(model, base, q, dq, tau, parameters["rate"], given, settings, breaks)
+            result, w = run_workflow(model, base, q, dq, tau, rate, given, settings, breaks, given_extra)
         with rn.step(STEPS[3]):
-            pi, effects = w.augmented(result)
+            effect_gate = EffectGate(plain, w.added, q, dq, tau, rate, settings, breaks, motions)
+            gate = effect_gate.run()
+            if split_note:
+                gate.doc["note"] = split_note
+            heldout = _heldout_figures(effect_gate, gate.kept)
+            gate.doc["heldout_block"] = heldout
             model_path = save_model(
-                rn.dir / "model.json", standard=pi, names=model.param_names(), slope=w.slope,
-                gravity=model.gravity, gravity_source="given model" if given is not None else "estimated",
-                validation={"heldout_rms_before": result["baseline"]["heldout_rms"],
-                            "heldout_rms_after": result["standard_consistency"]["heldout_rms"]
-                            if "standard_consistency" in result else result["final"]["heldout_rms"],
-                            "heldout_rms_after_fit": result["final"]["heldout_rms"],
-                            "note": "after: the model as written (physically consistent standard "
-                                    "parameters); after_fit: the workflow's unconstrained fit"},
+                rn.dir / "model.json", standard=gate.standard, names=plain.names, slope=plain.slope,
+                gravity=plain.gravity, stribeck=plain.stribeck,
+                gravity_source="given model" if given is not None else "estimated",
+                validation={"other_motion": gate.doc["method"],
+                            "relative_error_plain": gate.doc["relative_error"]["plain"],
+                            "relative_error_written": gate.doc["relative_error"]["written"],
+                            "heldout_rms_plain": heldout["rms_plain"], "heldout_rms_written": heldout["rms_written"],
+                            "note": "plain: the model `rig identify` fits on the same training data (or the given "
+                                    "model); written: this file; relative errors on the other motion"},
                 provenance_info=provenance(source, rn.dir, {"procedure": PROCEDURE}),
-                extra={"effects": effects, "effects_catalogue": describe()["version"],
-                       "standard_consistency": result.get("standard_consistency"),
+                extra={"effects": list(plain.effects) + gate.entries, "effects_catalogue": describe()["version"],
+                       "plain_model": str(plain.path),
                        "effects_note": "torques of the effects add to the rigid-body model: "
                                        "calibration.effects.effects_torque(effects, q, dq, tau_model)"})
             pairs = w.residual_pairs(result) if parameters["plots"] else []
             result.pop("_reid")
-            result.update({"model": str(model_path), "baseline_kind": kind,
-                           "data": {"source": source, "samples": int(q.shape[0]), "rate_hz": parameters["rate"]}
+            kept = gate.doc["kept"]
+            result.update({"model": str(model_path), "baseline_kind": kind, "generalisation": gate.doc,
+                           "data": {"source": source, "samples": int(q.shape[0]), "rate_hz": rate}
                            | ({} if pieces is None else {"pieces": pieces}),
                            # what `rig runs` lists for this run
-                           "summary": {"verdict": result["verdict"],
-                                       "effects": " ".join(f"{e['name']}@{e['joint']}" for e in result["effects"])
-                                       or "none"}})
+                           "summary": {"verdict": result["verdict"], "effects": " ".join(kept) or "none"}})
             if parameters["plots"]:
                 structured = [d for d in result["detection"]["final"] if d["structured"]]
                 result["plots"] = plot_residuals(pairs, structured, w, rn.dir)
+                result["plots"].update(plot_generalisation(gate.doc, rn.dir))
             rn.finish(result)
     return rn.result
+
+
+def _heldout_figures(gate, kept) -> dict:
+    """The plain and the written model on the training record's held-out block (the block
+    the workflow's figures are on): RMS (N m, N m, N) and relative error per joint."""
+    w = gate.w
+    gate._use(kept)
+    return {"rms_plain": w.heldout_rms(w.fixed).tolist(), "rms_written": w.heldout_rms(w.pred).tolist(),
+            "rel_plain": w.heldout_rel(w.fixed).tolist(), "rel_written": w.heldout_rel(w.pred).tolist()}
+
+
+def plot_generalisation(doc: dict, path_dir: Path) -> dict:
+    """Bar chart: relative error per joint of the plain and the written model on the other
+    motion (or cross-validated), the effects that were not confirmed named."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out: dict = {}
+    plain, written = doc["relative_error"]["plain"], doc["relative_error"]["written"]
+    x = np.arange(3)
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    ax.bar(x - 0.2, plain, 0.4, label="plain (rig identify's model)")
+    ax.bar(x + 0.2, written, 0.4, label="written (+ " + (", ".join(doc["kept"]) or "no effect") + ")")
+    ax.set_xticks(x, ["joint 1", "joint 2", "joint 3"])
+    ax.set_ylabel("relative error on the other motion")
+    dropped = ", ".join(f"{d['effect']}@{d['joint']}" for d in doc["not_confirmed"])
+    ax.set_title(doc["method"][:70] + ("\nnot confirmed: " + dropped if dropped else ""), fontsize=9)
+    ax.legend()
+    ax.grid(alpha=0.3, axis="y")
+    _save(fig, path_dir, "generalisation.png", out)
+    return out
 
 
 @click.command(name=PROCEDURE)
@@ -371,13 +419,15 @@ def command(run_dir, parameters, list_steps: bool, as_json: bool) -> None:
     from calibration.base_params import RankDeficientError
     from calibration.datasets import DataError
     from calibration.discrepancy import DiscrepancyError
+    from calibration.prediction import PredictionError
     from calibration.signals import SignalError
     from rig.model_file import ModelFileError
     from rig.runs_cli import ExportError
 
     try:
         result = run(parameters, run_dir)
-    except (DataError, SignalError, RankDeficientError, DiscrepancyError, ModelFileError, ExportError) as exc:
+    except (DataError, SignalError, RankDeficientError, DiscrepancyError, ModelFileError, ExportError,
+            PredictionError) as exc:
         click.echo(f"rig {PROCEDURE}: {exc}", err=True)
         sys.exit(1)
     emit_result(result, as_json, report_text(result))

@@ -344,6 +344,17 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         overruns0, skipped0 = getattr(clock, "overruns", 0), getattr(clock, "skipped", 0)
         last_js_t = {n: None for n in names}
         repeated_js = 0  # ticks that found an arm's measured_js not renewed since the last one
+        # The force loop acts only on a tension at most two of the cell's frame periods old
+        # (at a tick the newest sample is up to one period old, plus its way to the loop);
+        # older, the controller holds its force loop (CooperativeController.step, blind).
+        # Samples can stop reaching the loop while the port still has them: the driver's
+        # reader thread held up on a loaded machine (100-475 ms seen over the wire with
+        # one CPU burner) delivers them in a burst later, and its stream age does not
+        # count that as silence. A tension no newer than the stale timeout ends the run.
+        max_force_age = 2.0 / cfg.loadcell["rate"]
+        stale_timeout = cfg.loadcell["stale_timeout"]
+        last_force_t = [s.t for s in first]
+        blind_ticks, blind_longest = 0, 0.0
         # the ROS 2 context and the keyboard are released however the loop ends
         with live, run.step(STEPS[3], total=n_ticks) as step:
             for k in range(n_ticks):
@@ -361,21 +372,23 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                     for s in new:
                         rec.tension(topic, s.t, s.force)
                     newest.append(new[-1] if new else None)
+                    if new:
+                        last_force_t[k_el] = max(last_force_t[k_el], new[-1].t)
                 if all(s is not None for s in newest):
                     tension = np.array([s.force for s in newest])
                     fresh = tension
-                else:
-                    # the sensors' own age: a reader that could not run (the process busy)
-                    # has samples waiting in the port, which is no silence of the cell
-                    age = max(s.stream_age() for s in sensors)
-                    if age > cfg.loadcell["stale_timeout"]:
-                        raise AbortRun(f"load cell stale: no sample for {1000 * age:.0f} ms "
-                                       f"(stale timeout {1000 * cfg.loadcell['stale_timeout']:.0f} ms)")
+                force_age = t - min(last_force_t)
+                blind = force_age > max_force_age
+                if blind:
+                    blind_ticks += 1
+                    blind_longest = max(blind_longest, force_age)
+                    if force_age > stale_timeout:
+                        _abort_stale_tension(sensors, force_age, stale_timeout)
                 live.poll(t)
                 c0 = time.perf_counter()
                 q = {n: js[n].position[:3] for n in names}
                 dq = {n: js[n].velocity[:3] for n in names}
-                commands = controller.step(t, q, dq, fresh)
+                commands = controller.step(t, q, dq, fresh, blind=blind)
                 loop_us = (time.perf_counter() - c0) * 1e6
                 limits.check_tension(float(tension.max()))
                 xd, _, _ = controller.desired(t)
@@ -411,6 +424,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                               last_live=None if live.last_applied is None else live.last_applied - t_start)
             result["loop_timing"] = _loop_timing(log["t"], clock.rate, getattr(clock, "overruns", 0) - overruns0,
                                                  getattr(clock, "skipped", 0) - skipped0, repeated_js, len(names))
+            result["loop_timing"].update(_force_hold_figures(blind_ticks, n_ticks, blind_longest, max_force_age))
             if ros_commands or interactive:
                 result["live_commands"] = live.summary(t_start)
             result.update({"model": model_note, "model_effects": model_effects, "registration": registration_note, "arms": names,
@@ -517,7 +531,32 @@ def _timing_line(lt: dict | None) -> str:
     return (f"  loop at {lt['rate_hz']:g} Hz: period median {lt['period_ms_median']:.3f} ms, p99 "
             f"{lt['period_ms_p99']:.3f} ms, max {lt['period_ms_max']:.1f} ms; overruns {lt['overruns_per_10k']:.0f} "
             f"and skipped {lt['skipped_per_10k']:.0f} per 10 000 ticks; measured_js not renewed in "
-            f"{lt['repeated_measured_js_per_10k']:.0f} of 10 000 reads")
+            f"{lt['repeated_measured_js_per_10k']:.0f} of 10 000 reads"
+            + (f"; force loop held (tension older than {lt['force_max_age_ms']:.0f} ms) on "
+               f"{lt['force_hold_per_10k']:.0f} per 10 000 ticks, the oldest {lt['force_hold_longest_ms']:.0f} ms"
+               if lt.get("force_hold_per_10k") else ""))
+
+
+def _abort_stale_tension(sensors, age: float, timeout: float) -> None:
+    """The newest tension is older than the stale timeout: end the run, naming the load cell
+    and whether it fell silent (its driver saw no sample either) or its samples did not
+    reach the loop (the driver's reader held up: the machine too loaded for the loop)."""
+    silent = max(s.stream_age() for s in sensors)
+    if silent > timeout:
+        raise AbortRun(f"load cell stale: no sample for {1000 * silent:.0f} ms "
+                       f"(stale timeout {1000 * timeout:.0f} ms)")
+    names = ", ".join(str(getattr(s, "name", "the load cell")) for s in sensors)
+    raise AbortRun(f"load cell stale: no sample reached the control loop for {1000 * age:.0f} ms "
+                   f"(stale timeout {1000 * timeout:.0f} ms), although the cell on {names} still streams: "
+                   "its reader was held up; the machine is too loaded for the loop (the force loop "
+                   "held meanwhile)")
+
+
+def _force_hold_figures(blind_ticks: int, n_ticks: int, longest: float, max_age: float) -> dict:
+    """Ticks on which the force loop held because the newest tension was older than
+    `max_age` (s), per 10 000 ticks, and the oldest tension such a tick found (ms)."""
+    return {"force_hold_per_10k": blind_ticks * 1e4 / max(n_ticks, 1),
+            "force_hold_longest_ms": 1e3 * longest, "force_max_age_ms": 1e3 * max_age}
 
 
 def _loop_timing(t: np.ndarray, rate: float, overruns: int, skipped: int, repeated_js: int, arms: int) -> dict:

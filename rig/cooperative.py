@@ -226,6 +226,7 @@ class CooperativeController:
         self.tension = np.zeros(len(self.elements))
         self.tension_rate = np.zeros(len(self.elements))
         self.force_setpoint = 0.0
+        self.blind = False  # the last step held the force loop (see step)
         # User increments (/psm/cmd_vel, /psm/cmd_force, keyboard): these are the targets;
         # the controller moves its applied offsets toward them at the slew rates, so that an
         # increment is a short ramp, not a step in one cycle.
@@ -279,7 +280,7 @@ class CooperativeController:
         """Thesis 7.7.3: fixed target steps along the object while the error is outside the deadband."""
         pl = self.position_loop
         if t + 1e-12 >= self._next_position_step:
-            if abs(error) > pl.deadband:
+            if abs(error) > pl.deadband and not self.blind:
                 self.x_f[s] = float(np.clip(self.x_f[s] + pl.step * np.sign(error),
                                             -self.x_f_limit, self.x_f_limit))
             if s == self.slaves[-1]:
@@ -392,18 +393,40 @@ class CooperativeController:
                                                  np.array([self.force_offset]), self.slew_force)[0])
 
     def step(self, t: float, q: dict[str, np.ndarray], dq: dict[str, np.ndarray],
-             tension: np.ndarray | None) -> dict[str, ArmCommand]:
-        """One control cycle. `tension`: newest sample per object element, or None if no new one."""
+             tension: np.ndarray | None, blind: bool = False) -> dict[str, ArmCommand]:
+        """One control cycle. `tension`: newest sample per object element, or None if no new one.
+
+        `blind`: the newest tension sample is too old to act on (the caller judges its age
+        against the load cell's frame period). The force loop then holds: the tension
+        estimate is not extrapolated, and no offset moves (x_f, x_g, the slack take-up, the
+        position-mode steps); the impedance keeps the slaves where their targets were and
+        the master keeps to its plan; the first sample after the hold restarts the tension
+        filter. Acting on a stale tension instead winds the offsets up against a force that
+        is no longer measured: samples that stopped reaching the loop for 0.3 s during the
+        take-up let the spring be stretched to 9 N while the controller read 0 N, and the
+        effort jumped past the ceiling when they resumed.
+        """
         if self.t0 is None:
             raise RuntimeError("start() the controller first")
         qf, dqf = {}, {}
         for a in self.arms:
             qf[a], dqf[a] = self.joint_filter[a].update(q[a], dq[a])
-        if tension is not None:
+        # a hold lasts until a new sample arrives (with three cells: from every one)
+        hold = bool(blind) or (self.blind and tension is None)
+        if hold:
+            pass  # keep the last estimate: no extrapolation over a gap of unknown length
+        elif tension is not None:
             self.raw_tension = np.asarray(tension, float).copy()
-            self.tension, self.tension_rate = self.force_filter.update(np.asarray(tension, float))
+            if self.blind:
+                # the first sample after a hold: the filter restarts from it (the rate over
+                # the gap is unknown; taken as one step's change it would kick x_f by k_damp)
+                self.force_filter.reset(self.raw_tension)
+                self.tension, self.tension_rate = self.raw_tension.copy(), np.zeros_like(self.raw_tension)
+            else:
+                self.tension, self.tension_rate = self.force_filter.update(np.asarray(tension, float))
         else:
             self.tension, self.tension_rate = self.force_filter.update(self.force_filter.x[:, 0])
+        self.blind = hold
         self._slew_offsets()
         xd, vd, ad = self.desired(t)
         self.force_setpoint = self.force_target(t)
@@ -440,7 +463,9 @@ class CooperativeController:
             if self.mode == "position":
                 commands[s] = self._position_slave(s, t, error, xd[s] + 0.0, vd[s], u)
                 continue
-            if self.slack[s]:
+            if hold:
+                rate = 0.0
+            elif self.slack[s]:
                 if h_e >= self.loop.contact:
                     self.slack[s] = False
                     if not any(self.slack.values()):
@@ -469,7 +494,7 @@ class CooperativeController:
                     other = b if a == s else a
                     d = tips[s] - tips[other]
                     w = d / max(np.linalg.norm(d), 1e-9)
-                    if not any(self.slack.values()):
+                    if not any(self.slack.values()) and not hold:
                         e_k = self.force_setpoint - float(self.tension[k])
                         g = 0.5 * self.k_i[s] * (e_k - np.sign(e_k) * self.loop.deadband) \
                             if abs(e_k) > self.loop.deadband else 0.0

@@ -157,6 +157,56 @@ def test_stale_load_cell_aborts(monkeypatch):
         _api_run(monkeypatch, lambda mp: mp.setattr(loadcell_sim.SimForceSensor, "_on_tick", dying))
 
 
+def _held_up_reader(mp, start: int, length: int) -> None:
+    """The load cell streams but its samples stop reaching the loop for `length` calls
+    from call `start`, then arrive in one burst: the serial driver's reader thread held
+    up on a loaded machine. Its stream age (as of the reader's last look) stays small, as
+    the driver's does (drivers.loadcell: a starved reader is no silence of the cell)."""
+    from drivers import loadcell_sim
+
+    original = loadcell_sim.SimForceSensor.samples
+    calls = {"n": 0}
+
+    def samples(self):
+        calls["n"] += 1
+        return [] if start <= calls["n"] < start + length else original(self)
+
+    mp.setattr(loadcell_sim.SimForceSensor, "samples", samples)
+    mp.setattr(loadcell_sim.SimForceSensor, "stream_age", lambda self: 0.0)
+
+
+def _api_run_serial_timeout(monkeypatch, patch):
+    """_api_run with a serial cell's stale timeout (0.5 s) and the tension recorded."""
+    from procedures import cooperative as coop
+
+    cfg = config.load()
+    cfg.loadcell["stale_timeout"] = 0.5
+    params = {"force": 5.0, "duration": 2.0, "settle": 1.0, "hold_after": 0.5, "deadband": 0.4,
+              "tension_ceiling": 15.0, "tolerance": 2.0}
+    patch(monkeypatch)
+    return coop.run_cooperative(cfg, ["PSM1", "PSM2"], "PSM2", params, np.array([0.02, 0, 0]), np.zeros(3),
+                                "impedance", progress=False)
+
+
+def test_force_loop_holds_while_samples_do_not_reach_it(monkeypatch):
+    # 0.3 s without a sample from the take-up on (the loop at 1 kHz): acting on the last
+    # sample, the take-up kept stretching the spring blind and the burst that followed
+    # drove joint 2's effort past its ceiling (the over-the-wire chain's abort under load)
+    result = _api_run_serial_timeout(monkeypatch, lambda mp: _held_up_reader(mp, 5, 300))
+    lt = result["loop_timing"]
+    assert 295 <= lt["force_hold_longest_ms"] <= 310, lt
+    rec = read_recording(os.path.join(result["run_dir"], "run.mcap"), ["/loadcell/force"])
+    peak = max(m.wrench.force.x for _, m in rec.messages["/loadcell/force"])
+    assert peak < 5.5, peak  # the tension was not wound up while unmeasured
+
+
+def test_samples_not_reaching_the_loop_for_the_stale_timeout_abort_naming_the_load_cell(monkeypatch):
+    from rig.run import AbortRun
+
+    with pytest.raises(AbortRun, match="load cell stale: no sample reached the control loop for 50[0-9] ms"):
+        _api_run_serial_timeout(monkeypatch, lambda mp: _held_up_reader(mp, 5, 2000))
+
+
 def test_stale_arm_stream_aborts(monkeypatch):
     from drivers import sim_arm
     from drivers.crtk import StaleStream

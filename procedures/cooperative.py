@@ -354,6 +354,15 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         max_force_age = 2.0 / cfg.loadcell["rate"]
         stale_timeout = cfg.loadcell["stale_timeout"]
         last_force_t = [s.t for s in first]
+        # The cells have streamed since they were opened: record what they hold now, so
+        # the first tick of the hold does not (three cells held ~3900 samples each after
+        # connecting; recording them took that tick 60 ms, just as the slaves went over to
+        # effort control).
+        for k_el, sensor in enumerate(sensors):
+            topic = "/loadcell/force" if k_el == 0 else f"/loadcell{k_el}/force"
+            for s in sensor.samples():
+                rec.tension(topic, s.t, s.force)
+                last_force_t[k_el] = max(last_force_t[k_el], s.t)
         blind_ticks, blind_longest = 0, 0.0
         # the ROS 2 context and the keyboard are released however the loop ends
         with live, run.step(STEPS[3], total=n_ticks) as step:

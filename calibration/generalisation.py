@@ -14,13 +14,21 @@ no test of another motion. So the model file is built and judged here, not there
 2. **The named effects are fitted on top of it**: the workflow's effects at the non-linear
    parameters it chose (travel, period, delay, centre), their linear parameters fitted on the
    training block to what the plain model leaves (`Discrepancy.add_named` in the given-model
-   mode); the plain model is not fitted again. An effect whose parameters fitted this way
+   mode). The plain model's rigid body is not fitted again; the friction and rotor inertia
+   of an effect's joint (Fc, Fv, Fo, Ia, and joint 3's Stribeck excess) are, beside the
+   effect: a plain model fitted without the effect has taken up what it could of it in
+   those terms (on the simulated rig an unmodelled position-dependent friction left joint
+   3's viscous coefficient and Stribeck excess at 0 and its offset at -0.37 N, where the
+   plant has 0.87 N s/m, 0.51 N and 0.12 N). A refitted term below 0 (Fc, Fv, Ia, Fst)
+   keeps the plain model's terms on that joint. An effect whose parameters fitted this way
    leave the catalogue's physically plausible range (`calibration.effects`, each effect's
-   sanity check: Fs >= Fc >= 0, a positive spring, a payload inside the arm, a lag within the
-   catalogue's longest, ...) is dropped.
+   sanity check: Fs >= Fc >= 0, a positive spring, a payload inside the arm, a lag within
+   the catalogue's longest, ...) is dropped.
 3. **Confirmed on other motion**, by backward elimination: the effect whose removal costs its
    joint the least prediction accuracy is removed while that cost is under CONFIRM_GAIN
-   (1 %) of the joint's relative error, the others fitted again each time. The accuracy is
+   (1 %) of the joint's relative error, the others fitted again each time. An effect's cost
+   is weighed against its joint's friction refitted without it, so that the refit alone is
+   never credited to an effect. The accuracy is
    measured, in order of preference, on
    * another motion: a second recording (`--validate-csv`), or the last continuous piece of a
      run recorded as several (`rig identify`'s validation trajectory after its excitation):
@@ -78,6 +86,7 @@ class GateResult:
     standard: np.ndarray
     entries: list
     doc: dict = field(default_factory=dict)
+    refit_joints: list = field(default_factory=list)   # 1-based: friction refitted without an effect
 
 
 def plain_training_block(q, dq, tau, rate: float, heldout: float, breaks=(), source: str = "the data"):
@@ -132,74 +141,188 @@ class EffectGate:
         self._cache: dict = {}
 
     # -- a subset of the effects -------------------------------------------------------------
-    def _use(self, subset: list) -> None:
-        self.w.added = list(subset)
-        self.w._fit_current()
-        if subset:
-            self.w._refresh_params()
+    def _key(self, subset, joints=()) -> tuple:
+        return tuple(self.all.index(a) for a in subset), tuple(sorted(joints))
 
-    def _key(self, subset) -> tuple:
-        return tuple(self.all.index(a) for a in subset)
+    def _corrections(self, joints, no_stribeck=()) -> tuple[np.ndarray, list]:
+        """(3m, k) filtered columns that refit the plain model's friction and rotor inertia of
+        ``joints`` (0-based): Fc, Fv, Fo, Ia, and joint 3's Stribeck excess when the plain model
+        has one (not on the joints of ``no_stribeck``); and what each column corrects:
+        ("standard", index) or ("Fst", joint)."""
+        w = self.w
+        cols, what = [], []
+        Wf = w.W.reshape(w.m, 3, -1)
+        for j in sorted(joints):
+            for k in range(4):
+                c = np.zeros((w.m, 3))
+                c[:, j] = Wf[:, j, 70 + 4 * j + k]
+                cols.append(c.reshape(-1))
+                what.append(("standard", 70 + 4 * j + k))
+            st = self.plain.stribeck
+            if st is not None and st["vs"][j] > 0 and j == 2 and j not in no_stribeck:
+                dq = w.p.dq[:, j]
+                raw = np.zeros((w.p.q.shape[0], 3))
+                raw[:, j] = np.exp(-(dq / st["vs"][j]) ** 2) * np.tanh(0.5 * w.slope * dq)
+                cols.append(w.p.filt_rows(raw).reshape(-1))
+                what.append(("Fst", j))
+        return (np.column_stack(cols) if cols else np.zeros((3 * w.m, 0))), what
+
+    def _design(self, subset, joints) -> tuple[np.ndarray, list]:
+        w = self.w
+        blocks = [a.raw_cols.reshape(3 * w.m, -1) for a in subset]
+        no_stribeck = {a.joint - 1 for a in subset if a.effect == "stiction"}
+        C, what = self._corrections(joints, no_stribeck)
+        return np.hstack(blocks + [C]) if blocks or what else np.zeros((3 * w.m, 0)), what
+
+    def _separable(self, subset, j: int) -> bool:
+        """Whether joint ``j``'s (0-based) friction can be refitted beside ``subset``'s effects
+        on it: not when an effect is a term of the rigid-body and friction model itself (a
+        torque offset is Fo, a Coulomb asymmetry Fo and Fc: refitted together, the split is
+        arbitrary), nor when their columns are nearly collinear (condition number over 1e6)."""
+        on = [a for a in subset if a.joint - 1 == j]
+        if any(CATALOGUE[a.effect].in_rigid_body_model for a in on):
+            return False
+        D, _ = self._design(on, {j})
+        rows = self.w.rows_tr[self.w.rows_tr % 3 == j]
+        A = D[rows]
+        A = A[:, np.linalg.norm(A, axis=0) > 0]
+        if not A.shape[1]:
+            return False
+        s = np.linalg.svd(A / np.linalg.norm(A, axis=0), compute_uv=False)
+        return s[-1] > 1e-6 * s[0]
+
+    def _solve(self, D: np.ndarray, rows: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+        """Weighted least squares of the plain model's residual on ``rows`` (the workflow's
+        per-joint weights)."""
+        w = self.w
+        if not D.shape[1]:
+            return np.zeros(0)
+        rw = np.tile(w.w, w.m)[rows]
+        A = D[rows] * rw[:, None]
+        norms = np.linalg.norm(A, axis=0)
+        norms[norms == 0] = 1.0
+        return np.linalg.lstsq(A / norms, (w.y - fixed)[rows] * rw, rcond=None)[0] / norms
+
+    def _plain_stribeck(self, j: int) -> np.ndarray:
+        """(3m,) the plain model's Stribeck excess of joint ``j`` (0-based), filtered as the
+        fits' rows (zero without one)."""
+        st = self.plain.stribeck
+        w = self.w
+        if st is None or not st["Fst"][j]:
+            return np.zeros(3 * w.m)
+        dq = w.p.dq[:, j]
+        raw = np.zeros((w.p.q.shape[0], 3))
+        raw[:, j] = st["Fst"][j] * np.exp(-(dq / st["vs"][j]) ** 2) * np.tanh(0.5 * w.slope * dq)
+        return w.p.filt_rows(raw).reshape(-1)
+
+    def fit(self, subset, joints=()) -> dict:
+        """``subset`` fitted on top of the plain model on the training block, with the
+        friction and rotor inertia of the joints it acts on refitted beside it (a plain model
+        fitted without an effect has taken up what it could of it in those terms: an
+        unmodelled position-dependent friction left joint 3's viscous coefficient at 0 and its
+        Stribeck excess at 0 on the simulated rig). A joint whose refitted terms would be
+        unphysical (Fc, Fv, Ia or the Stribeck excess below 0) keeps the plain model's.
+        ``joints`` (1-based): refit these joints' terms too (those of a removed effect, when
+        its share is weighed). Cached: {"coef", "standard", "stribeck_fst", "entries",
+        "pred", "corrected", "kept_plain", "design"}."""
+        key = ("fit",) + self._key(subset, joints)
+        if key in self._cache:
+            return self._cache[key]
+        w = self.w
+        joints = {a.joint - 1 for a in subset if a.effect != "payload"} | {j - 1 for j in joints}
+        kept_plain = sorted(j + 1 for j in joints if not self._separable(subset, j))
+        joints -= {j - 1 for j in kept_plain}
+        # A stiction entry is the Stribeck law at its own velocity: it replaces the plain
+        # model's excess on its joint rather than adding a second one.
+        replaced = sorted({a.joint - 1 for a in subset if a.effect == "stiction"})
+        fixed = w.fixed - sum((self._plain_stribeck(j) for j in replaced), np.zeros_like(w.fixed))
+        while True:
+            D, what = self._design(subset, joints)
+            coef = self._solve(D, w.rows_tr, fixed)
+            ke = D.shape[1] - len(what)
+            standard = self.pi.copy()
+            st = self.plain.stribeck
+            fst = None if st is None else np.asarray(st["Fst"], float).copy()
+            if fst is not None:
+                fst[replaced] = 0.0
+            for (kind, idx), c in zip(what, coef[ke:]):
+                if kind == "standard":
+                    standard[idx] += c
+                else:
+                    fst[idx] += c
+            bad = {j for j in joints if min(standard[70 + 4 * j], standard[71 + 4 * j], standard[73 + 4 * j]) < 0
+                   or (fst is not None and j == 2 and ("Fst", 2) in what and fst[2] < 0)}
+            if not bad:
+                break
+            joints -= bad
+            kept_plain += sorted(j + 1 for j in bad)
+        w.added = list(subset)
+        for a in subset:
+            if a.effect == "payload":
+                standard = standard + payload_standard_delta(a.params, w.model.body_names)
+        entries = []
+        if subset:
+            for a, prm in zip(subset, w._effect_params(coef, 0, standard)):
+                a.params = prm
+                entries.append(w._entry(a, dict(prm)))
+        out = {"coef": coef, "standard": standard, "stribeck_fst": fst, "entries": entries,
+               "pred": fixed + D @ coef if D.shape[1] else fixed.copy(), "fixed": fixed,
+               "corrected": sorted(j + 1 for j in joints), "kept_plain": kept_plain, "design": D}
+        self._cache[key] = out
+        return out
 
     def model_parts(self, subset) -> tuple[np.ndarray, list[dict]]:
-        """Standard parameters (a payload folded in) and the effects' entries of ``subset``
-        fitted on top of the plain model on the training block."""
-        self._use(subset)
-        pi = self.pi.copy()
-        entries = []
-        for a in subset:
-            entries.append(self.w._entry(a, dict(a.params)))
-            if a.effect == "payload":
-                pi = pi + payload_standard_delta(a.params, self.w.model.body_names)
-        return pi, entries
+        """Standard parameters (friction refitted, a payload folded in) and the effects'
+        entries of ``subset`` fitted on top of the plain model on the training block."""
+        f = self.fit(subset)
+        return f["standard"], f["entries"]
 
-    def model_file(self, subset):
+    def model_file(self, subset, joints=()):
         """The candidate model file (in memory): the plain model with ``subset`` added."""
-
-        pi, entries = self.model_parts(subset)
+        f = self.fit(subset, joints)
         doc = copy.deepcopy(self.plain.document)
-        doc["effects"] = list(self.plain.effects) + entries
-        doc["standard_parameters"] = dict(doc.get("standard_parameters", {}), values=pi.tolist())
-        return replace(self.plain, standard=pi, document=doc)
+        doc["effects"] = list(self.plain.effects) + f["entries"]
+        doc["standard_parameters"] = dict(doc.get("standard_parameters", {}), values=f["standard"].tolist())
+        if f["stribeck_fst"] is not None:
+            doc["friction"]["stribeck"]["Fst"] = f["stribeck_fst"].tolist()
+        return replace(self.plain, standard=f["standard"], document=doc)
 
-    def errors(self, subset) -> np.ndarray:
-        """Per joint relative error of the plain model with ``subset`` on the other motions
-        (their mean), or cross-validated over blocks in time of the training record."""
-        key = self._key(subset)
+    def errors(self, subset, joints=()) -> np.ndarray:
+        """Per joint relative error of the plain model with ``subset`` (and the terms of
+        ``joints`` refitted) on the other motions (their mean), or cross-validated over blocks
+        in time of the training record."""
+        key = self._key(subset, joints)
         if key not in self._cache:
-            self._cache[key] = self._on_motions(subset) if self.motions else self._cross_validated(subset)
+            self._cache[key] = (self._on_motions(subset, joints) if self.motions
+                                else self._cross_validated(subset, joints))
         return self._cache[key]
 
-    def _on_motions(self, subset) -> np.ndarray:
+    def _on_motions(self, subset, joints=()) -> np.ndarray:
         from calibration.prediction import predict
 
-        model = self.model_file(subset)
+        model = self.model_file(subset, joints)
         rel = [predict(model, m.q, m.dq, m.tau, m.rate, self.settings, m.source).figures("all")["relative_error"]
                for m in self.motions]
         return np.mean(np.asarray(rel, float), axis=0)
 
-    def _cross_validated(self, subset) -> np.ndarray:
+    def _cross_validated(self, subset, joints=()) -> np.ndarray:
         w = self.w
         m = w.m
-        target = w.y - w.fixed
-        D = (np.hstack([a.raw_cols.reshape(3 * m, -1) for a in subset]) if subset else np.zeros((3 * m, 0)))
+        f = self.fit(subset, joints)
+        D = f["design"]
+        target = w.y - f["fixed"]
         sample = np.arange(3 * m) // 3
         joint = np.arange(3 * m) % 3
         moving = w.moving.reshape(-1)
-        rw = np.tile(w.w, m)
         guard = settling_samples(self.rate, self.settings.cutoff, self.settings.order)
         num, den = np.zeros(3), np.zeros(3)
         for b in range(CV_BLOCKS):
             lo, hi = b * m // CV_BLOCKS, (b + 1) * m // CV_BLOCKS
             test = moving & (sample >= lo) & (sample < hi)
-            train = moving & ((sample < lo - guard) | (sample >= hi + guard))
+            train = np.flatnonzero(moving & ((sample < lo - guard) | (sample >= hi + guard)))
             r = target[test]
             if D.shape[1]:
-                A = D[train] * rw[train, None]
-                norms = np.linalg.norm(A, axis=0)
-                norms[norms == 0] = 1.0
-                coef = np.linalg.lstsq(A / norms, target[train] * rw[train], rcond=None)[0] / norms
-                r = r - D[test] @ coef
+                r = r - D[test] @ self._solve(D, train, f["fixed"])
             for j in range(3):
                 sel = joint[test] == j
                 num[j] += float(r[sel] @ r[sel])
@@ -215,7 +338,7 @@ class EffectGate:
                   f"cross-validation over {CV_BLOCKS} blocks in time of the training record (one motion only)")
         kept = []
         # Plausibility of each effect fitted on top of the plain model.
-        self._use(self.all)
+        self.fit(self.all)
         for a in self.all:
             why = CATALOGUE[a.effect].sanity(a.params, a.joint)
             if why is None:
@@ -231,7 +354,8 @@ class EffectGate:
             current = self.errors(kept)
             costs = []
             for a in kept:
-                without = self.errors([o for o in kept if o is not a])
+                # its share beyond its joint's friction refitted without it
+                without = self.errors([o for o in kept if o is not a], {a.joint} if a.effect != "payload" else ())
                 j = a.joint - 1
                 costs.append(((without[j] - current[j]) / max(without[j], 1e-12), a, without))
             cost, worst, without = min(costs, key=lambda c: c[0])
@@ -240,28 +364,50 @@ class EffectGate:
             if cost >= CONFIRM_GAIN:
                 break
             kept.remove(worst)
+            why = NOT_CONFIRMED
+            st = self.plain.stribeck
+            if worst.effect == "stiction" and st is not None and st["Fst"][worst.joint - 1] > 0:
+                why += (f" beyond the plain model's Stribeck excess on joint {worst.joint} (the same law, "
+                        f"{st['Fst'][worst.joint - 1]:.3g} at {st['vs'][worst.joint - 1]:g})")
             not_confirmed.append({"effect": worst.effect, "joint": worst.joint, "gain_on_new_motion": cost,
-                                  "why": NOT_CONFIRMED})
-        # Never worse than the plain model on any joint.
-        while kept:
-            current = self.errors(kept)
-            worse = [j for j in range(3) if current[j] > plain[j]]
+                                  "why": why})
+        # A joint's friction refitted alone (no effect kept on it): kept where it confirms.
+        refit: set[int] = set()
+        for j in (1, 2, 3):
+            if any(a.joint == j for a in kept):
+                continue
+            current, trial = self.errors(kept, refit), self.errors(kept, refit | {j})
+            if self.fit(kept, refit | {j})["corrected"].count(j) and \
+                    (current[j - 1] - trial[j - 1]) / max(current[j - 1], 1e-12) >= CONFIRM_GAIN:
+                refit.add(j)
+        # Never worse than the plain model on any joint (with nothing kept it is the plain model).
+        while kept or refit:
+            current = self.errors(kept, refit)
+            worse = {j + 1 for j in range(3) if current[j] > plain[j]}
             if not worse:
                 break
-            drop = [a for a in kept if a.joint - 1 in worse or a.effect == "payload"] or kept[:1]
+            drop = [a for a in kept if a.joint in worse or a.effect == "payload"]
+            if not drop and not refit & worse:
+                drop = list(kept)   # worse through no term of its own: nothing is kept
+            refit -= worse
             for a in drop:
                 kept.remove(a)
                 not_confirmed.append({"effect": a.effect, "joint": a.joint,
-                                      "why": f"{NOT_CONFIRMED} (the joint(s) {[j + 1 for j in worse]} predicted "
-                                             "worse than the plain model)"})
-        written = self.errors(kept)
-        standard, entries = self.model_parts(kept)
+                                      "why": f"{NOT_CONFIRMED} (joint(s) {sorted(worse)} predicted worse than by the "
+                                             "plain model)"})
+        written = self.errors(kept, refit)
+        final = self.fit(kept, refit)
+        standard, entries = final["standard"], final["entries"]
         doc = {"method": method, "confirm_gain": CONFIRM_GAIN,
-               "guards": ["effects fitted on top of the plain model (its rigid body and friction not fitted again)",
+               "guards": ["effects fitted on top of the plain model (its rigid body not fitted again; the friction and "
+                          "rotor inertia of an effect's joint refitted beside it, kept >= 0)",
                           "catalogue plausibility ranges per effect (calibration.effects sanity checks)",
                           "backward elimination on " + ("the other motion" if self.motions else
                                                         "blocks in time (cross-validation)")],
                "relative_error": {"plain": plain.tolist(), "written": written.tolist()},
-               "kept": [f"{a.effect}@{a.joint}" for a in kept], "not_confirmed": not_confirmed,
-               "implausible": implausible, "steps": steps}
-        return GateResult(kept, standard, entries, doc)
+               "kept": [f"{a.effect}@{a.joint}" for a in kept],
+               "friction_refitted_on_joints": final["corrected"],
+               "friction_refitted_alone_on_joints": sorted(refit),
+               "friction_kept_plain_on_joints": final["kept_plain"],
+               "not_confirmed": not_confirmed, "implausible": implausible, "steps": steps}
+        return GateResult(kept, standard, entries, doc, sorted(refit))

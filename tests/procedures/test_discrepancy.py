@@ -128,8 +128,11 @@ def test_cli_too_little_motion_for_gravity_is_a_clear_error(tmp_path):
 # moving with the velocity and effort of neither end; where a joint's last velocity was above
 # the deadband those samples entered the fit, and the default rig's identify run (no hidden
 # effect) got "unexplained" (joint 2, library R^2 -1.4) or a stiction that is not there.
-# These short runs (10 s trajectories, a quick design) hit that with design seed 4.
-QUICK_IDENTIFY = ("--duration", "10", "--starts", "1", "--iterations", "5", "--design-seed", "4", "--seed", "1",
+# These short runs (a quick design) hit that with design seed 4. Since issue 26 the
+# validation trajectory is the other motion the effects are confirmed on and the workflow
+# trains on the excitation alone: at 10 s that left a 2.5 s held-out block, on which joint
+# 2's library R^2 (0.22) passed its threshold (0.14, set on 7.5 s blocks); 20 s are used.
+QUICK_IDENTIFY = ("--duration", "20", "--starts", "1", "--iterations", "5", "--design-seed", "4", "--seed", "1",
                   "--no-plots")
 STICTION_RIG = "[effects.PSM1]\nstiction = [0.0, 0.0, 1.0]\n"
 
@@ -158,6 +161,11 @@ def test_identify_run_of_the_default_rig_has_nothing_missing(tmp_path):
     doc = _identify_then_discrepancy(tmp_path, QUICK_IDENTIFY)
     assert doc["verdict"] == "none", (doc["detection"]["initial"], doc["effects"])
     assert doc["effects"] == []
+    g = doc["generalisation"]
+    # the validation trajectory is the other motion, kept out of the training data
+    assert g["method"].startswith("another motion: the run's last continuous piece")
+    assert doc["settings"]["pieces"] == [[0, doc["data"]["samples"]]]
+    assert g["kept"] == [] and g["relative_error"]["written"] == g["relative_error"]["plain"]
 
 
 def test_identify_run_with_hidden_stiction_names_it(tmp_path):
@@ -166,6 +174,15 @@ def test_identify_run_with_hidden_stiction_names_it(tmp_path):
     assert doc["verdict"] == "explained", doc["detection"]["final"]
     b, f = doc["baseline"]["heldout_rms"][2], doc["final"]["heldout_rms"][2]
     assert f < 0.25 * b, (b, f)
+    # The plain model (`rig identify`'s defaults) has a Stribeck excess on joint 3, the
+    # stiction law itself: the written model refits joint 3's friction, which predicts the
+    # validation trajectory better, and stiction@3 is written only if it adds to that.
+    g = doc["generalisation"]
+    assert g["relative_error"]["written"][2] < 0.8 * g["relative_error"]["plain"][2], g
+    assert 3 in g["friction_refitted_on_joints"]
+    if "stiction@3" not in g["kept"]:
+        (d,) = [d for d in g["not_confirmed"] if d["effect"] == "stiction"]
+        assert "Stribeck excess on joint 3" in d["why"]
 
 
 @pytest.mark.slow

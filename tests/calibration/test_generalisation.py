@@ -1,0 +1,120 @@
+"""Effects are written only where they predict other motion (calibration.generalisation,
+issue 26), and a given model is taken whole (calibration.prediction.extra_effort)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from calibration.discrepancy import Settings
+from calibration.generalisation import NOT_CONFIRMED, EffectGate, Motion, plain_fit, plain_training_block
+from calibration.hidden_effects import HiddenCase, draw_case_parameters, generate
+from calibration.prediction import predict
+
+
+def _plain_model(rec, tmp_path, name="plain.json"):
+    from rig.model_file import load_model, save_model
+
+    out = plain_fit(plain_training_block(rec.q, rec.dq, rec.tau, rec.rate, Settings().heldout))
+    sdp = out.fits["sdp"]
+    return load_model(save_model(tmp_path / name, standard=sdp.pi, names=list(out.model.param_names()),
+                                 slope=out.slope, gravity=out.gravity, stribeck=out.stribeck()))
+
+
+def _named(effect: str, joint: int, grid, params=None, k: int = 1):
+    return SimpleNamespace(effect=effect, joint=joint, grid=grid, free=np.ones(k, bool), params=params or {})
+
+
+@pytest.fixture(scope="module")
+def hysteresis_case(tmp_path_factory):
+    """Joint 3 with a Dahl hysteresis the plain model lacks: three trajectories of the same
+    plant (training, the other motion, the test)."""
+    case = HiddenCase((("hysteresis", 3),), 0)
+    train, _ = generate(case)
+    other, _ = generate(case, trajectory_seed=500)
+    test, _ = generate(case, trajectory_seed=900)
+    plain = _plain_model(train, tmp_path_factory.mktemp("hyst"))
+    p = draw_case_parameters(case)[0]
+    travel = p["size"] / p["stiffness"]
+    return SimpleNamespace(train=train, other=other, test=test, plain=plain, travel=travel)
+
+
+def test_a_true_effect_is_confirmed_and_predicts_an_unseen_motion_better(hysteresis_case):
+    c = hysteresis_case
+    named = [_named("hysteresis", 3, c.travel), _named("spring", 1, None, k=2)]
+    gate = EffectGate(c.plain, named, c.train.q, c.train.dq, c.train.tau, c.train.rate, Settings(),
+                      motions=[Motion(c.other.q, c.other.dq, c.other.tau, c.other.rate, "other")])
+    r = gate.run()
+    assert r.doc["kept"] == ["hysteresis@3"]
+    dropped = {(d["effect"], d["joint"]): d for d in r.doc["not_confirmed"] + r.doc["implausible"]}
+    assert ("spring", 1) in dropped
+    # on a third trajectory neither fit saw
+    plain = predict(c.plain, c.test.q, c.test.dq, c.test.tau, c.test.rate).figures("all")["relative_error"]
+    written = predict(gate.model_file(r.kept, r.refit_joints), c.test.q, c.test.dq, c.test.tau, c.test.rate).figures("all")
+    assert written["relative_error"][2] < 0.8 * plain[2]
+    # nothing kept on joint 1 but, perhaps, its friction refitted where that confirmed
+    assert written["relative_error"][0] <= plain[0] * 1.005
+    # the Dahl level is the plant's within 25 %
+    fd = next(e for e in r.entries if e["name"] == "hysteresis")["params"]["Fd"]
+    truth = draw_case_parameters(HiddenCase((("hysteresis", 3),), 0))[0]["size"]
+    assert fd == pytest.approx(truth, rel=0.25)
+
+
+def test_with_one_motion_cross_validation_in_time_keeps_the_true_effect_only(hysteresis_case):
+    c = hysteresis_case
+    named = [_named("hysteresis", 3, c.travel), _named("hysteresis", 1, 0.01)]
+    r = EffectGate(c.plain, named, c.train.q, c.train.dq, c.train.tau, c.train.rate, Settings()).run()
+    assert "cross-validation" in r.doc["method"]
+    assert r.doc["kept"] == ["hysteresis@3"]
+    assert {(d["effect"], d["joint"]) for d in r.doc["not_confirmed"] + r.doc["implausible"]} == {("hysteresis", 1)}
+
+
+def test_nothing_confirmed_writes_the_plain_model(tmp_path):
+    """A null plant: effects named on it are not confirmed on the other motion, and the
+    written model is the plain one, parameter for parameter."""
+    train, _ = generate(HiddenCase((), 7))
+    other, _ = generate(HiddenCase((), 7), trajectory_seed=507)
+    plain = _plain_model(train, tmp_path)
+    named = [_named("hysteresis", 2, 0.004), _named("spring", 3, None, k=2)]
+    gate = EffectGate(plain, named, train.q, train.dq, train.tau, train.rate, Settings(),
+                      motions=[Motion(other.q, other.dq, other.tau, other.rate, "other")])
+    r = gate.run()
+    assert r.kept == [] and r.entries == []
+    # the rigid body is the plain model's; so is the friction of every joint not refitted
+    np.testing.assert_array_equal(r.standard[:70], plain.standard[:70])
+    for j in {1, 2, 3} - set(r.refit_joints):
+        np.testing.assert_array_equal(r.standard[66 + 4 * j:70 + 4 * j], plain.standard[66 + 4 * j:70 + 4 * j])
+    written, plain_err = r.doc["relative_error"]["written"], r.doc["relative_error"]["plain"]
+    assert all(w <= p for w, p in zip(written, plain_err))
+    assert all(w == p for j, (w, p) in enumerate(zip(written, plain_err), 1) if j not in r.refit_joints)
+    reasons = [d["why"] for d in r.doc["not_confirmed"]] + [d["why"] for d in r.doc["implausible"]]
+    assert len(reasons) == 2 and any(NOT_CONFIRMED in why for why in reasons)
+
+
+def test_a_given_model_is_taken_whole(tmp_path):
+    """`rig discrepancy --model M`: the baseline is M's whole effort. A torque offset entry
+    in M moves the fixed effort of joint 2 by exactly that offset on every raw sample."""
+    from calibration.base_params import base_parameters_of
+    from calibration.discrepancy import Discrepancy
+    from calibration.prediction import extra_effort, standard_parameters
+    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+
+    rec, _ = generate(HiddenCase((), 3))
+    plain = _plain_model(rec, tmp_path)
+    doc = dict(plain.document, effects=[{"name": "torque_offset", "joint": 2, "params": {"offset": 0.25}}])
+    from dataclasses import replace
+
+    with_offset = replace(plain, document=doc)
+    dyn = with_offset.dynamics()
+    base = base_parameters_of(dyn.regressor_batch, dyn, Q_MIN, Q_MAX, DQ_MAX)
+    pi = standard_parameters(with_offset)
+    bare = Discrepancy(dyn, base, rec.q, rec.dq, rec.tau, rec.rate, pi, Settings())
+    whole = Discrepancy(dyn, base, rec.q, rec.dq, rec.tau, rec.rate, pi, Settings(),
+                        given_extra=lambda p: extra_effort(with_offset, p))
+    diff = (whole.fixed_raw - bare.fixed_raw).reshape(-1, 3)
+    stribeck = with_offset.stribeck
+    if stribeck is None or not np.any(stribeck["Fst"]):
+        np.testing.assert_allclose(diff[:, 0], 0.0, atol=1e-12)
+    np.testing.assert_allclose(diff[:, 1], 0.25, atol=1e-12)

@@ -280,6 +280,13 @@ def _other_motion(parameters: dict, settings, q, dq, tau, breaks, pieces):
     rate = parameters["rate"]
     if parameters["validate_csv"]:
         v = load_csv(parameters["validate_csv"], rate, parameters["joints"])
+        need = minimum_samples(rate, settings)
+        if len(v.q) < need:
+            from calibration.prediction import PredictionError
+
+            raise PredictionError(f"{parameters['validate_csv']}: {len(v.q)} rows ({len(v.q) / rate:.1f} s at {rate:g} Hz) "
+                                  f"are too few for the other motion: it needs at least {need} "
+                                  f"({need / rate:.1f} s) for the {settings.cutoff:g} Hz filter's settling and two blocks")
         return [Motion(v.q, v.dq, v.tau, rate, f"{parameters['validate_csv']} (second recording)")], q, dq, tau, \
             breaks, None
     if len(breaks) and len(q) - breaks[-1] >= minimum_samples(rate, settings) \

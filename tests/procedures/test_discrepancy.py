@@ -25,13 +25,26 @@ def test_cli_on_real_csv_json(tmp_path):
     assert len(doc["baseline"]["heldout_rms"]) == 3
     assert doc["verdict"] in ("none", "explained", "unexplained")
     # `rig runs` lists the verdict and the effects named
-    assert doc["summary"] == {"verdict": doc["verdict"],
-                              "effects": " ".join(f"{e['name']}@{e['joint']}" for e in doc["effects"]) or "none"}
+    g = doc["generalisation"]
+    assert doc["summary"] == {"verdict": doc["verdict"], "effects": " ".join(g["kept"]) or "none"}
     for e in doc["effects"]:
         assert set(e) >= {"name", "joint", "params", "evidence", "heldout_rms_before", "heldout_rms_after"}
+    # The model file: the plain model (rig identify's fit, written beside it) and the effects
+    # confirmed by cross-validation in time (one motion); every named effect is accounted for.
     m = load_model(doc["model"])
     assert m.standard is not None and m.standard.shape == (82,)
-    assert [e["name"] for e in m.document["effects"]] == [e["name"] for e in doc["effects"]]
+    assert [f"{e['name']}@{e['joint']}" for e in m.effects] == g["kept"]
+    named = {f"{e['name']}@{e['joint']}" for e in doc["effects"]}
+    assert named == set(g["kept"]) | {f"{d['effect']}@{d['joint']}" for d in g["not_confirmed"] + g["implausible"]}
+    assert "cross-validation" in g["method"]
+    plain = load_model(Path(doc["model"]).with_name("plain_model.json"))
+    assert plain.effects == [] and plain.stribeck is not None
+    # never worse than the plain model, on the CV blocks and on the held-out block
+    assert all(w <= p for w, p in zip(g["relative_error"]["written"], g["relative_error"]["plain"]))
+    assert all(w <= p for w, p in zip(g["heldout_block"]["rms_written"], g["heldout_block"]["rms_plain"]))
+    # joint 3's friction profile generalises (thesis 5.6)
+    assert "position_friction@3" in g["kept"]
+    assert g["heldout_block"]["rel_written"][2] < 0.8 * g["heldout_block"]["rel_plain"][2]
     # The final model never fits the held-out block worse than the baseline on any joint by much.
     for b, f in zip(doc["baseline"]["heldout_rms"], doc["final"]["heldout_rms"]):
         assert f <= 1.05 * b
@@ -45,6 +58,31 @@ def test_cli_on_real_csv_json(tmp_path):
     assert doc["final"]["heldout_rms"][2] < 0.67 * doc["baseline"]["heldout_rms"][2]
     assert any(name.endswith("position_friction_joint3.png") and Path(path).stat().st_size > 0
                for name, path in doc["plots"].items())
+
+
+@pytest.mark.skipif(not REAL.exists(), reason="the WPI data are not available")
+def test_cli_validate_csv_is_the_other_motion(tmp_path):
+    """--validate-csv: effects are confirmed on the second recording, which no fit sees;
+    a second recording too short to predict is refused before anything is fitted."""
+    import numpy as np
+
+    d = np.loadtxt(REAL, delimiter=",")
+    first, second, short = tmp_path / "first.csv", tmp_path / "second.csv", tmp_path / "short.csv"
+    np.savetxt(first, d[:3600], delimiter=",")
+    np.savetxt(second, d[3600:], delimiter=",")
+    np.savetxt(short, d[3600:3700], delimiter=",")
+    res = CliRunner().invoke(main, ["discrepancy", "--csv", str(first), "--validate-csv", str(second), "--no-plots",
+                                    "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout.strip().splitlines()[-1])
+    g = doc["generalisation"]
+    assert g["method"] == f"another motion: {second} (second recording)"
+    assert doc["data"]["samples"] == 3600
+    assert all(w <= p for w, p in zip(g["relative_error"]["written"], g["relative_error"]["plain"]))
+    res = CliRunner().invoke(main, ["discrepancy", "--csv", str(first), "--validate-csv", str(short), "--no-plots"])
+    assert res.exit_code == 1
+    assert f"{short}: 100 rows (0.5 s at 200 Hz) are too few for the other motion" in res.output
+    assert "Traceback" not in res.output
 
 
 def test_cli_effort_lag_of_a_sample_or_more_is_refused(tmp_path):

@@ -554,11 +554,11 @@ def _abort_stale_tension(sensors, age: float, timeout: float) -> None:
     if silent > timeout:
         raise AbortRun(f"load cell stale: no sample for {1000 * silent:.0f} ms "
                        f"(stale timeout {1000 * timeout:.0f} ms)")
-    names = ", ".join(str(getattr(s, "name", "the load cell")) for s in sensors)
+    cells = ", ".join(str(getattr(s, "name", None) or f"element {k}") for k, s in enumerate(sensors))
     raise AbortRun(f"load cell stale: no sample reached the control loop for {1000 * age:.0f} ms "
-                   f"(stale timeout {1000 * timeout:.0f} ms), although the cell on {names} still streams: "
-                   "its reader was held up; the machine is too loaded for the loop (the force loop "
-                   "held meanwhile)")
+                   f"(stale timeout {1000 * timeout:.0f} ms) while the cell{'s' if len(sensors) > 1 else ''} "
+                   f"({cells}) still streamed: the driver's reader was held up, the machine is too loaded "
+                   "for the loop (the force loop held meanwhile)")
 
 
 def _force_hold_figures(blind_ticks: int, n_ticks: int, longest: float, max_age: float) -> dict:

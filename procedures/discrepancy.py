@@ -248,8 +248,11 @@ def report_text(result: dict) -> str:
         lines.append("    relative error per joint, plain -> written: "
                      + ", ".join(f"{a:.3f} -> {b:.3f}" for a, b in zip(g["relative_error"]["plain"],
                                                                        g["relative_error"]["written"])))
+        if g.get("choice", "").startswith("the workflow"):
+            lines.append(f"    written: {g['choice']}: it predicts the other motion better than the plain model on "
+                         "every joint and than the plain model with the confirmed effects")
         hb = g.get("heldout_block")
-        if hb:
+        if hb and hb.get("rel_written"):
             lines.append("    on the held-out block, plain -> written: "
                          + ", ".join(f"{a:.3f} -> {b:.3f}" for a, b in zip(hb["rel_plain"], hb["rel_written"])))
         if g.get("friction_refitted_alone_on_joints"):
@@ -304,7 +307,7 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
     from calibration.datasets import load_csv
     from calibration.discrepancy import Settings, run_workflow
     from calibration.effects import describe
-    from calibration.generalisation import EffectGate
+    from calibration.generalisation import EffectGate, workflow_model
     from calibration.prediction import extra_effort, standard_parameters
     from rig.model_file import load_model, provenance, save_model
     from rig.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
@@ -352,24 +355,26 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
         with rn.step(STEPS[2]):
             result, w = run_workflow(model, base, q, dq, tau, rate, given, settings, breaks, given_extra)
         with rn.step(STEPS[3]):
-            effect_gate = EffectGate(plain, w.added, q, dq, tau, rate, settings, breaks, motions)
+            whole = workflow_model(plain, w, result) if motions and w.added else None
+            effect_gate = EffectGate(plain, w.added, q, dq, tau, rate, settings, breaks, motions, whole)
             gate = effect_gate.run()
+            written = effect_gate.written_model(gate)
             if split_note:
                 gate.doc["note"] = split_note
-            heldout = _heldout_figures(effect_gate, gate.kept, gate.refit_joints)
+            heldout = _heldout_figures(effect_gate, gate, result)
             gate.doc["heldout_block"] = heldout
             model_path = save_model(
-                rn.dir / "model.json", standard=gate.standard, names=plain.names, slope=plain.slope,
-                gravity=plain.gravity, stribeck=plain.stribeck,
+                rn.dir / "model.json", standard=written.standard, names=plain.names, slope=written.slope,
+                gravity=plain.gravity, stribeck=written.stribeck,
                 gravity_source="given model" if given is not None else "estimated",
-                validation={"other_motion": gate.doc["method"],
+                validation={"other_motion": gate.doc["method"], "choice": gate.doc["choice"],
                             "relative_error_plain": gate.doc["relative_error"]["plain"],
                             "relative_error_written": gate.doc["relative_error"]["written"],
                             "heldout_rms_plain": heldout["rms_plain"], "heldout_rms_written": heldout["rms_written"],
                             "note": "plain: the model `rig identify` fits on the same training data (or the given "
                                     "model); written: this file; relative errors on the other motion"},
                 provenance_info=provenance(source, rn.dir, {"procedure": PROCEDURE}),
-                extra={"effects": list(plain.effects) + gate.entries, "effects_catalogue": describe()["version"],
+                extra={"effects": written.effects, "effects_catalogue": describe()["version"],
                        "plain_model": str(plain.path),
                        "effects_note": "torques of the effects add to the rigid-body model: "
                                        "calibration.effects.effects_torque(effects, q, dq, tau_model)"})
@@ -389,13 +394,18 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
     return rn.result
 
 
-def _heldout_figures(gate, kept, refit=()) -> dict:
+def _heldout_figures(gate, result, workflow_result: dict) -> dict:
     """The plain and the written model on the training record's held-out block (the block
-    the workflow's figures are on): RMS (N m, N m, N) and relative error per joint."""
+    the workflow's figures are on): RMS (N m, N m, N) and relative error per joint (the
+    workflow's own model, when written: its RMS as written, no relative error)."""
     w = gate.w
-    pred = gate.fit(kept, refit)["pred"]
-    return {"rms_plain": w.heldout_rms(w.fixed).tolist(), "rms_written": w.heldout_rms(pred).tolist(),
-            "rel_plain": w.heldout_rel(w.fixed).tolist(), "rel_written": w.heldout_rel(pred).tolist()}
+    out = {"rms_plain": w.heldout_rms(w.fixed).tolist(), "rel_plain": w.heldout_rel(w.fixed).tolist()}
+    if result.model is not None:
+        sc = workflow_result.get("standard_consistency") or {}
+        return out | {"rms_written": sc.get("heldout_rms", workflow_result["final"]["heldout_rms"]),
+                      "rel_written": None}
+    pred = gate.fit(result.kept, result.refit_joints)["pred"]
+    return out | {"rms_written": w.heldout_rms(pred).tolist(), "rel_written": w.heldout_rel(pred).tolist()}
 
 
 def plot_generalisation(doc: dict, path_dir: Path) -> dict:

@@ -260,6 +260,9 @@ class CooperativeController:
         self.initial_tension = float(np.mean(tension)) if len(tension) else 0.0
         self.initial_element_tension = np.asarray(tension, float).copy()
         self.raw_tension = self.initial_element_tension.copy()
+        # the estimate the first step starts from, even if it must hold (see step)
+        self.tension = self.initial_element_tension.copy()
+        self.tension_rate = np.zeros(len(self.tension))
         # the set-point ramp starts once every slave holds its object taut
         self.slack = {s: (self.mode == "impedance" and self.force > self.loop.contact
                           and self._tracked_tension(s, tension) < self.loop.contact) for s in self.slaves}

@@ -218,6 +218,37 @@ def test_a_short_hold_up_while_moving_costs_the_triangle_little_tracking(monkeyp
     assert result["max_error_during_motion"] < 0.15, result["summary"]
 
 
+def test_a_hold_on_the_first_tick_commands_what_the_starting_tension_does():
+    # Over the wire the first tick often finds the newest sample older than two frames,
+    # and holds. It must act on the tension measured at the start: with none (zero), the
+    # impedance's measured-force term, scaled by the arm's Cartesian inertia over the
+    # desired one, commanded 2.4 N m more on PSM1's joint 1 than its PID was applying
+    # under a triangle's 1.9 N, and the triangle rang to the effort ceiling.
+    from procedures.cooperative import build_controller
+    from rig import psm_kinematics as K
+    from rig.psm_dynamics import PSMDynamics
+
+    cfg = config.load(os.path.join(os.path.dirname(__file__), "..", "..", "examples", "three-arms.toml"))
+    names = ["PSM1", "PSM2", "PSM3"]
+    frames = {n: cfg.base_matrix(n) @ K.RCM_FRAME for n in names}
+    params = {"force": 5.0, "duration": 5.0, "settle": 2.0, "deadband": 0.4}
+    q0 = {n: np.array(cfg.arms[n]["q0"], float) for n in names}
+    tension = np.array([1.9, 1.9, 1.9])
+
+    def first_command(**step) -> dict:
+        c = build_controller(cfg, names, "PSM3", params, np.array([0.05, 0, 0]), np.zeros(3), "impedance",
+                             PSMDynamics(), None, frames, "spring", 2450.0,
+                             [("PSM1", "PSM2"), ("PSM1", "PSM3"), ("PSM2", "PSM3")], 0.004)
+        c.start(0.0, q0, {n: np.zeros(3) for n in names}, tension)
+        return c.step(0.004, q0, {n: np.zeros(3) for n in names}, **step)
+
+    fresh = first_command(tension=tension)
+    held = first_command(tension=None, blind=True)
+    for arm in ("PSM1", "PSM2"):
+        assert np.allclose(held[arm].effort, fresh[arm].effort, atol=1e-3), (arm, held[arm].effort,
+                                                                           fresh[arm].effort)
+
+
 def test_samples_not_reaching_the_loop_for_the_stale_timeout_abort_naming_the_load_cell(monkeypatch):
     from rig.run import AbortRun
 

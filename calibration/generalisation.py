@@ -26,7 +26,8 @@ no test of another motion. So the model file is built and judged here, not there
    the catalogue's longest, ...) is dropped.
 3. **Confirmed on other motion**, by backward elimination: the effect whose removal costs its
    joint the least prediction accuracy is removed while that cost is under CONFIRM_GAIN
-   (1 %) of the joint's relative error, the others fitted again each time. An effect's cost
+   (1 %) of the joint's relative error or under CONFIRM_ABSOLUTE (0.001) of it, the others
+   fitted again each time; of several that fail, the one with the most parameters first. An effect's cost
    is weighed against its joint's friction refitted without it, so that the refit alone is
    never credited to an effect. The accuracy is
    measured, in order of preference, on
@@ -61,6 +62,11 @@ from calibration.signals import settling_samples
 #: at least this share worse (1 %: a smaller change is within what refitting one more
 #: parameter set on noise buys).
 CONFIRM_GAIN = 0.01
+#: ... and by at least this much of the joint's effort (relative error 0.001: a change of
+#: 0.1 % of the effort is immaterial to a controller, and on null plants whose joints the
+#: plain model already predicts to 0.4 % a friction refit that gained 1 % of that on one
+#: motion lost 10 % of it on another).
+CONFIRM_ABSOLUTE = 0.001
 #: Blocks in time of the cross-validation used when there is one motion only.
 CV_BLOCKS = 4
 NOT_CONFIRMED = "seen in training, not confirmed on new motion"
@@ -365,12 +371,18 @@ class EffectGate:
                 separate = a.effect != "payload" and not CATALOGUE[a.effect].in_rigid_body_model
                 without = self.errors([o for o in kept if o is not a], {a.joint} if separate else ())
                 j = a.joint - 1
-                costs.append(((without[j] - current[j]) / max(without[j], 1e-12), a, without))
-            cost, worst, without = min(costs, key=lambda c: c[0])
+                costs.append(((without[j] - current[j]) / max(without[j], 1e-12), a, without[j] - current[j]))
+            # Of the effects that do not confirm, the one with the most parameters goes first:
+            # two collinear effects (an offset and a spring's constant) each look useless beside
+            # the other, and the simpler law should stay.
+            weak = [c for c in costs if c[0] < CONFIRM_GAIN or c[2] < CONFIRM_ABSOLUTE]
+            if not weak:
+                steps.append({"effects": [f"{a.effect}@{a.joint}" for a in kept], "relative_error": current.tolist(),
+                              "least_useful": None})
+                break
+            cost, worst, _ = max(weak, key=lambda c: (c[1].raw_cols.shape[2], -c[0]))
             steps.append({"effects": [f"{a.effect}@{a.joint}" for a in kept], "relative_error": current.tolist(),
                           "least_useful": f"{worst.effect}@{worst.joint}", "its_gain": cost})
-            if cost >= CONFIRM_GAIN:
-                break
             kept.remove(worst)
             why = NOT_CONFIRMED
             st = self.plain.stribeck
@@ -385,8 +397,9 @@ class EffectGate:
             if any(a.joint == j for a in kept):
                 continue
             current, trial = self.errors(kept, refit), self.errors(kept, refit | {j})
-            if self.fit(kept, refit | {j})["corrected"].count(j) and \
-                    (current[j - 1] - trial[j - 1]) / max(current[j - 1], 1e-12) >= CONFIRM_GAIN:
+            gain = current[j - 1] - trial[j - 1]
+            if self.fit(kept, refit | {j})["corrected"].count(j) and gain >= CONFIRM_ABSOLUTE and \
+                    gain / max(current[j - 1], 1e-12) >= CONFIRM_GAIN:
                 refit.add(j)
         # Never worse than the plain model on any joint (with nothing kept it is the plain model).
         while kept or refit:
@@ -420,7 +433,7 @@ class EffectGate:
                 standard = self.refit.standard
                 entries = [e for e in self.refit.effects if e not in self.plain.effects]
                 kept, refit = list(self.all), set()
-        doc = {"method": method, "confirm_gain": CONFIRM_GAIN, "choice": choice,
+        doc = {"method": method, "confirm_gain": CONFIRM_GAIN, "confirm_absolute": CONFIRM_ABSOLUTE, "choice": choice,
                "refitted_rigid_body_relative_error": None if whole is None else whole.tolist(),
                "guards": ["effects fitted on top of the plain model (its rigid body not fitted again; the friction and "
                           "rotor inertia of an effect's joint refitted beside it, kept >= 0)",

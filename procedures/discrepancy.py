@@ -262,7 +262,8 @@ def report_text(result: dict) -> str:
             gain = d.get("gain_on_new_motion")
             lines.append(f"    {d['effect']}@{d['joint']}: {d['why']}"
                          + (f" (it lowers joint {d['joint']}'s error there by {gain * 100:.1f} %, needs "
-                            f"{g['confirm_gain'] * 100:g} %)" if gain is not None else ""))
+                            f"{g['confirm_gain'] * 100:g} % and {g.get('confirm_absolute', 0):g} of its effort)"
+                            if gain is not None else ""))
         for d in g["implausible"]:
             lines.append(f"    {d['effect']}@{d['joint']}: left out, implausible beside the plain model: {d['why']}")
         lines.append("    guards: " + "; ".join(g["guards"]))

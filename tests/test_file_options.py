@@ -26,6 +26,7 @@ CASES = {
     "discrepancy --csv": ["discrepancy", "--csv", "{f}"],
     "discrepancy RUN_DIR": ["discrepancy", "{f}"],
     "discrepancy --model": ["discrepancy", "--csv", str(WPI), "--model", "{f}"],
+    "discrepancy --validate-csv": ["discrepancy", "--csv", str(WPI), "--validate-csv", "{f}"],
     "export RUN": ["export", "{f}", "--csv", "{tmp}/out.csv"],
     "calibrate-rcm --from-csv": ["calibrate-rcm", "--from-csv", "{f}", "--body", "tool"],
     "cooperative --model": ["cooperative", "--model", "{f}", "--duration", "1"],

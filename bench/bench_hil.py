@@ -167,10 +167,10 @@ def three_arms(folder: Path, domain: int, model: Path | None) -> Outcome | None:
         if out.code or model is None:
             print(f"  register: {out.last_line}" if out.code else "  no model from the chain", flush=True)
             return out if out.code else None
-        # the model was identified on the two-arm rig, whose placement differs: its
-        # provenance says so, and --force-model takes it (the same nominal PSM plants)
+        # the model of PSM1 from the two-arm rig belongs here: provenance is per arm, and
+        # PSM1 keeps its identity and mounting when PSM3 joins (no --force-model)
         out = rig.run("cooperative", "--arms", "PSM1,PSM2,PSM3", "--force", "5", "--object", "spring",
-                      "--move", "0.05,0,0", "--model", str(model), "--force-model")
+                      "--move", "0.05,0,0", "--model", str(model))
         doc = out.doc or {}
         print(f"  cooperative, three arms: {doc.get('status', 'exit ' + str(out.code))}"
               + (f" ({doc.get('error')})" if doc.get("error") else ""), flush=True)

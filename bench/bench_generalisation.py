@@ -113,6 +113,7 @@ def _run_case(args):
     from calibration.generalisation import EffectGate, Motion, workflow_model
     from calibration.hidden_effects import HiddenCase, generate
     from calibration.prediction import extra_effort, standard_parameters
+    from procedures.discrepancy import estimate_gravity
     from rig.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
     from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
@@ -132,7 +133,8 @@ def _run_case(args):
             model = plain.dynamics()
             given, given_extra = standard_parameters(plain), (lambda p: extra_effort(plain, p))
         else:
-            plain, g = _plain(train, tmp, "plain.json")
+            plain, _ = _plain(train, tmp, "plain.json")
+            g = estimate_gravity(train.q, train.dq, train.tau, train.rate, settings)   # as the CLI
             model = PSMDynamics(PSMParameters(drive=DriveParameters()), gravity=g)
             given, given_extra = None, None
         base = base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
@@ -164,7 +166,7 @@ def _fit_pipeline(q, dq, tau, rate: float, breaks, tmp: Path, name: str):
     from calibration.base_params import base_parameters_of
     from calibration.discrepancy import Settings, run_workflow
     from calibration.generalisation import EffectGate
-    from procedures.discrepancy import identify_plain
+    from procedures.discrepancy import estimate_gravity, identify_plain
     from rig.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
     from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
@@ -173,7 +175,8 @@ def _fit_pipeline(q, dq, tau, rate: float, breaks, tmp: Path, name: str):
     sdp = out.fits["sdp"]
     plain = _model_file(tmp, f"{name}.json", sdp.pi, list(out.model.param_names()), out.slope, out.gravity,
                         out.stribeck())
-    model = PSMDynamics(PSMParameters(drive=DriveParameters()), gravity=out.gravity)
+    model = PSMDynamics(PSMParameters(drive=DriveParameters()),
+                        gravity=estimate_gravity(q, dq, tau, rate, settings, name, breaks))
     base = base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
     _, w = run_workflow(model, base, q, dq, tau, rate, None, settings, breaks)
     gate = EffectGate(plain, w.added, q, dq, tau, rate, settings, breaks, [])

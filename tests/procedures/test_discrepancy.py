@@ -166,11 +166,12 @@ def test_cli_too_little_motion_for_gravity_is_a_clear_error(tmp_path):
 # moving with the velocity and effort of neither end; where a joint's last velocity was above
 # the deadband those samples entered the fit, and the default rig's identify run (no hidden
 # effect) got "unexplained" (joint 2, library R^2 -1.4) or a stiction that is not there.
-# These short runs (a quick design) hit that with design seed 4. Since issue 26 the
-# validation trajectory is the other motion the effects are confirmed on and the workflow
-# trains on the excitation alone: at 10 s that left a 2.5 s held-out block, on which joint
-# 2's library R^2 (0.22) passed its threshold (0.14, set on 7.5 s blocks); 20 s are used.
-QUICK_IDENTIFY = ("--duration", "20", "--starts", "1", "--iterations", "5", "--design-seed", "4", "--seed", "1",
+# These short runs (10 s trajectories, a quick design) hit that with design seed 4. Since
+# issue 26 the validation trajectory is also the other motion the written model's effects
+# are confirmed on. (Named on the excitation alone, the null rig's runs were flagged:
+# joint 2's library R^2 0.22 on a 10 s run's 2.5 s held-out block, joint 3's Ljung-Box 90-104
+# on the default 30 s runs, against thresholds set on the generator's multi-sines.)
+QUICK_IDENTIFY = ("--duration", "10", "--starts", "1", "--iterations", "5", "--design-seed", "4", "--seed", "1",
                   "--no-plots")
 STICTION_RIG = "[effects.PSM1]\nstiction = [0.0, 0.0, 1.0]\n"
 
@@ -200,10 +201,13 @@ def test_identify_run_of_the_default_rig_has_nothing_missing(tmp_path):
     assert doc["verdict"] == "none", (doc["detection"]["initial"], doc["effects"])
     assert doc["effects"] == []
     g = doc["generalisation"]
-    # the validation trajectory is the other motion, kept out of the training data
+    # the validation trajectory is the other motion: the plain model and the written
+    # parameters are fitted without it (the workflow names effects on the whole run)
     assert g["method"].startswith("another motion: the run's last continuous piece")
-    assert doc["settings"]["pieces"] == [[0, doc["data"]["samples"]]]
-    assert g["kept"] == [] and g["relative_error"]["written"] == g["relative_error"]["plain"]
+    assert "fitted without it" in g["note"]
+    assert g["choice"] == "plain model + confirmed effects"
+    assert g["kept"] == []
+    assert all(w <= p for w, p in zip(g["relative_error"]["written"], g["relative_error"]["plain"]))
 
 
 def test_identify_run_with_hidden_stiction_names_it(tmp_path):

@@ -65,8 +65,8 @@ PARAMETERS = [
               "time", type=str),
     Parameter("rate", 200.0, "Hz", "Sampling rate of the CSV rows; a run's samples are resampled to it",
               minimum=20.0, maximum=5000.0),
-    Parameter("model", "", "", "Identified model file (model.json) to use as the baseline; default: identify the "
-              "thesis model on the training block", type=str),
+    Parameter("model", "", "", "Model file (model.json) taken whole as the baseline and the plain model the written "
+              "one adds confirmed effects to; default: `rig identify --csv`'s fit of the training block", type=str),
     Parameter("joints", 3, "", "Joints used (the model has joints 1-3)", minimum=3, maximum=3, type=int),
     Parameter("arm", "PSM1", "", "Arm whose /<arm>/measured_js a RUN_DIR provides", type=str),
     Parameter("heldout", 0.25, "", "Fraction of the data held out at its end", minimum=0.1, maximum=0.5),

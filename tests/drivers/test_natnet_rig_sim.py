@@ -27,6 +27,9 @@ def natnet_toml(folder, port: int, extra: str = "") -> str:
     return text + extra
 
 
+# 29 s: left out of the default run (under 10 min); the driver's loopback tests and
+# test_no_natnet_server_is_one_line cover `rig sim --natnet` there. Run with -m slow.
+@pytest.mark.slow
 def test_calibrate_rcm_and_link_lengths_through_the_fake_motive(tmp_path):
     from procedures.link_lengths import nominal_lengths
     from rig import config

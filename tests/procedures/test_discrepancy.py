@@ -60,6 +60,7 @@ def test_cli_on_real_csv_json(tmp_path):
                for name, path in doc["plots"].items())
 
 
+@pytest.mark.slow   # 11 s; the gate on another motion is covered by tests/calibration/test_generalisation.py
 @pytest.mark.skipif(not REAL.exists(), reason="the WPI data are not available")
 def test_cli_validate_csv_is_the_other_motion(tmp_path):
     """--validate-csv: effects are confirmed on the second recording, which no fit sees;

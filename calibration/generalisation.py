@@ -154,7 +154,7 @@ class EffectGate:
 
     # -- a subset of the effects -------------------------------------------------------------
     def _key(self, subset, joints=()) -> tuple:
-        return tuple(self.all.index(a) for a in subset), tuple(sorted(joints))
+        return tuple(next(i for i, o in enumerate(self.all) if o is a) for a in subset), tuple(sorted(joints))
 
     def _corrections(self, joints, no_stribeck=()) -> tuple[np.ndarray, list]:
         """(3m, k) filtered columns that refit the plain model's friction and rotor inertia of
@@ -383,7 +383,7 @@ class EffectGate:
             cost, worst, _ = max(weak, key=lambda c: (c[1].raw_cols.shape[2], -c[0]))
             steps.append({"effects": [f"{a.effect}@{a.joint}" for a in kept], "relative_error": current.tolist(),
                           "least_useful": f"{worst.effect}@{worst.joint}", "its_gain": cost})
-            kept.remove(worst)
+            kept = [a for a in kept if a is not worst]
             why = NOT_CONFIRMED
             st = self.plain.stribeck
             if worst.effect == "stiction" and st is not None and st["Fst"][worst.joint - 1] > 0:
@@ -412,7 +412,7 @@ class EffectGate:
                 drop = list(kept)   # worse through no term of its own: nothing is kept
             refit -= worse
             for a in drop:
-                kept.remove(a)
+                kept = [o for o in kept if o is not a]
                 not_confirmed.append({"effect": a.effect, "joint": a.joint,
                                       "why": f"{NOT_CONFIRMED} (joint(s) {sorted(worse)} predicted worse than by the "
                                              "plain model)"})
@@ -420,7 +420,7 @@ class EffectGate:
         final = self.fit(kept, refit)
         standard, entries = final["standard"], final["entries"]
         choice = "plain model + confirmed effects"
-        whole = None
+        whole, passed_over = None, None
         if self.refit is not None and self.motions and self.all:
             # The rigid body fitted again with the effects (the workflow's own model): on the
             # simulated rig the plain model, fitted without an effect, carries a bias on every
@@ -429,10 +429,14 @@ class EffectGate:
             whole = np.mean([_relative(self.refit, m, self.settings) for m in self.motions], axis=0)
             if np.all(whole <= plain) and whole.sum() < (1.0 - CONFIRM_GAIN) * written.sum():
                 choice = "the workflow's model (rigid body refitted with all its effects)"
+                passed_over = {"relative_error": written.tolist(), "kept": [f"{a.effect}@{a.joint}" for a in kept],
+                               "friction_refitted_alone_on_joints": sorted(refit),
+                               "not_confirmed": not_confirmed, "implausible": implausible}
                 written = whole
                 standard = self.refit.standard
                 entries = [e for e in self.refit.effects if e not in self.plain.effects]
-                kept, refit = list(self.all), set()
+                kept, refit, not_confirmed, implausible = list(self.all), set(), [], []
+                final = {"corrected": [], "kept_plain": []}
         doc = {"method": method, "confirm_gain": CONFIRM_GAIN, "confirm_absolute": CONFIRM_ABSOLUTE, "choice": choice,
                "refitted_rigid_body_relative_error": None if whole is None else whole.tolist(),
                "guards": ["effects fitted on top of the plain model (its rigid body not fitted again; the friction and "
@@ -445,7 +449,8 @@ class EffectGate:
                "friction_refitted_on_joints": final["corrected"],
                "friction_refitted_alone_on_joints": sorted(refit),
                "friction_kept_plain_on_joints": final["kept_plain"],
-               "not_confirmed": not_confirmed, "implausible": implausible, "steps": steps}
+               "not_confirmed": not_confirmed, "implausible": implausible, "steps": steps,
+               "plain_with_confirmed_effects": passed_over}
         return GateResult(kept, standard, entries, doc, sorted(refit), self.refit if whole is not None and
                           choice.startswith("the workflow") else None)
 

@@ -118,3 +118,21 @@ def test_a_given_model_is_taken_whole(tmp_path):
     if stribeck is None or not np.any(stribeck["Fst"]):
         np.testing.assert_allclose(diff[:, 0], 0.0, atol=1e-12)
     np.testing.assert_allclose(diff[:, 1], 0.25, atol=1e-12)
+
+
+def test_the_workflows_own_model_is_written_only_if_the_other_motion_prefers_it(hysteresis_case):
+    """`refit` (the workflow's model, its rigid body fitted again) competes on the other
+    motion: a model that predicts it worse than the plain one on a joint is passed over."""
+    from dataclasses import replace
+
+    c = hysteresis_case
+    worse = replace(c.plain, document=dict(c.plain.document, effects=[
+        {"name": "torque_offset", "joint": 1, "params": {"offset": 0.2}},
+        {"name": "hysteresis", "joint": 3, "params": {"Fd": 0.6, "travel": c.travel, "sigma0": 0.6 / c.travel}}]))
+    motion = Motion(c.other.q, c.other.dq, c.other.tau, c.other.rate, "other")
+    gate = EffectGate(c.plain, [_named("hysteresis", 3, c.travel)], c.train.q, c.train.dq, c.train.tau,
+                      c.train.rate, Settings(), motions=[motion], refit=worse)
+    r = gate.run()
+    assert r.doc["choice"] == "plain model + confirmed effects" and r.model is None
+    assert r.doc["refitted_rigid_body_relative_error"][0] > r.doc["relative_error"]["plain"][0]
+    assert r.doc["kept"] == ["hysteresis@3"]

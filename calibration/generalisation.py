@@ -232,8 +232,8 @@ class EffectGate:
         friction and rotor inertia of the joints it acts on refitted beside it (a plain model
         fitted without an effect has taken up what it could of it in those terms: an
         unmodelled position-dependent friction left joint 3's viscous coefficient at 0 and its
-        Stribeck excess at 0 on the simulated rig). A joint whose refitted terms would be
-        unphysical (Fc, Fv, Ia or the Stribeck excess below 0) keeps the plain model's.
+        Stribeck excess at 0 on the simulated rig). A term that would be refitted below 0
+        (Fc, Fv, Ia, the Stribeck excess) is held at 0 and the others refitted.
         ``joints`` (1-based): refit these joints' terms too (those of a removed effect, when
         its share is weighed). Cached: {"coef", "standard", "stribeck_fst", "entries",
         "pred", "corrected", "kept_plain", "design"}."""
@@ -248,26 +248,47 @@ class EffectGate:
         # model's excess on its joint rather than adding a second one.
         replaced = sorted({a.joint - 1 for a in subset if a.effect == "stiction"})
         fixed = w.fixed - sum((self._plain_stribeck(j) for j in replaced), np.zeros_like(w.fixed))
+        # Terms that would be refitted below 0 (Fc, Fv, Ia, the Stribeck excess) are held at
+        # 0 and the others refitted (an active set, as a bounded least squares).
+        blocks = [a.raw_cols.reshape(3 * w.m, -1) for a in subset]
+        C, what = self._corrections(joints, {a.joint - 1 for a in subset if a.effect == "stiction"})
+        st = self.plain.stribeck
+        plain_fst = None if st is None else np.asarray(st["Fst"], float).copy()
+        if plain_fst is not None:
+            plain_fst[replaced] = 0.0
+
+        def plain_value(term):
+            kind, idx = term
+            return self.pi[idx] if kind == "standard" else plain_fst[idx]
+
+        held: set[int] = set()
         while True:
-            D, what = self._design(subset, joints)
-            coef = self._solve(D, w.rows_tr, fixed)
-            ke = D.shape[1] - len(what)
+            free = [k for k in range(len(what)) if k not in held]
+            D = np.hstack(blocks + [C[:, free]]) if blocks or free else np.zeros((3 * w.m, 0))
+            base = fixed - sum((C[:, k] * plain_value(what[k]) for k in held), np.zeros_like(fixed))
+            coef = self._solve(D, w.rows_tr, base)
+            ke = D.shape[1] - len(free)
             standard = self.pi.copy()
-            st = self.plain.stribeck
-            fst = None if st is None else np.asarray(st["Fst"], float).copy()
-            if fst is not None:
-                fst[replaced] = 0.0
-            for (kind, idx), c in zip(what, coef[ke:]):
+            fst = None if plain_fst is None else plain_fst.copy()
+            for k in held:
+                kind, idx = what[k]
+                if kind == "standard":
+                    standard[idx] = 0.0
+                else:
+                    fst[idx] = 0.0
+            for k, c in zip(free, coef[ke:]):
+                kind, idx = what[k]
                 if kind == "standard":
                     standard[idx] += c
                 else:
                     fst[idx] += c
-            bad = {j for j in joints if min(standard[70 + 4 * j], standard[71 + 4 * j], standard[73 + 4 * j]) < 0
-                   or (fst is not None and j == 2 and ("Fst", 2) in what and fst[2] < 0)}
+            bad = [k for k in free if (what[k][0] == "Fst" and fst[what[k][1]] < 0)
+                   or (what[k][0] == "standard" and (what[k][1] - 70) % 4 in (0, 1, 3) and standard[what[k][1]] < 0)]
             if not bad:
                 break
-            joints -= bad
-            kept_plain += sorted(j + 1 for j in bad)
+            held |= set(bad)
+        fixed = base
+        held_terms = [what[k] for k in sorted(held)]
         w.added = list(subset)
         for a in subset:
             if a.effect == "payload":
@@ -279,7 +300,8 @@ class EffectGate:
                 entries.append(w._entry(a, dict(prm)))
         out = {"coef": coef, "standard": standard, "stribeck_fst": fst, "entries": entries,
                "pred": fixed + D @ coef if D.shape[1] else fixed.copy(), "fixed": fixed,
-               "corrected": sorted(j + 1 for j in joints), "kept_plain": kept_plain, "design": D}
+               "corrected": sorted(j + 1 for j in joints), "kept_plain": kept_plain, "design": D,
+               "held_at_zero": [_term_name(t) for t in held_terms]}
         self._cache[key] = out
         return out
 
@@ -480,3 +502,10 @@ def workflow_model(plain, workflow, result: dict):
         return replace(plain, standard=np.asarray(pi, float), slope=float(workflow.slope), document=doc)
     doc["effects"] = list(plain.effects) + entries
     return replace(plain, standard=np.asarray(pi, float), document=doc)
+
+
+def _term_name(term) -> str:
+    kind, idx = term
+    if kind == "Fst":
+        return f"joint{idx + 1}.Fst"
+    return f"joint{(idx - 70) // 4 + 1}." + ("Fc", "Fv", "Fo", "Ia")[(idx - 70) % 4]

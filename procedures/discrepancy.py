@@ -78,6 +78,20 @@ PARAMETERS = [
 ]
 
 
+def _require_motion(train, source: str, purpose: str) -> None:
+    """DiscrepancyError naming the first joint of processed ``train`` that moves faster than
+    identification's deadband in under a tenth of its samples: too little motion to ``purpose``."""
+    from calibration.discrepancy import DiscrepancyError
+    from calibration.identification import DEADBAND as ID_DEADBAND
+    from calibration.identification import slow_joints
+
+    for j, share in slow_joints(train.dq, ID_DEADBAND):
+        raise DiscrepancyError(
+            f"{source}: joint {j + 1} moves faster than {ID_DEADBAND[j]:g} {'m/s' if j == 2 else 'rad/s'} in only "
+            f"{share * 100:.1f} % of the training block: too little motion to {purpose}; give an identified model "
+            "with --model (its gravity is used)")
+
+
 def identify_plain(q, dq, tau, rate: float, settings, source: str = "the data", breaks=()):
     """The plain model: `rig identify --csv`'s fit at its defaults on the training block
     (`calibration.generalisation.plain_fit`), a FitOutcome. Its gravity direction: the
@@ -90,16 +104,10 @@ def identify_plain(q, dq, tau, rate: float, settings, source: str = "the data", 
     from calibration.base_params import RankDeficientError
     from calibration.discrepancy import DiscrepancyError
     from calibration.generalisation import plain_fit, plain_training_block
-    from calibration.identification import DEADBAND as ID_DEADBAND
-    from calibration.identification import slow_joints
 
     train = plain_training_block(q, dq, tau, rate, settings.heldout, breaks,
                                  source if len(breaks) else "the training block")
-    for j, share in slow_joints(train.dq, ID_DEADBAND):
-        raise DiscrepancyError(
-            f"{source}: joint {j + 1} moves faster than {ID_DEADBAND[j]:g} {'m/s' if j == 2 else 'rad/s'} in only "
-            f"{share * 100:.1f} % of the training block: too little motion to identify the plain model and "
-            "estimate the gravity direction; give an identified model with --model (its gravity is used)")
+    _require_motion(train, source, "identify the plain model and estimate the gravity direction")
     try:
         return plain_fit(train)
     except RankDeficientError as exc:
@@ -115,7 +123,7 @@ def estimate_gravity(q, dq, tau, rate: float, settings, source: str = "the data"
     from calibration.base_params import RankDeficientError
     from calibration.datasets import JointData, pieces_training_block, processed, split_blocks
     from calibration.discrepancy import DiscrepancyError
-    from calibration.identification import CUTOFF_HZ, FILTER_ORDER, fit_identification, slow_joints
+    from calibration.identification import CUTOFF_HZ, FILTER_ORDER, fit_identification
     from calibration.identification import DEADBAND as ID_DEADBAND
 
     data = JointData(np.arange(len(q)) / rate, np.asarray(q, float), np.asarray(dq, float), np.asarray(tau, float),
@@ -124,11 +132,7 @@ def estimate_gravity(q, dq, tau, rate: float, settings, source: str = "the data"
         train = pieces_training_block(data, breaks, CUTOFF_HZ, FILTER_ORDER, settings.heldout)
     else:
         train, _ = split_blocks(processed(data, CUTOFF_HZ, FILTER_ORDER), settings.heldout)
-    for j, share in slow_joints(train.dq, ID_DEADBAND):
-        raise DiscrepancyError(
-            f"{source}: joint {j + 1} moves faster than {ID_DEADBAND[j]:g} {'m/s' if j == 2 else 'rad/s'} in only "
-            f"{share * 100:.1f} % of the training block: too little motion to estimate the gravity direction "
-            "from; give an identified model with --model (its gravity is used)")
+    _require_motion(train, source, "estimate the gravity direction from")
     try:
         outcome = fit_identification(train, "auto", 400.0, deadband=ID_DEADBAND, parallel=True, stribeck=False)
     except RankDeficientError as exc:

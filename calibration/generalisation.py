@@ -130,16 +130,21 @@ class EffectGate:
     ``refit``: the workflow's own model (`workflow_model`: its rigid body fitted again with
     all its effects), written instead when another motion is at hand and it predicts that
     motion better than the plain model on every joint and better overall than the plain
-    model with the confirmed effects (see `run`)."""
+    model with the confirmed effects (see `run`). ``training``: the processed training block
+    the plain model was identified on (`plain_training_block`); with it and another motion,
+    the plain model identified again with the confirmed effects' columns in its regressor
+    (`identified_with`) is a candidate too."""
 
     def __init__(self, plain, named, q, dq, tau, rate: float, settings: Settings | None = None, breaks=(),
-                 motions=(), refit=None):
+                 motions=(), refit=None, training=None):
         from calibration.base_params import base_parameters_of
         from calibration.prediction import extra_effort, standard_parameters
         from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
         self.plain = plain
         self.refit = refit
+        self.training = training
+        self._arrays = (q, dq, tau, breaks)
         self.settings = settings or Settings()
         self.motions = list(motions)
         self.rate = rate
@@ -363,6 +368,81 @@ class EffectGate:
                 den[j] += float(w.y[test][sel] @ w.y[test][sel])
         return np.sqrt(num / np.maximum(den, 1e-300))
 
+    # -- the rigid body identified again with the effects ---------------------------------------
+    def identified_with(self, subset):
+        """The plain model identified again on its training block with ``subset``'s effects in
+        the regressor (`calibration.identification.fit_identification(effects=...)`): the
+        gravity direction, friction slope, Stribeck velocity and rigid body chosen with the
+        effects' columns beside them, the effects' amplitudes fitted with them (at the
+        workflow's non-linear parameters). A plain model fitted without an effect has taken up
+        what it could of it everywhere: an unmodelled spring on the insertion joint tilted
+        the chosen gravity by 26 degrees on the simulated rig and left joints 1-2 predicted 4-8
+        times worse than without the spring; fitted together, every joint came back to its
+        floor. Effects whose columns need the model's torque (a delay, a play) are carried with
+        the parameters fitted on top of the plain model; those that are terms of the rigid
+        body (an offset, a payload) are taken up by it. A stiction effect on joint 3 replaces
+        the Stribeck column. Returns (model file in memory, the effects it carries, reasons of
+        the effects whose amplitudes left the catalogue's range) or None when no effect of
+        ``subset`` can be identified this way. Cached."""
+        from calibration.identification import DEADBAND, STRIBECK_JOINT, EffectTerm, fit_identification
+
+        key = ("identified",) + self._key(subset)
+        if key in self._cache:
+            return self._cache[key]
+        terms = [EffectTerm(a.effect, a.joint, a.grid, tuple(bool(x) for x in a.free)) for a in subset
+                 if EffectTerm.identifiable(a.effect)]
+        out = None
+        if terms:
+            stribeck = not any(t.effect == "stiction" and t.joint - 1 == STRIBECK_JOINT for t in terms)
+            fit = fit_identification(self.training, "auto", "auto", deadband=DEADBAND, parallel=True,
+                                     stribeck=stribeck, effects=terms)
+            entries = fit.effect_entries("identified with the rigid body (rig discrepancy)")
+            implausible = [f"{e['name']}@{e['joint']}: {why}" for e in entries
+                           if (why := CATALOGUE[e["name"]].sanity(e["params"], e["joint"])) is not None]
+            carried = [a for a in subset if CATALOGUE[a.effect].uses_model and not CATALOGUE[a.effect].in_rigid_body_model
+                       and a.effect != "payload"]
+            on_top = self.fit(subset)["entries"]
+            entries += [e for a, e in zip(subset, on_top) if any(a is c for c in carried)]
+            sdp = fit.fits["sdp"]
+            out = (_model_in_memory(self.plain, sdp.pi, fit.slope, fit.gravity, fit.stribeck(), entries),
+                   [a for a in subset if EffectTerm.identifiable(a.effect)] + carried, implausible)
+        self._cache[key] = out
+        return out
+
+    def _identified_choice(self, kept, dropped, plain, written):
+        """The best of the plain model identified again with ``kept``, and with ``kept`` and
+        the identifiable effects ``dropped`` as not confirmed, on the other motions: written
+        when it predicts every joint no worse than the plain model and the whole at least
+        CONFIRM_GAIN better than ``written`` (a larger set only when at least CONFIRM_GAIN
+        better than the smaller). Returns (model, effects, relative errors, tried) or None."""
+        from calibration.identification import EffectTerm
+
+        sets = [list(kept)]
+        extra = [a for a in dropped if EffectTerm.identifiable(a.effect) and not any(a is k for k in kept)]
+        if extra:
+            sets.append(list(kept) + extra)
+        best, tried = None, []
+        for subset in sets:
+            got = self.identified_with(subset)
+            if got is None:
+                continue
+            model, effects, implausible = got
+            if implausible:
+                # an amplitude out of range: those effects out, the others identified again
+                bad = {x.split(":")[0] for x in implausible}
+                subset = [a for a in subset if f"{a.effect}@{a.joint}" not in bad]
+                got = self.identified_with(subset)
+                if got is None or got[2]:
+                    tried.append({"effects": [f"{a.effect}@{a.joint}" for a in effects], "implausible": implausible})
+                    continue
+                model, effects, _ = got
+            rel = np.mean([_relative(model, m, self.settings) for m in self.motions], axis=0)
+            tried.append({"effects": [f"{a.effect}@{a.joint}" for a in effects], "relative_error": rel.tolist()})
+            ok = np.all(rel <= plain) and rel.sum() < (1.0 - CONFIRM_GAIN) * written.sum()
+            if ok and (best is None or rel.sum() < (1.0 - CONFIRM_GAIN) * best[2].sum()):
+                best = (model, effects, rel)
+        return None if best is None else best + (tried,), tried
+
     # -- the gate ------------------------------------------------------------------------------
     def run(self) -> GateResult:
         from calibration.prediction import PredictionError
@@ -442,7 +522,27 @@ class EffectGate:
         final = self.fit(kept, refit)
         standard, entries = final["standard"], final["entries"]
         choice = "plain model + confirmed effects"
-        whole, passed_over = None, None
+        whole, passed_over, chosen_model, identified_doc = None, None, None, None
+        if self.training is not None and self.motions:
+            dropped = [a for a in self.all if any(d["effect"] == a.effect and d["joint"] == a.joint
+                                                   and d["why"].startswith(NOT_CONFIRMED) for d in not_confirmed)]
+            best, tried = self._identified_choice(kept, dropped, plain, written)
+            identified_doc = {"tried": tried}
+            if best is not None:
+                model, effects, rel, _ = best
+                passed_over = {"relative_error": written.tolist(), "kept": [f"{a.effect}@{a.joint}" for a in kept],
+                               "friction_refitted_alone_on_joints": sorted(refit),
+                               "not_confirmed": not_confirmed, "implausible": implausible}
+                choice = IDENTIFIED_CHOICE
+                chosen_model, written = model, rel
+                standard, entries = model.standard, model.effects
+                not_confirmed = [d for d in not_confirmed if not any(d["effect"] == a.effect and d["joint"] == a.joint
+                                                                     for a in effects)]
+                kept, refit = list(effects), set()
+                final = {"corrected": [], "kept_plain": []}
+                identified_doc.update({"gravity": model.gravity.tolist(), "slope": model.slope,
+                                       "stribeck": None if model.stribeck is None else
+                                       {k: v.tolist() for k, v in model.stribeck.items()}})
         if self.refit is not None and self.motions and self.all:
             # The rigid body fitted again with the effects (the workflow's own model): on the
             # simulated rig the plain model, fitted without an effect, carries a bias on every
@@ -453,7 +553,9 @@ class EffectGate:
                 choice = "the workflow's model (rigid body refitted with all its effects)"
                 passed_over = {"relative_error": written.tolist(), "kept": [f"{a.effect}@{a.joint}" for a in kept],
                                "friction_refitted_alone_on_joints": sorted(refit),
-                               "not_confirmed": not_confirmed, "implausible": implausible}
+                               "not_confirmed": not_confirmed, "implausible": implausible,
+                               "choice": choice if chosen_model is None else IDENTIFIED_CHOICE}
+                chosen_model = None
                 written = whole
                 standard = self.refit.standard
                 entries = [e for e in self.refit.effects if e not in self.plain.effects]
@@ -472,13 +574,44 @@ class EffectGate:
                "friction_refitted_alone_on_joints": sorted(refit),
                "friction_kept_plain_on_joints": final["kept_plain"],
                "not_confirmed": not_confirmed, "implausible": implausible, "steps": steps,
-               "plain_with_confirmed_effects": passed_over}
-        return GateResult(kept, standard, entries, doc, sorted(refit), self.refit if whole is not None and
-                          choice.startswith("the workflow") else None)
+               "plain_with_confirmed_effects": passed_over, "identified_with_effects": identified_doc}
+        if chosen_model is not None:
+            doc["guards"].append("the plain model identified again with the confirmed effects in its regressor "
+                                 "(gravity, friction slope and Stribeck velocity chosen again), written only where "
+                                 "it predicts the other motion better")
+        chosen = self.refit if whole is not None and choice.startswith("the workflow") else chosen_model
+        return GateResult(kept, standard, entries, doc, sorted(refit), chosen)
+
+    def predicted(self, model) -> np.ndarray:
+        """(3m,) ``model``'s efforts (effects included) on the training record's rows, as the
+        workflow's figures take them (e.g. for `Discrepancy.heldout_rms`)."""
+        q, dq, tau, breaks = self._arrays
+        return EffectGate(model, [], q, dq, tau, self.rate, self.settings, breaks).w.fixed
 
     def written_model(self, result: GateResult):
         """The written model file (in memory) of a `run` result."""
         return result.model if result.model is not None else self.model_file(result.kept, result.refit_joints)
+
+
+IDENTIFIED_CHOICE = ("the plain model identified again with the confirmed effects (gravity, friction slope, "
+                     "Stribeck velocity and rigid body chosen with the effects' columns in the regressor)")
+
+
+def _model_in_memory(plain, standard, slope: float, gravity, stribeck, effects):
+    """A model file (in memory, on ``plain``'s path and provenance) with these standard
+    parameters (82,), smooth-sign slope, gravity (3,), Stribeck term ({"Fst", "vs"} or None)
+    and effects entries, laid out as `rig.model_file.save_model` writes it."""
+    import tempfile
+    from pathlib import Path
+
+    from rig.model_file import load_model, save_model
+
+    with tempfile.TemporaryDirectory() as tmp:
+        m = load_model(save_model(Path(tmp) / "model.json", standard=standard, names=plain.names, slope=slope,
+                                  gravity=gravity, stribeck=stribeck, gravity_source="estimated",
+                                  provenance_info=plain.document.get("provenance", {}),
+                                  extra={"effects": list(effects)}))
+    return replace(m, path=plain.path)
 
 
 def _relative(model, motion: Motion, settings: Settings) -> np.ndarray:

@@ -44,17 +44,40 @@ class FitOutcome:
     parallel: bool = True
     stribeck_vs: float | None = None  # m/s; None: no Stribeck term identified
     position_friction: tuple | None = None  # (period m, harmonics) of joint 3's profile; None: none
+    effects: tuple = ()  # EffectTerm: catalogue effects identified with the rigid body
 
     def extra_rows(self, data, parallel: bool | None = None) -> np.ndarray | None:
-        """The extra columns of processed ``data`` (the Stribeck column, then the position
-        friction profile's), or None without either term."""
+        """The extra columns of processed ``data`` (the Stribeck column, the position
+        friction profile's, then the effects'), or None without any."""
         par = self.parallel if parallel is None else parallel
         cols = []
         if self.stribeck_vs is not None:
             cols.append(stribeck_rows(self.model, data, self.stribeck_vs, par))
         if self.position_friction is not None:
             cols.append(position_friction_rows(self.model, data, self.position_friction, par))
+        cols += [e.rows(self.model.slope, data, par) for e in self.effects]
         return np.hstack(cols) if cols else None
+
+    def effect_entries(self, source: str) -> list[dict]:
+        """The effects identified with the rigid body (``effects``) as model file ``effects``
+        entries (their SDP amplitudes), each with ``source``."""
+        from calibration.effects import CATALOGUE
+
+        if not self.effects:
+            return []
+        sdp = self.fits["sdp"]
+        names = list(self.model.param_names())
+        start = sdp.extra.size - sum(e.n_columns for e in self.effects)
+        out = []
+        for e in self.effects:
+            eff = CATALOGUE[e.effect]
+            theta = np.zeros(len(e.free))
+            theta[np.asarray(e.free, bool)] = sdp.extra[start:start + e.n_columns]
+            start += e.n_columns
+            fc = float(sdp.pi[names.index(f"joint{e.joint}.Fc")]) if sdp.pi is not None else 0.0
+            out.append({"name": e.effect, "joint": e.joint, "params": eff.params(theta, e.grid, e.joint, {"Fc": fc}),
+                        "units": eff.units(e.joint), "source": source})
+        return out
 
     def position_friction_effect(self) -> dict | None:
         """Joint 3's identified friction profile as a model file ``effects`` entry
@@ -85,6 +108,66 @@ class FitOutcome:
 #: stuck, and its effort is then whatever the controller left within the static friction
 #: band, which no rigid-body and friction model predicts.
 DEADBAND = np.array([0.01, 0.01, 0.005])
+
+
+@dataclass(frozen=True)
+class EffectTerm:
+    """A catalogue effect (`calibration.effects`) identified with the rigid body: its columns
+    at a fixed non-linear parameter ``grid`` (a period, a travel, a Stribeck velocity) join
+    the regressor, its linear amplitudes are fitted with the base parameters (signed in the
+    SDP; the catalogue's sanity check judges them after). ``free`` marks the columns fitted
+    (the others, e.g. a spring's constant beside the offset Fo, left out). Only effects whose
+    columns are functions of the motion alone (not of the model's torque) can be fitted
+    this way (see `identifiable`)."""
+
+    effect: str
+    joint: int          # 1-3
+    grid: object
+    free: tuple
+
+    @property
+    def n_columns(self) -> int:
+        return int(np.sum(self.free))
+
+    @staticmethod
+    def identifiable(effect: str) -> bool:
+        """Whether ``effect``'s columns depend on the motion alone and are not terms of the
+        rigid-body and friction model already (a payload is an inertia, an offset is Fo)."""
+        from calibration.effects import CATALOGUE
+
+        e = CATALOGUE[effect]
+        return not (e.uses_model or e.in_rigid_body_model or e.point_mass)
+
+    def names(self) -> list[str]:
+        from calibration.effects import CATALOGUE
+
+        return [f"joint{self.joint}.{self.effect}.{n}" for n, f in
+                zip(CATALOGUE[self.effect].linear_names_at(self.grid), self.free) if f]
+
+    def columns(self, q, dq, rate: float, slope: float) -> np.ndarray:
+        """(n*3, k) stacked sample-major columns on the motion (q, dq) (n, 3), in time order."""
+        from calibration.effects import CATALOGUE, EffectContext
+
+        cols = CATALOGUE[self.effect].columns(EffectContext(q=q, dq=dq, rate=rate, slope=slope), self.joint,
+                                              self.grid)
+        return cols[:, :, np.asarray(self.free, bool)].reshape(-1, self.n_columns)
+
+    def rows(self, slope: float, data, parallel: bool) -> np.ndarray:
+        """The columns as equation rows of processed ``data`` (see :func:`equation_rows`)."""
+        return equation_rows(data, parallel)(lambda q, dq, ddq: self.columns(q, dq, data.rate, slope))
+
+
+class _WithEffects:
+    """A model whose regressor has the effects' columns after its own (for the gravity and
+    slope search, which sees them as gravity-free columns; they are taken at the search's
+    reference slope)."""
+
+    def __init__(self, model, effects, rate: float):
+        self.model, self.effects, self.rate = model, effects, rate
+
+    def regressor_batch(self, q, dq, ddq):
+        W = self.model.regressor_batch(q, dq, ddq)
+        return np.hstack([W] + [e.columns(q, dq, self.rate, self.model.slope) for e in self.effects])
 
 
 def moving_mask(dq: np.ndarray, deadband=DEADBAND) -> np.ndarray:
@@ -215,22 +298,25 @@ def _choose_stribeck_velocity(Wb, tau, X_of, mask) -> tuple[float, dict]:
 
 
 def _masked_identification(model, data, base, mask, parallel: bool, stribeck: bool = False,
-                           position_friction=None):
+                           position_friction=None, effects=()):
     """Identification with the joint samples outside ``mask`` turned into 0 = 0 equations.
 
     With ``stribeck`` joint 3's Stribeck column is added, its velocity chosen by
     :func:`_choose_stribeck_velocity`; with ``position_friction`` ('auto' or (period, K))
     joint 3's friction profile columns (signed), 'auto' chosen by
-    :func:`choose_position_friction`. Returns (Identification, vs or None, scores, profile
-    (period, K) or None, its scores)."""
+    :func:`choose_position_friction`; then the columns of ``effects`` (EffectTerm, signed),
+    which are in the regressor the Stribeck velocity is chosen with too. Returns
+    (Identification, vs or None, scores, profile (period, K) or None, its scores)."""
     from calibration.estimators import Identification, model_nominal
     from calibration.layout import ParamLayout
 
     Wb = base.regressor(equation_rows(data, parallel)(model.regressor_batch))
     vs, scores, extra = None, {}, None
     names, signed = [], []
+    effect_rows = [e.rows(model.slope, data, parallel) for e in effects]
     if stribeck:
-        vs, scores = _choose_stribeck_velocity(Wb, data.tau, lambda v: stribeck_rows(model, data, v, parallel), mask)
+        vs, scores = _choose_stribeck_velocity(np.hstack([Wb] + effect_rows), data.tau,
+                                               lambda v: stribeck_rows(model, data, v, parallel), mask)
         extra = stribeck_rows(model, data, vs, parallel)
         names, signed = [f"joint{STRIBECK_JOINT + 1}.Fst"], [False]
     profile, pf_scores = position_friction, {}
@@ -242,6 +328,10 @@ def _masked_identification(model, data, base, mask, parallel: bool, stribeck: bo
         from calibration.effects import CATALOGUE
 
         names += [f"joint3.{n}" for n in CATALOGUE[POSITION_FRICTION].linear_names_at(profile)]
+        signed += [True] * X.shape[1]
+    for e, X in zip(effects, effect_rows):
+        extra = X if extra is None else np.hstack([extra, X])
+        names += e.names()
         signed += [True] * X.shape[1]
     tau = data.tau
     if mask is not None:
@@ -258,7 +348,7 @@ def _masked_identification(model, data, base, mask, parallel: bool, stribeck: bo
 
 def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None, progress=None,
                        deadband=None, parallel: bool = True, stribeck: bool = True,
-                       position_friction=None) -> FitOutcome:
+                       position_friction=None, effects=()) -> FitOutcome:
     """Base parameters, OLS, WLS and SDP on processed ``train`` data (JointData with ddq).
 
     ``gravity_mode``: 'auto', or a gravity vector (m/s^2, frame 0); ``configured_gravity``
@@ -271,6 +361,9 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
     the Stribeck velocity of STRIBECK_VELOCITIES that fits the training data best (OLS).
     ``position_friction``: None, 'auto' or (period m, harmonics): joint 3's friction profile
     (see :func:`choose_position_friction`).
+    ``effects``: EffectTerm, catalogue effects fitted with the rigid body; their columns are in
+    the gravity and slope search too (an unmodelled spring on the insertion joint tilted the
+    chosen gravity by 26 degrees on the simulated rig).
     """
     from calibration.base_params import RankDeficientError, base_parameters_of
     from calibration.model_selection import DEFAULT_SLOPES, STANDARD_GRAVITY, GravitySlopeSearch
@@ -292,7 +385,9 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
     candidates = []
     if need_search:
         mask = None if deadband is None else moving_mask(train.dq, deadband)
-        search = GravitySlopeSearch(make_model, train.q, train.dq, train.ddq, train.tau, n_inertial=70, mask=mask,
+        effects = tuple(effects)
+        search = GravitySlopeSearch((lambda g, a: _WithEffects(make_model(g, a), effects, train.rate)) if effects
+                                    else make_model, train.q, train.dq, train.ddq, train.tau, n_inertial=70, mask=mask,
                                     rows=equation_rows(train, parallel))
         if isinstance(gravity_mode, str):
             res = search.search(slopes, magnitude=float(np.linalg.norm(ref)) if configured_gravity is not None
@@ -318,7 +413,7 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
         mask = None if deadband is None else moving_mask(train.dq, deadband)
         try:
             ident, vs, vs_scores, profile, pf_scores = _masked_identification(model, train, base, mask, parallel,
-                                                                              stribeck, position_friction)
+                                                                              stribeck, position_friction, effects)
             if position_friction is not None:
                 selection.setdefault("position_friction", []).append(
                     {"joint": 3, "chosen": None if profile is None else {"period": profile[0], "harmonics": profile[1]},
@@ -359,7 +454,7 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
         tilt = float(np.degrees(np.arccos(np.clip(g @ ref / (np.linalg.norm(g) * np.linalg.norm(ref)), -1, 1))))
         selection["gravity_tilt_deg"] = tilt
     return FitOutcome(model, base, ident, fits, np.asarray(g, float), source, float(slope), selection,
-                      {"selection": t1 - t0, "fit": t2 - t1}, bool(parallel), vs, profile)
+                      {"selection": t1 - t0, "fit": t2 - t1}, bool(parallel), vs, profile, tuple(effects))
 
 
 def predict(outcome: FitOutcome, data, method: str, parallel: bool | None = None) -> np.ndarray:

@@ -341,7 +341,7 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
     from calibration.datasets import load_csv
     from calibration.discrepancy import Settings, run_workflow
     from calibration.effects import describe
-    from calibration.generalisation import EffectGate, workflow_model
+    from calibration.generalisation import EffectGate, plain_training_block, workflow_model
     from calibration.prediction import extra_effort, standard_parameters
     from rig.model_file import load_model, provenance, save_model
     from rig.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
@@ -368,7 +368,7 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
             motions, q, dq, tau, breaks, split_note = _other_motion(parameters, settings, q, dq, tau, breaks, pieces)
             workflow_sees_other = split_note is not None
         with rn.step(STEPS[1]):
-            given, given_extra = None, None
+            given, given_extra, training = None, None, None
             if parameters["model"]:
                 plain = load_model(parameters["model"])
                 model = plain.dynamics()
@@ -385,6 +385,9 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
                     provenance_info=provenance(source, rn.dir, {"procedure": PROCEDURE, "model": "plain"}),
                     extra={"note": "the model `rig identify --csv` fits at its defaults on this training block"})
                 plain = load_model(plain_path)
+                # the block it was fitted on: the effects may be identified with it again (the gate)
+                training = plain_training_block(q, dq, tau, rate, settings.heldout, breaks,
+                                                source if len(breaks) else "the training block")
                 g = estimate_gravity(all_q, all_dq, all_tau, rate, settings, source, all_breaks)
                 model = PSMDynamics(PSMParameters(drive=DriveParameters()), gravity=g)
                 kind = ("thesis model identified on the training block (gravity estimated: "
@@ -395,7 +398,7 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
         with rn.step(STEPS[3]):
             # the workflow's own model is judged on the other motion only if it never saw it
             whole = workflow_model(plain, w, result) if motions and w.added and not workflow_sees_other else None
-            effect_gate = EffectGate(plain, w.added, q, dq, tau, rate, settings, breaks, motions, whole)
+            effect_gate = EffectGate(plain, w.added, q, dq, tau, rate, settings, breaks, motions, whole, training)
             gate = effect_gate.run()
             written = effect_gate.written_model(gate)
             if split_note:
@@ -404,7 +407,7 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
             gate.doc["heldout_block"] = heldout
             model_path = save_model(
                 rn.dir / "model.json", standard=written.standard, names=plain.names, slope=written.slope,
-                gravity=plain.gravity, stribeck=written.stribeck,
+                gravity=written.gravity, stribeck=written.stribeck,
                 gravity_source="given model" if given is not None else "estimated",
                 validation={"other_motion": gate.doc["method"], "choice": gate.doc["choice"],
                             "relative_error_plain": gate.doc["relative_error"]["plain"],
@@ -437,8 +440,13 @@ def _heldout_figures(gate, result, workflow_result: dict) -> dict:
     """The plain and the written model on the training record's held-out block (the block
     the workflow's figures are on): RMS (N m, N m, N) and relative error per joint (the
     workflow's own model, when written: its RMS as written, no relative error)."""
+    from calibration.generalisation import IDENTIFIED_CHOICE
+
     w = gate.w
     out = {"rms_plain": w.heldout_rms(w.fixed).tolist(), "rel_plain": w.heldout_rel(w.fixed).tolist()}
+    if result.doc["choice"] == IDENTIFIED_CHOICE:
+        pred = gate.predicted(result.model)
+        return out | {"rms_written": w.heldout_rms(pred).tolist(), "rel_written": w.heldout_rel(pred).tolist()}
     if result.model is not None:
         sc = workflow_result.get("standard_consistency") or {}
         return out | {"rms_written": sc.get("heldout_rms", workflow_result["final"]["heldout_rms"]),

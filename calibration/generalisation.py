@@ -383,7 +383,9 @@ class EffectGate:
         body (an offset, a payload) are taken up by it. A stiction effect on joint 3 replaces
         the Stribeck column. Returns (model file in memory, the effects it carries, reasons of
         the effects whose amplitudes left the catalogue's range) or None when no effect of
-        ``subset`` can be identified this way. Cached."""
+        ``subset`` can be identified this way (or its columns and the rigid body's are not
+        separable on the training motion). Cached."""
+        from calibration.base_params import RankDeficientError
         from calibration.identification import DEADBAND, STRIBECK_JOINT, EffectTerm, fit_identification
 
         key = ("identified",) + self._key(subset)
@@ -394,8 +396,13 @@ class EffectGate:
         out = None
         if terms:
             stribeck = not any(t.effect == "stiction" and t.joint - 1 == STRIBECK_JOINT for t in terms)
-            fit = fit_identification(self.training, "auto", "auto", deadband=DEADBAND, parallel=True,
-                                     stribeck=stribeck, effects=terms)
+            try:
+                fit = fit_identification(self.training, "auto", "auto", deadband=DEADBAND, parallel=True,
+                                         stribeck=stribeck, effects=terms)
+            except RankDeficientError:
+                # an effect's columns and the rigid body's are not separable on this motion
+                self._cache[key] = None
+                return None
             entries = fit.effect_entries("identified with the rigid body (rig discrepancy)")
             implausible = [f"{e['name']}@{e['joint']}: {why}" for e in entries
                            if (why := CATALOGUE[e["name"]].sanity(e["params"], e["joint"])) is not None]

@@ -237,6 +237,8 @@ def _pieces_lines(pieces: dict | None) -> list[str]:
 
 
 def report_text(result: dict) -> str:
+    from calibration.generalisation import IDENTIFIED_CHOICE
+
     b = result["baseline"]
     lines = [f"rig discrepancy: verdict {result['verdict']}  ({result['data']['source']})",
              f"baseline: {result['baseline_kind']}",
@@ -275,11 +277,19 @@ def report_text(result: dict) -> str:
             lines.append(f"    joint {item['joint']}: closest catalogue effect {c['effect']}, not added: " + "; ".join(why))
     g = result.get("generalisation")
     if g:
-        lines.append(f"written model: the plain model + {', '.join(g['kept']) or 'no effect'}; effects judged on "
+        identified = g.get("choice") == IDENTIFIED_CHOICE
+        lines.append(f"written model: the plain model {'identified again with' if identified else '+'} "
+                     f"{', '.join(g['kept']) or 'no effect'}; effects judged on "
                      f"{g['method']}" + (f" ({g['note']})" if g.get("note") else ""))
         lines.append("    relative error per joint, plain -> written: "
                      + ", ".join(f"{a:.3f} -> {b:.3f}" for a, b in zip(g["relative_error"]["plain"],
                                                                        g["relative_error"]["written"])))
+        if identified:
+            iw = g["identified_with_effects"]
+            lines.append("    written: identified again with the effects' columns in the regressor: gravity "
+                         + ", ".join(f"{v:.3f}" for v in iw["gravity"]) + f" m/s^2, friction slope {iw['slope']:g}; "
+                         "it predicts the other motion better than the plain model on every joint and than the "
+                         "plain model with the effects fitted on top")
         if g.get("choice", "").startswith("the workflow"):
             lines.append(f"    written: {g['choice']}: it predicts the other motion better than the plain model on "
                          "every joint and than the plain model with the confirmed effects")

@@ -136,3 +136,49 @@ def test_the_workflows_own_model_is_written_only_if_the_other_motion_prefers_it(
     assert r.doc["choice"] == "plain model + confirmed effects" and r.model is None
     assert r.doc["refitted_rigid_body_relative_error"][0] > r.doc["relative_error"]["plain"][0]
     assert r.doc["kept"] == ["hysteresis@3"]
+
+
+def test_with_another_motion_the_plain_model_is_identified_again_with_a_confirmed_effect(tmp_path):
+    """A spring on the insertion joint tilts the plain model's gravity (every joint is
+    biased, not only joint 3); identified again with the spring's column the model predicts
+    a third trajectory at the plant's level, and it is written because the other motion
+    prefers it. On a null plant the same candidate is never written."""
+    from calibration.generalisation import IDENTIFIED_CHOICE
+
+    case = HiddenCase((("spring", 3),), 1)
+    train, _ = generate(case)
+    other, _ = generate(case, trajectory_seed=501)
+    test, _ = generate(case, trajectory_seed=901)
+    block = plain_training_block(train.q, train.dq, train.tau, train.rate, Settings().heldout)
+    plain = _plain_model(train, tmp_path)
+    spring = SimpleNamespace(effect="spring", joint=3, grid=None, free=np.array([True, False]), params={})
+    gate = EffectGate(plain, [spring], train.q, train.dq, train.tau, train.rate, Settings(),
+                      motions=[Motion(other.q, other.dq, other.tau, other.rate, "other")], training=block)
+    r = gate.run()
+    assert r.doc["choice"] == IDENTIFIED_CHOICE and r.doc["kept"] == ["spring@3"]
+    written = gate.written_model(r)
+    tilt = np.degrees(np.arccos(-written.gravity[2] / np.linalg.norm(written.gravity)))
+    assert tilt < 1.0
+    assert written.effects[0]["params"]["k"] == pytest.approx(draw_case_parameters(case)[0]["size"], rel=0.03)
+    p = predict(plain, test.q, test.dq, test.tau, test.rate).figures("all")["relative_error"]
+    w = predict(written, test.q, test.dq, test.tau, test.rate).figures("all")["relative_error"]
+    assert all(a < b for a, b in zip(w, p))
+    assert w[2] < 0.2 * p[2]
+    # the plain model + spring on top is kept in the result, passed over
+    assert r.doc["plain_with_confirmed_effects"]["kept"] == ["spring@3"]
+
+
+def test_on_a_null_plant_the_identified_candidate_is_not_written(tmp_path):
+    from calibration.generalisation import IDENTIFIED_CHOICE
+
+    train, _ = generate(HiddenCase((), 8))
+    other, _ = generate(HiddenCase((), 8), trajectory_seed=508)
+    block = plain_training_block(train.q, train.dq, train.tau, train.rate, Settings().heldout)
+    plain = _plain_model(train, tmp_path)
+    named = [_named("hysteresis", 2, 0.004), _named("spring", 1, None, k=2)]
+    named[1].free = np.array([True, False])
+    r = EffectGate(plain, named, train.q, train.dq, train.tau, train.rate, Settings(),
+                   motions=[Motion(other.q, other.dq, other.tau, other.rate, "other")], training=block).run()
+    assert r.doc["choice"] != IDENTIFIED_CHOICE and r.model is None
+    assert r.doc["identified_with_effects"] is not None   # it was tried
+    np.testing.assert_array_equal(r.standard[:70], plain.standard[:70])

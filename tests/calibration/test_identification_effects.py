@@ -1,0 +1,62 @@
+"""Catalogue effects identified with the rigid body (calibration.identification
+fit_identification(effects=...), issue 26): an effect the model lacks biases the whole fit,
+the gravity direction first; with its columns in the regressor the fit recovers the plant."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calibration.discrepancy import Settings
+from calibration.generalisation import plain_training_block
+from calibration.hidden_effects import HiddenCase, draw_case_parameters, generate
+from calibration.identification import DEADBAND, EffectTerm, fit_identification
+
+#: The simulated rig's gravity (rig.psm_dynamics default, PSM frame 0).
+DOWN = np.array([0.0, 0.0, -1.0])
+
+
+def _tilt_deg(g) -> float:
+    return float(np.degrees(np.arccos(np.clip(np.asarray(g) @ DOWN / np.linalg.norm(g), -1.0, 1.0))))
+
+
+@pytest.fixture(scope="module")
+def spring3():
+    case = HiddenCase((("spring", 3),), 1)
+    rec, _ = generate(case)
+    train = plain_training_block(rec.q, rec.dq, rec.tau, rec.rate, Settings().heldout)
+    return train, draw_case_parameters(case)[0]
+
+
+def test_an_unmodelled_spring_tilts_the_gravity_and_its_columns_restore_it(spring3):
+    train, truth = spring3
+    plain = fit_identification(train, "auto", "auto", deadband=DEADBAND)
+    # the spring's constant is the joint's offset Fo: only its stiffness column is fitted
+    term = EffectTerm("spring", 3, None, (True, False))
+    with_spring = fit_identification(train, "auto", "auto", deadband=DEADBAND, effects=[term])
+    assert _tilt_deg(plain.gravity) > 10.0
+    assert _tilt_deg(with_spring.gravity) < 1.0
+    (entry,) = with_spring.effect_entries("test")
+    assert entry["name"] == "spring" and entry["joint"] == 3
+    assert entry["params"]["k"] == pytest.approx(truth["size"], rel=0.03)
+    # the columns are in the fit's extra rows, after the Stribeck column
+    assert with_spring.fits["sdp"].extra.size == 2
+    assert with_spring.extra_rows(train).shape == (3 * train.n_samples, 2)
+
+
+def test_identifiable_effects_are_those_of_the_motion_alone():
+    assert EffectTerm.identifiable("spring") and EffectTerm.identifiable("hysteresis")
+    assert EffectTerm.identifiable("position_friction") and EffectTerm.identifiable("stiction")
+    # a lag or a play is built from the model's torque; an offset or a payload is the rigid body's own term
+    for effect in ("time_delay", "backlash", "torque_offset", "payload", "coulomb_asymmetry"):
+        assert not EffectTerm.identifiable(effect)
+
+
+def test_inseparable_columns_are_refused_by_name(spring3):
+    """The spring's constant beside the offset Fo: the fit names the dependent pair."""
+    from calibration.base_params import RankDeficientError
+
+    train, _ = spring3
+    with pytest.raises(RankDeficientError, match="joint3.spring.c0"):
+        fit_identification(train, "auto", 400.0, deadband=DEADBAND,
+                           effects=[EffectTerm("spring", 3, None, (True, True))])

@@ -378,9 +378,10 @@ class EffectGate:
         what it could of it everywhere: an unmodelled spring on the insertion joint tilted
         the chosen gravity by 26 degrees on the simulated rig and left joints 1-2 predicted 4-8
         times worse than without the spring; fitted together, every joint came back to its
-        floor. Effects whose columns need the model's torque (a delay, a play) are carried with
-        the parameters fitted on top of the plain model; those that are terms of the rigid
-        body (an offset, a payload) are taken up by it. A stiction effect on joint 3 replaces
+        floor. A delay's column is built from the plain model's torque; a play, which needs
+        the model's mass matrix too, is carried with the parameters fitted on top of the plain
+        model; effects that are terms of the rigid body (an offset, a payload) are taken up
+        by it. A stiction effect on joint 3 replaces
         the Stribeck column. Returns (model file in memory, the effects it carries, reasons of
         the effects whose amplitudes left the catalogue's range) or None when no effect of
         ``subset`` can be identified this way (or its columns and the rigid body's are not
@@ -391,8 +392,9 @@ class EffectGate:
         key = ("identified",) + self._key(subset)
         if key in self._cache:
             return self._cache[key]
-        terms = [EffectTerm(a.effect, a.joint, a.grid, tuple(bool(x) for x in a.free)) for a in subset
-                 if EffectTerm.identifiable(a.effect)]
+        torque = self._plain_torque()
+        terms = [EffectTerm(a.effect, a.joint, a.grid, tuple(bool(x) for x in a.free), torque) for a in subset
+                 if EffectTerm.identifiable(a.effect, with_model_torque=True)]
         out = None
         if terms:
             stribeck = not any(t.effect == "stiction" and t.joint - 1 == STRIBECK_JOINT for t in terms)
@@ -406,15 +408,27 @@ class EffectGate:
             entries = fit.effect_entries("identified with the rigid body (rig discrepancy)")
             implausible = [f"{e['name']}@{e['joint']}: {why}" for e in entries
                            if (why := CATALOGUE[e["name"]].sanity(e["params"], e["joint"])) is not None]
-            carried = [a for a in subset if CATALOGUE[a.effect].uses_model and not CATALOGUE[a.effect].in_rigid_body_model
-                       and a.effect != "payload"]
+            carried = [a for a in subset if not EffectTerm.identifiable(a.effect, with_model_torque=True)
+                       and not CATALOGUE[a.effect].in_rigid_body_model and a.effect != "payload"]
             on_top = self.fit(subset)["entries"]
             entries += [e for a, e in zip(subset, on_top) if any(a is c for c in carried)]
             sdp = fit.fits["sdp"]
             out = (_model_in_memory(self.plain, sdp.pi, fit.slope, fit.gravity, fit.stribeck(), entries),
-                   [a for a in subset if EffectTerm.identifiable(a.effect)] + carried, implausible)
+                   [a for a in subset if EffectTerm.identifiable(a.effect, with_model_torque=True)] + carried,
+                   implausible)
         self._cache[key] = out
         return out
+
+    def _plain_torque(self):
+        """``(q, dq, ddq) -> (n, 3)``: the plain model's rigid-body and friction effort (the
+        torque a delay column is built from)."""
+        dyn = self.plain.dynamics()
+        pi = np.asarray(self.plain.standard, float)
+
+        def torque(q, dq, ddq):
+            return (dyn.regressor_batch(q, dq, ddq) @ pi).reshape(-1, 3)
+
+        return torque
 
     def _identified_choice(self, kept, dropped, plain, written):
         """The best of the plain model identified again with ``kept``, and with ``kept`` and
@@ -425,7 +439,8 @@ class EffectGate:
         from calibration.identification import EffectTerm
 
         sets = [list(kept)]
-        extra = [a for a in dropped if EffectTerm.identifiable(a.effect) and not any(a is k for k in kept)]
+        extra = [a for a in dropped if EffectTerm.identifiable(a.effect, with_model_torque=True)
+                 and not any(a is k for k in kept)]
         if extra:
             sets.append(list(kept) + extra)
         best, tried = None, []
@@ -528,6 +543,9 @@ class EffectGate:
         written = self.errors(kept, refit)
         final = self.fit(kept, refit)
         standard, entries = final["standard"], final["entries"]
+        folded = self._folded(refit, not_confirmed, standard)
+        not_confirmed = [d for d in not_confirmed if not any((d["effect"], d["joint"]) == (f["effect"], f["joint"])
+                                                             for f in folded)]
         choice = "plain model + confirmed effects"
         whole, passed_over, chosen_model, identified_doc = None, None, None, None
         if self.training is not None and self.motions:
@@ -545,7 +563,7 @@ class EffectGate:
                 standard, entries = model.standard, model.effects
                 not_confirmed = [d for d in not_confirmed if not any(d["effect"] == a.effect and d["joint"] == a.joint
                                                                      for a in effects)]
-                kept, refit = list(effects), set()
+                kept, refit, folded = list(effects), set(), []
                 final = {"corrected": [], "kept_plain": []}
                 identified_doc.update({"gravity": model.gravity.tolist(), "slope": model.slope,
                                        "stribeck": None if model.stribeck is None else
@@ -566,7 +584,7 @@ class EffectGate:
                 written = whole
                 standard = self.refit.standard
                 entries = [e for e in self.refit.effects if e not in self.plain.effects]
-                kept, refit, not_confirmed, implausible = list(self.all), set(), [], []
+                kept, refit, not_confirmed, implausible, folded = list(self.all), set(), [], [], []
                 final = {"corrected": [], "kept_plain": []}
         doc = {"method": method, "confirm_gain": CONFIRM_GAIN, "confirm_absolute": CONFIRM_ABSOLUTE, "choice": choice,
                "refitted_rigid_body_relative_error": None if whole is None else whole.tolist(),
@@ -576,7 +594,8 @@ class EffectGate:
                           "backward elimination on " + ("the other motion" if self.motions else
                                                         "blocks in time (cross-validation)")],
                "relative_error": {"plain": plain.tolist(), "written": written.tolist()},
-               "kept": [f"{a.effect}@{a.joint}" for a in kept],
+               "kept": [f"{a.effect}@{a.joint}" for a in kept] + [f"{f['effect']}@{f['joint']}" for f in folded],
+               "folded_into_friction": folded,
                "friction_refitted_on_joints": final["corrected"],
                "friction_refitted_alone_on_joints": sorted(refit),
                "friction_kept_plain_on_joints": final["kept_plain"],
@@ -594,6 +613,25 @@ class EffectGate:
         workflow's figures take them (e.g. for `Discrepancy.heldout_rms`)."""
         q, dq, tau, breaks = self._arrays
         return EffectGate(model, [], q, dq, tau, self.rate, self.settings, breaks).w.fixed
+
+    def _folded(self, refit, not_confirmed, standard) -> list[dict]:
+        """Named effects that are terms of a joint's friction (a torque offset is Fo; a
+        Coulomb asymmetry dFc is Fo and Fc of dFc / 2 each), not confirmed as entries of their
+        own but confirmed as that joint's friction refitted alone (``refit``, 1-based): the
+        refit moved the joint's Fo by the named size within a factor of 2, same sign. They
+        are written, as those terms."""
+        out = []
+        for d in not_confirmed:
+            j = d["joint"]
+            if j not in refit or d["effect"] not in ("torque_offset", "coulomb_asymmetry"):
+                continue
+            a = next(o for o in self.all if (o.effect, o.joint) == (d["effect"], j))
+            named = a.params["offset"] if a.effect == "torque_offset" else 0.5 * a.params["dFc"]
+            moved = float(standard[70 + 4 * (j - 1) + 2] - self.pi[70 + 4 * (j - 1) + 2])
+            if named != 0.0 and 0.5 <= moved / named <= 2.0:
+                out.append({"effect": a.effect, "joint": j, "as": f"joint{j}.Fo", "named": float(named),
+                            "written": moved})
+        return out
 
     def written_model(self, result: GateResult):
         """The written model file (in memory) of a `run` result."""

@@ -113,30 +113,36 @@ DEADBAND = np.array([0.01, 0.01, 0.005])
 @dataclass(frozen=True)
 class EffectTerm:
     """A catalogue effect (`calibration.effects`) identified with the rigid body: its columns
-    at a fixed non-linear parameter ``grid`` (a period, a travel, a Stribeck velocity) join
-    the regressor, its linear amplitudes are fitted with the base parameters (signed in the
-    SDP; the catalogue's sanity check judges them after). ``free`` marks the columns fitted
-    (the others, e.g. a spring's constant beside the offset Fo, left out). Only effects whose
-    columns are functions of the motion alone (not of the model's torque) can be fitted
-    this way (see `identifiable`)."""
+    at a fixed non-linear parameter ``grid`` (a period, a travel, a Stribeck velocity, a
+    delay) join the regressor, its linear amplitudes are fitted with the base parameters
+    (signed in the SDP; the catalogue's sanity check judges them after). ``free`` marks the
+    columns fitted (the others, e.g. a spring's constant beside the offset Fo, left out).
+    An effect built from the model's torque (a delay) takes it from ``torque(q, dq, ddq) ->
+    (n, 3)``, a model fixed beforehand (the columns are then linear in the amplitude only:
+    the torque of a model fitted without the effect stands in for the refitted one's). See
+    `identifiable`."""
 
     effect: str
     joint: int          # 1-3
     grid: object
     free: tuple
+    torque: object = field(default=None, compare=False)
 
     @property
     def n_columns(self) -> int:
         return int(np.sum(self.free))
 
     @staticmethod
-    def identifiable(effect: str) -> bool:
-        """Whether ``effect``'s columns depend on the motion alone and are not terms of the
-        rigid-body and friction model already (a payload is an inertia, an offset is Fo)."""
+    def identifiable(effect: str, with_model_torque: bool = False) -> bool:
+        """Whether ``effect``'s columns depend on the motion alone (or, ``with_model_torque``,
+        on the motion and a fixed model's torque, not its mass matrix) and are not terms of
+        the rigid-body and friction model already (a payload is an inertia, an offset is Fo)."""
         from calibration.effects import CATALOGUE
 
         e = CATALOGUE[effect]
-        return not (e.uses_model or e.in_rigid_body_model or e.point_mass)
+        if e.in_rigid_body_model or e.point_mass or e.needs_dynamics:
+            return False
+        return with_model_torque or not e.uses_model
 
     def names(self) -> list[str]:
         from calibration.effects import CATALOGUE
@@ -144,17 +150,57 @@ class EffectTerm:
         return [f"joint{self.joint}.{self.effect}.{n}" for n, f in
                 zip(CATALOGUE[self.effect].linear_names_at(self.grid), self.free) if f]
 
-    def columns(self, q, dq, rate: float, slope: float) -> np.ndarray:
-        """(n*3, k) stacked sample-major columns on the motion (q, dq) (n, 3), in time order."""
+    def columns(self, q, dq, ddq, rate: float, slope: float) -> np.ndarray:
+        """(n*3, k) stacked sample-major columns on the motion (q, dq, ddq) (n, 3), in time order."""
         from calibration.effects import CATALOGUE, EffectContext
 
-        cols = CATALOGUE[self.effect].columns(EffectContext(q=q, dq=dq, rate=rate, slope=slope), self.joint,
-                                              self.grid)
+        eff = CATALOGUE[self.effect]
+        if eff.uses_model and self.torque is None:
+            raise ValueError(f"{self.effect}@{self.joint}: its columns need a model's torque (EffectTerm.torque)")
+        tau_model = self.torque(q, dq, ddq) if eff.uses_model else None
+        cols = eff.columns(EffectContext(q=q, dq=dq, rate=rate, slope=slope, tau_model=tau_model), self.joint,
+                           self.grid)
         return cols[:, :, np.asarray(self.free, bool)].reshape(-1, self.n_columns)
 
     def rows(self, slope: float, data, parallel: bool) -> np.ndarray:
         """The columns as equation rows of processed ``data`` (see :func:`equation_rows`)."""
-        return equation_rows(data, parallel)(lambda q, dq, ddq: self.columns(q, dq, data.rate, slope))
+        return equation_rows(data, parallel)(lambda q, dq, ddq: self.columns(q, dq, ddq, data.rate, slope))
+
+
+def effect_terms(entries, source: str) -> tuple[list[EffectTerm], list[str]]:
+    """Model-file ``effects`` entries (e.g. `rig discrepancy`'s model.json) as EffectTerms at
+    their non-linear parameters (``params[grid_name]``, with the option a pair), every column
+    free but those constant on the joint (the joint's offset Fo is in the model); and one line
+    per entry left out (built from a model's torque, or a term of the rigid body itself).
+    ``source`` names the file in errors (ValueError)."""
+    from calibration.effects import CATALOGUE
+
+    terms, left = [], []
+    rng = np.random.default_rng(0)
+    q = rng.uniform(-0.5, 0.5, (64, 3)) + np.array([0.0, 0.0, 0.6])
+    dq = rng.normal(0.0, 0.2, (64, 3))
+    for i, e in enumerate(entries):
+        eff, j, p = CATALOGUE[e["name"]], int(e["joint"]), e["params"]
+        label = f"{e['name']}@{j}"
+        if not EffectTerm.identifiable(eff.id):
+            left.append(f"{label}: " + ("a term of the rigid-body and friction model itself" if eff.in_rigid_body_model
+                                        or eff.point_mass else "built from the model's torque"))
+            continue
+        try:
+            g = None if eff.grid_name is None else float(p[eff.grid_name])
+            if eff.option_name is not None:
+                g = (g, int(p[eff.option_name]))
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"{source}: effects[{i}] ({label}) has no usable {eff.grid_name!r}"
+                             + (f" and {eff.option_name!r}" if eff.option_name else "")) from None
+        probe = EffectTerm(eff.id, j, g, (True,) * len(eff.linear_names_at(g)))
+        cols = probe.columns(q, dq, np.zeros_like(q), 200.0, 400.0).reshape(64, 3, -1)[:, j - 1, :]
+        free = tuple(bool(np.ptp(c) > 0) for c in cols.T)
+        if not any(free):
+            left.append(f"{label}: its columns are constant (the joint's offset Fo)")
+            continue
+        terms.append(EffectTerm(eff.id, j, g, free))
+    return terms, left
 
 
 class _WithEffects:
@@ -167,7 +213,7 @@ class _WithEffects:
 
     def regressor_batch(self, q, dq, ddq):
         W = self.model.regressor_batch(q, dq, ddq)
-        return np.hstack([W] + [e.columns(q, dq, self.rate, self.model.slope) for e in self.effects])
+        return np.hstack([W] + [e.columns(q, dq, ddq, self.rate, self.model.slope) for e in self.effects])
 
 
 def moving_mask(dq: np.ndarray, deadband=DEADBAND) -> np.ndarray:

@@ -134,6 +134,12 @@ PARAMETERS = [
               "f a Fourier series (the effect `rig discrepancy` names on the real arm): 'off'; 'auto' (period and "
               "harmonics chosen by cross-validation over blocks in time of the training data, kept only where they "
               "predict held-out blocks better); or 'P' / 'P,K' (period in m, K harmonics 1-4)", type=str),
+    Parameter("effects_from", "", "", "A model file whose effects are identified with the rigid body (e.g. the "
+              "model.json of `rig discrepancy`: the effects it confirmed on other motion): their columns, at the file's "
+              "non-linear parameters (a period, a travel, a Stribeck velocity, an exponent), join the regressor and "
+              "the gravity and slope search, and their amplitudes are fitted with the base parameters. Effects built "
+              "from a model's torque (a delay, a play) or that are terms of the rigid body (an offset, a payload) are "
+              "left out and named; '' (default): none", type=str),
     Parameter("fit_deadband", True, "", "Leave joint samples slower than the 7.5.1 velocity deadband (0.01 rad/s, "
               "0.01 rad/s, 0.005 m/s) out of the fit: a stuck joint's effort is not a function of the motion",
               type=bool),
@@ -172,6 +178,31 @@ def parse_slope(text: str) -> str | float:
 
 
 # ----------------------------------------------------------------------------- option parsing
+def effects_from(parameters: dict) -> tuple[list, list[str]]:
+    """The EffectTerms of --effects-from (none without it) and the lines of the effects left out."""
+    path = str(parameters.get("effects_from") or "").strip()
+    if not path:
+        return [], []
+    from calibration.identification import effect_terms
+    from rig.model_file import ModelFileError, load_model
+
+    try:
+        entries = load_model(path).effects
+    except ModelFileError as exc:
+        raise click.BadParameter(str(exc), param_hint="--effects-from") from None
+    if not entries:
+        raise click.BadParameter(f"{path}: the model file has no effects to identify", param_hint="--effects-from")
+    try:
+        terms, left = effect_terms(entries, path)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--effects-from") from None
+    if parse_position_friction(parameters["position_friction"]) is not None and \
+            any(t.effect == "position_friction" and t.joint == 3 for t in terms):
+        raise click.BadParameter(f"{path} has a joint-3 position friction and --position-friction is "
+                                 f"{parameters['position_friction']!r}: use one of them", param_hint="--effects-from")
+    return terms, left
+
+
 def parse_position_friction(text: str):
     """'off' -> None, 'auto' -> 'auto', 'P' or 'P,K' -> (P m, K)."""
     t = str(text).strip().lower()
@@ -535,11 +566,14 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
                       "training_relative_error": {m: train_table[m]["relative_error"] for m in train_table}}
     checks = {m: f.checks for m, f in outcome.fits.items() if m in ("ols", "wls", "sdp")}
     profile = outcome.position_friction_effect()
+    identified = outcome.effect_entries(f"identified with the rigid body (rig identify --effects-from "
+                                        f"{parameters.get('effects_from')})")
     effects_doc = None
-    if profile is not None:
+    if profile is not None or identified:
         from calibration.effects import describe
 
-        effects_doc = {"effects": [profile], "effects_catalogue": describe()["version"]}
+        effects_doc = {"effects": ([profile] if profile is not None else []) + identified,
+                       "effects_catalogue": describe()["version"]}
     path = model_file.save_model(
         run.dir / model_file.MODEL_FILENAME, standard=sdp.pi, names=list(outcome.model.param_names()),
         slope=outcome.slope, gravity=outcome.gravity, base_values=sdp.beta, stribeck=outcome.stribeck(),
@@ -580,6 +614,8 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
     }
     if profile is not None:
         result["position_friction"] = profile
+    if identified:
+        result["effects_identified"] = identified
     if source == "csv":
         result["published_7dof"] = {"sdp": list(PUBLISHED_7DOF),
                                     "note": "WPI package, 7-DOF model, a different unseen test trajectory of the "
@@ -627,6 +663,7 @@ def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
     from calibration.signals import settling_samples
 
     gmode = parse_gravity(parameters["gravity"] or "auto")
+    terms, left_out = effects_from(parameters)
     if isinstance(gmode, str) and gmode == "config":
         # Recorded data belong to no configured arm: 'config' means the model's own frame-0
         # gravity (z0 up), as for an untilted PSM.
@@ -663,7 +700,8 @@ def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
             outcome = fit_identification(train, gmode, smode, progress=say,
                                          deadband=DEADBAND if parameters["fit_deadband"] else None,
                                          parallel=parameters["parallel_filter"], stribeck=parameters["stribeck"],
-                                         position_friction=parse_position_friction(parameters["position_friction"]))
+                                         position_friction=parse_position_friction(parameters["position_friction"]),
+                                         effects=terms)
         with run.step(STEPS_CSV[3]):
             result = _finish_fit(run, outcome, train, val, val_source, "csv", str(parameters["csv"]), parameters,
                                  None, np.array([0.0, 0.0, -9.81]), provenance.recording(parameters["csv"]))
@@ -682,6 +720,7 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
         raise click.ClickException(f"no arm {arm_name!r} in {cfg.source}; arms: {', '.join(cfg.arms)}")
     g_config = cfg.gravity_in_base(arm_name)
     gmode = parse_gravity(parameters["gravity"] or "config")
+    terms, left_out = effects_from(parameters)
     if isinstance(gmode, str) and gmode == "config":
         gmode = g_config
     smode = parse_slope(parameters["friction_slope"])
@@ -728,7 +767,8 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
                 outcome = fit_identification(train, gmode, smode, configured_gravity=g_config, progress=say,
                                              deadband=DEADBAND if parameters["fit_deadband"] else None,
                                              parallel=parameters["parallel_filter"], stribeck=parameters["stribeck"],
-                                             position_friction=parse_position_friction(parameters["position_friction"]))
+                                             position_friction=parse_position_friction(parameters["position_friction"]),
+                                             effects=terms)
             with run.step(STEPS_LIVE[6]):
                 extra = {"arm": arm_name, "excitation": {"cached": exc["cached"], "cache_file": exc["path"],
                                                          "trajectory": traj.to_dict(), **{k: v for k, v in exc["figures"].items() if k != "starts"}},

@@ -50,6 +50,12 @@ def test_identifiable_effects_are_those_of_the_motion_alone():
     # a lag or a play is built from the model's torque; an offset or a payload is the rigid body's own term
     for effect in ("time_delay", "backlash", "torque_offset", "payload", "coulomb_asymmetry"):
         assert not EffectTerm.identifiable(effect)
+    # with a fixed model's torque a delay's column can be built; a play needs the mass matrix too
+    assert EffectTerm.identifiable("time_delay", with_model_torque=True)
+    assert not EffectTerm.identifiable("backlash", with_model_torque=True)
+    with pytest.raises(ValueError, match="time_delay@3: its columns need a model's torque"):
+        EffectTerm("time_delay", 3, 0.02, (True,)).columns(np.zeros((10, 3)), np.zeros((10, 3)), np.zeros((10, 3)),
+                                                           200.0, 400.0)
 
 
 def test_inseparable_columns_are_refused_by_name(spring3):

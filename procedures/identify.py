@@ -514,6 +514,11 @@ def report_text(result: dict) -> str:
         lines.append(f"joint 3 Stribeck excess of the smooth-sign law: Fst {st['Fst'][2]:.3f} N, vs "
                      f"{st['vs'][2] * 1e3:g} mm/s (it includes the sigmoid's shortfall below 1 at low speed; the "
                      "dry-friction breakaway level is what rig friction-ramp measures)")
+    for e in result.get("effects_identified") or []:
+        lines.append(f"effect {e['name']}@{e['joint']} identified with the rigid body: "
+                     + ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items() if isinstance(v, (int, float))))
+    for line in result.get("effects_left_out") or []:
+        lines.append(f"--effects-from: {line}: left out")
     t = result.get("table_5_1")
     if t:
         oc = t.get("optimisation_condition")
@@ -704,7 +709,8 @@ def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
                                          effects=terms)
         with run.step(STEPS_CSV[3]):
             result = _finish_fit(run, outcome, train, val, val_source, "csv", str(parameters["csv"]), parameters,
-                                 None, np.array([0.0, 0.0, -9.81]), provenance.recording(parameters["csv"]))
+                                 None, np.array([0.0, 0.0, -9.81]), provenance.recording(parameters["csv"]),
+                                 extra={"effects_left_out": left_out} if left_out else None)
             run.finish(result, *missed_purpose(result))
     return run.result
 
@@ -770,7 +776,7 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
                                              position_friction=parse_position_friction(parameters["position_friction"]),
                                              effects=terms)
             with run.step(STEPS_LIVE[6]):
-                extra = {"arm": arm_name, "excitation": {"cached": exc["cached"], "cache_file": exc["path"],
+                extra = {**({"effects_left_out": left_out} if left_out else {}), "arm": arm_name, "excitation": {"cached": exc["cached"], "cache_file": exc["path"],
                                                          "trajectory": traj.to_dict(), **{k: v for k, v in exc["figures"].items() if k != "starts"}},
                          "validation_trajectory": vtraj.to_dict(), "rig_rate": clock.rate,
                          "ticks_without_sample": {"excitation": rec_x["ticks_without_sample"],

@@ -259,3 +259,59 @@ def test_position_friction_of_joint_3_is_identified_where_it_is_and_left_out_whe
     assert "position_friction" not in out["plain", "auto"]
     assert not load_model(out["plain", "auto"]["model"]).effects
     assert j3["plain", "auto"] == pytest.approx(j3["plain", "off"], rel=1e-6)
+
+
+def test_effects_from_a_model_file_are_identified_with_the_rigid_body(tmp_path):
+    """`--effects-from M`: M's spring on the insertion joint is fitted with the rigid body at
+    its stated law. On a plant with that spring the plain fit tilts the gravity (the spring
+    looks like one) and the spring's fit restores it, its stiffness the plant's within 3 %;
+    an offset in M is left out and named (Fo is the model's own term)."""
+    from calibration.hidden_effects import HiddenCase, draw_case_parameters, generate
+    from calibration.identification import make_model
+    from rig.model_file import load_model, save_model
+
+    case = HiddenCase((("spring", 3),), 1)
+    rec, _ = generate(case)
+    data = _write(tmp_path / "spring.csv", np.hstack([rec.q, rec.dq, rec.tau]))
+    model = make_model([0.0, 0.0, -9.81], 400.0)
+    source = save_model(tmp_path / "effects.json", standard=np.zeros(82), names=list(model.param_names()),
+                        slope=400.0, gravity=[0.0, 0.0, -9.81],
+                        extra={"effects": [{"name": "spring", "joint": 3, "params": {"k": 1.0, "q0": 0.1}},
+                                           {"name": "torque_offset", "joint": 2, "params": {"offset": 0.1}}]})
+    out = {}
+    for label, extra in (("plain", []), ("spring", ["--effects-from", str(source)])):
+        code, stdout, err = rig_cli("identify", "--csv", str(data), *extra, "--no-plots", "--json", cwd=tmp_path)
+        assert code == 0, err
+        out[label] = json.loads(stdout.strip().splitlines()[-1])
+
+    def tilt(r):
+        g = np.asarray(r["gravity"]["vector"])
+        return float(np.degrees(np.arccos(-g[2] / np.linalg.norm(g))))
+
+    assert tilt(out["plain"]) > 10.0 and tilt(out["spring"]) < 1.0
+    (spring,) = out["spring"]["effects_identified"]
+    assert spring["name"] == "spring" and spring["params"]["k"] == pytest.approx(
+        draw_case_parameters(case)[0]["size"], rel=0.03)
+    assert out["spring"]["effects_left_out"] == ["torque_offset@2: a term of the rigid-body and friction model itself"]
+    assert load_model(out["spring"]["model"]).effects[0]["name"] == "spring"
+    assert all(a < b for a, b in zip(out["spring"]["validation"]["sdp"], out["plain"]["validation"]["sdp"]))
+
+
+def test_effects_from_bad_files_are_one_line(tmp_path):
+    from calibration.identification import make_model
+    from rig.model_file import save_model
+
+    rows = _synthetic_rows(n=1500, seed=3)
+    data = _write(tmp_path / "d.csv", rows)
+    names = list(make_model([0.0, 0.0, -9.81], 400.0).param_names())
+    bare = save_model(tmp_path / "bare.json", standard=np.zeros(82), names=names, slope=400.0, gravity=[0, 0, -9.81])
+    pf = save_model(tmp_path / "pf.json", standard=np.zeros(82), names=names, slope=400.0, gravity=[0, 0, -9.81],
+                    extra={"effects": [{"name": "position_friction", "joint": 3,
+                                        "params": {"period": 0.05, "harmonics": 1, "a_sin": [0.1], "a_cos": [0.0]}}]})
+    cases = [(["--effects-from", str(tmp_path / "missing.json")], "no such model file"),
+             (["--effects-from", str(bare)], "the model file has no effects to identify"),
+             (["--effects-from", str(pf), "--position-friction", "auto"], "use one of them")]
+    for extra, message in cases:
+        code, stdout, err = rig_cli("identify", "--csv", str(data), *extra, "--no-plots", cwd=tmp_path)
+        assert code != 0 and message in err + stdout, (extra, err, stdout)
+        assert "Traceback" not in err + stdout

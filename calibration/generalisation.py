@@ -616,21 +616,33 @@ class EffectGate:
 
     def _folded(self, refit, not_confirmed, standard) -> list[dict]:
         """Named effects that are terms of a joint's friction (a torque offset is Fo; a
-        Coulomb asymmetry dFc is Fo and Fc of dFc / 2 each), not confirmed as entries of their
-        own but confirmed as that joint's friction refitted alone (``refit``, 1-based): the
-        refit moved the joint's Fo by the named size within a factor of 2, same sign. They
-        are written, as those terms."""
+        Coulomb asymmetry dFc is Fo and Fc of dFc / 2 each; a spring's constant part -k q0 is
+        an offset), not confirmed as entries of their own but confirmed as that joint's
+        friction refitted alone (``refit``, 1-based): the refit moved the joint's Fo by the
+        named size within a factor of 2, same sign. They are written, as those terms (a
+        spring's stiffness stays "not confirmed")."""
         out = []
         for d in not_confirmed:
             j = d["joint"]
-            if j not in refit or d["effect"] not in ("torque_offset", "coulomb_asymmetry"):
+            if j not in refit or d["effect"] not in ("torque_offset", "coulomb_asymmetry", "spring"):
                 continue
             a = next(o for o in self.all if (o.effect, o.joint) == (d["effect"], j))
-            named = a.params["offset"] if a.effect == "torque_offset" else 0.5 * a.params["dFc"]
+            effect, note = a.effect, None
+            if a.effect == "torque_offset":
+                named = a.params["offset"]
+            elif a.effect == "coulomb_asymmetry":
+                named = 0.5 * a.params["dFc"]
+            else:
+                # A spring k (q - q0) is k q plus the constant -k q0: its stiffness not
+                # confirmed, that constant alone is the catalogue's torque offset.
+                if a.params.get("q0") is None or any(o.effect == "torque_offset" and o.joint == j for o in self.all):
+                    continue
+                named, effect = -a.params["k"] * a.params["q0"], "torque_offset"
+                note = f"the constant part -k q0 of spring@{j} (its stiffness {a.params['k']:.4g} not confirmed)"
             moved = float(standard[70 + 4 * (j - 1) + 2] - self.pi[70 + 4 * (j - 1) + 2])
             if named != 0.0 and 0.5 <= moved / named <= 2.0:
-                out.append({"effect": a.effect, "joint": j, "as": f"joint{j}.Fo", "named": float(named),
-                            "written": moved})
+                out.append({"effect": effect, "joint": j, "as": f"joint{j}.Fo", "named": float(named),
+                            "written": moved, "from": note})
         return out
 
     def written_model(self, result: GateResult):

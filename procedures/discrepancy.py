@@ -302,8 +302,8 @@ def report_text(result: dict) -> str:
                          "(Fc, Fv, Fo, Ia; Stribeck excess on joint 3): confirmed on the other motion without an effect")
         for f in g.get("folded_into_friction") or []:
             lines.append(f"    {f['effect']}@{f['joint']}: written as joint {f['joint']}'s friction refitted alone: "
-                         f"Fo moved by {f['written']:+.4g} (the effect named {f['named']:+.4g}); confirmed on the "
-                         "other motion as that term")
+                         f"Fo moved by {f['written']:+.4g} (the effect named {f['named']:+.4g}"
+                         + (f", {f['from']}" if f.get("from") else "") + "); confirmed on the other motion as that term")
         for d in g["not_confirmed"]:
             gain = d.get("gain_on_new_motion")
             lines.append(f"    {d['effect']}@{d['joint']}: {d['why']}"

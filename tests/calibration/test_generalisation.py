@@ -182,3 +182,29 @@ def test_on_a_null_plant_the_identified_candidate_is_not_written(tmp_path):
     assert r.doc["choice"] != IDENTIFIED_CHOICE and r.model is None
     assert r.doc["identified_with_effects"] is not None   # it was tried
     np.testing.assert_array_equal(r.standard[:70], plain.standard[:70])
+
+
+def test_an_offset_confirmed_as_its_joints_refitted_Fo_is_written_as_that_term(hysteresis_case):
+    """A torque offset (or a spring's constant part -k q0) not confirmed as an entry but as
+    its joint's friction refitted alone is written as that joint's Fo, when the refit moved
+    Fo by the named size within a factor of 2; otherwise it stays not confirmed."""
+    c = hysteresis_case
+    offset = _named("torque_offset", 3, None, {"offset": 0.4})
+    spring = _named("spring", 2, None, {"k": 0.5, "q0": -0.6}, k=2)
+    gate = EffectGate(c.plain, [offset, spring], c.train.q, c.train.dq, c.train.tau, c.train.rate, Settings())
+    gate.all[0].params, gate.all[1].params = {"offset": 0.4}, {"k": 0.5, "q0": -0.6}
+    not_confirmed = [{"effect": "torque_offset", "joint": 3, "why": NOT_CONFIRMED},
+                     {"effect": "spring", "joint": 2, "why": NOT_CONFIRMED}]
+    standard = gate.pi.copy()
+    standard[70 + 4 * 2 + 2] += 0.36     # joint 3's Fo moved by 0.36 N (0.4 named)
+    standard[70 + 4 * 1 + 2] += 0.25     # joint 2's Fo moved by 0.25 N m (the spring's constant: 0.3)
+    folded = gate._folded({2, 3}, not_confirmed, standard)
+    assert [(f["effect"], f["joint"]) for f in folded] == [("torque_offset", 3), ("torque_offset", 2)]
+    assert folded[0]["written"] == pytest.approx(0.36) and folded[1]["named"] == pytest.approx(0.3)
+    assert "spring@2" in folded[1]["from"]
+    # not refitted, or moved the other way, or 3 times the named size: not written
+    assert gate._folded({2}, not_confirmed[:1], standard) == []
+    standard[70 + 4 * 2 + 2] = gate.pi[70 + 4 * 2 + 2] - 0.36
+    assert gate._folded({3}, not_confirmed[:1], standard) == []
+    standard[70 + 4 * 2 + 2] = gate.pi[70 + 4 * 2 + 2] + 1.2
+    assert gate._folded({3}, not_confirmed[:1], standard) == []

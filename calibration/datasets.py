@@ -58,6 +58,22 @@ class FilterContext:
     cutoff: float
     order: int
     start: int
+    #: The measured (unfiltered) q and dq (N, nj) the filtered motion came from, for the
+    #: functions a model evaluates on raw samples (a hysteresis state runs on them).
+    raw_q: np.ndarray | None = None
+    raw_dq: np.ndarray | None = None
+
+    def rows_raw(self, fn, n: int) -> np.ndarray:
+        """As `rows`, with ``fn(q, dq, ddq)`` of the measured q and dq (and the filtered
+        ddq): what a model computes on raw samples, low-passed like the torques. Without the
+        raw motion, `rows`."""
+        if self.raw_q is None:
+            return self.rows(fn, n)
+        from calibration.signals import lowpass_stacked
+
+        nj = self.q.shape[1]
+        X = lowpass_stacked(fn(self.raw_q, self.raw_dq, self.ddq), nj, self.rate, self.cutoff, self.order)
+        return X[nj * self.start:nj * (self.start + n)]
 
     def rows(self, fn, n: int) -> np.ndarray:
         """``fn(q, dq, ddq) -> (N * nj, p)`` stacked sample-major on the untrimmed motion,
@@ -318,7 +334,8 @@ def processed(data: JointData, cutoff: float = 3.5, order: int = 8, trim: int | 
 
     p = process(data.q, data.dq, data.tau, data.rate, cutoff, order, trim, diff_method, keep_full=True)
     k = p.kept
-    ctx = FilterContext(p.full[0], p.full[1], p.full[2], data.rate, cutoff, order, k.start)
+    ctx = FilterContext(p.full[0], p.full[1], p.full[2], data.rate, cutoff, order, k.start,
+                        np.asarray(data.q, float), np.asarray(data.dq, float))
     return replace(data, t=data.t[k], q=p.q, dq=p.dq, tau=p.tau, ddq=p.ddq, context=ctx,
                    source=f"{data.source} [filtered {order}th-order {cutoff} Hz, rows "
                           f"{k.start + 1}-{k.stop}]")
@@ -334,6 +351,10 @@ class PiecesContext:
 
     def rows(self, fn, n: int) -> np.ndarray:
         out = np.vstack([ctx.rows(fn, k) for ctx, k in self.pieces])
+        return out[:n * self.pieces[0][0].q.shape[1]]
+
+    def rows_raw(self, fn, n: int) -> np.ndarray:
+        out = np.vstack([ctx.rows_raw(fn, k) for ctx, k in self.pieces])
         return out[:n * self.pieces[0][0].q.shape[1]]
 
 

@@ -108,9 +108,12 @@ class GravitySlopeSearch:
         ``rows(fn) -> (n * nj, p)``: how a function of the motion ``fn(q, dq, ddq)`` (stacked
         sample-major) becomes equation rows, e.g. ``JointData.context.rows`` for parallel
         filtering; by default ``fn`` of the given q, dq, ddq.
+    extra : (n * nj, e), optional
+        Further equation columns independent of gravity and of the slope (e.g. catalogue
+        effects identified with the rigid body), fitted beside the model's.
     """
 
-    def __init__(self, make_model: Callable, q, dq, ddq, tau, n_inertial: int, mask=None, rows=None):
+    def __init__(self, make_model: Callable, q, dq, ddq, tau, n_inertial: int, mask=None, rows=None, extra=None):
         self.q, self.dq, self.ddq = (np.asarray(x, float) for x in (q, dq, ddq))
         self._rows = rows if rows is not None else (lambda fn: fn(self.q, self.dq, self.ddq))
         self.tau = np.asarray(tau, float)
@@ -121,6 +124,9 @@ class GravitySlopeSearch:
         self.n_inertial = int(n_inertial)
         # Motion without gravity; the Coulomb columns are replaced per slope below.
         W0 = self._rows(make_model(np.zeros(3), 400.0).regressor_batch)
+        n_model = W0.shape[1]
+        if extra is not None:
+            W0 = np.hstack([W0, np.asarray(extra, float)])
         self.P = W0.shape[1]
         blocks = [W0]
         for k in range(3):
@@ -129,7 +135,7 @@ class GravitySlopeSearch:
             model_k = make_model(g, 400.0)
             Wk = self._rows(lambda q, dq, ddq: model_k.regressor_batch(q, np.zeros_like(dq), np.zeros_like(ddq)))
             Wk[:, self.n_inertial:] = 0.0  # the offset column (1) belongs to W0 only
-            blocks.append(Wk)
+            blocks.append(np.hstack([Wk, np.zeros((Wk.shape[0], self.P - n_model))]))
         if self.mask is not None:
             rows = self.mask.reshape(-1)
             blocks = [B * rows[:, None] for B in blocks]

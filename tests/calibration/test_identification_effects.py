@@ -66,3 +66,19 @@ def test_inseparable_columns_are_refused_by_name(spring3):
     with pytest.raises(RankDeficientError, match="joint3.spring.c0"):
         fit_identification(train, "auto", 400.0, deadband=DEADBAND,
                            effects=[EffectTerm("spring", 3, None, (True, True))])
+
+
+def test_an_effect_the_joints_friction_reproduces_is_found_inseparable(spring3):
+    """A Dahl hysteresis of 0.2 mm travel on the insertion joint is, in the identification's
+    3.5 Hz band, a Coulomb step: its column is reproduced by joint 3's friction columns
+    (R^2 0.98 on this motion). A spring's stiffness column is not, nor a joint-1 Dahl
+    state of 2 mrad travel."""
+    from calibration.identification import SEPARABLE_R2, inseparable_effects
+
+    rec, _ = generate(HiddenCase((("hysteresis", 3),), 1))
+    train = plain_training_block(rec.q, rec.dq, rec.tau, rec.rate, Settings().heldout)
+    dahl = EffectTerm("hysteresis", 3, 0.0002, (True,))
+    others = [EffectTerm("spring", 3, None, (True, False)), EffectTerm("hysteresis", 1, 0.002, (True,))]
+    found = inseparable_effects(train, [dahl] + others)
+    assert [t for t, _ in found] == [dahl]
+    assert found[0][1] >= SEPARABLE_R2

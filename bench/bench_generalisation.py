@@ -192,18 +192,23 @@ def _fit_pipeline(q, dq, tau, rate: float, breaks, tmp: Path, name: str):
 
 def _identified_with_effects(written, q, dq, tau, rate: float, breaks, tmp: Path, name: str):
     """`rig identify --effects-from WRITTEN` on the same training block: the written model's
-    effects identified with the rigid body (None without an effect that can be)."""
+    effects identified with the rigid body, those the joint's friction reproduces or the fit
+    leaves implausible left out, as the command does (None without an effect that can be)."""
     from dataclasses import replace
 
     from calibration.discrepancy import Settings
     from calibration.generalisation import plain_training_block
-    from calibration.identification import DEADBAND, effect_terms, fit_identification
+    from calibration.identification import (DEADBAND, effect_terms, fit_identification, fit_plausible_effects,
+                                            inseparable_effects)
 
     terms, _ = effect_terms(written.effects, name)
+    train = plain_training_block(q, dq, tau, rate, Settings().heldout, breaks, name)
+    bad = inseparable_effects(train, terms)
+    terms = [t for t in terms if all(t is not b for b, _ in bad)]
     if not terms:
         return None
-    train = plain_training_block(q, dq, tau, rate, Settings().heldout, breaks, name)
-    out = fit_identification(train, "auto", "auto", deadband=DEADBAND, parallel=True, stribeck=True, effects=terms)
+    out, _ = fit_plausible_effects(lambda ts: fit_identification(train, "auto", "auto", deadband=DEADBAND, parallel=True,
+                                                                 stribeck=True, effects=ts), terms)
     sdp = out.fits["sdp"]
     m = _model_file(tmp, f"{name}-identified.json", sdp.pi, list(out.model.param_names()), out.slope, out.gravity,
                     out.stribeck())

@@ -381,8 +381,7 @@ class EffectGate:
         floor. A delay's column is built from the plain model's torque; a play, which needs
         the model's mass matrix too, is carried with the parameters fitted on top of the plain
         model; effects that are terms of the rigid body (an offset, a payload) are taken up
-        by it. A stiction effect on joint 3 replaces
-        the Stribeck column. Returns (model file in memory, the effects it carries, reasons of
+        by it. A stiction effect on joint 3 replaces the Stribeck column. Returns (model file in memory, the effects it carries, reasons of
         the effects whose amplitudes left the catalogue's range) or None when no effect of
         ``subset`` can be identified this way (or its columns and the rigid body's are not
         separable on the training motion). Cached."""
@@ -579,7 +578,8 @@ class EffectGate:
                 passed_over = {"relative_error": written.tolist(), "kept": [f"{a.effect}@{a.joint}" for a in kept],
                                "friction_refitted_alone_on_joints": sorted(refit),
                                "not_confirmed": not_confirmed, "implausible": implausible,
-                               "choice": choice if chosen_model is None else IDENTIFIED_CHOICE}
+                               "choice": "plain model + confirmed effects" if chosen_model is None
+                               else IDENTIFIED_CHOICE}
                 chosen_model = None
                 written = whole
                 standard = self.refit.standard

@@ -190,6 +190,8 @@ def inseparable_effects(train, terms, parallel: bool = True, deadband=DEADBAND) 
     """The effects of ``terms`` (EffectTerm) whose columns the friction columns of their joint
     reproduce to SEPARABLE_R2 or more on the moving training rows of processed ``train``:
     [(term, R^2)]."""
+    if not terms:
+        return []
     model = make_model(np.array([0.0, 0.0, -9.81]), 400.0)
     W = equation_rows(train, parallel)(model.regressor_batch)
     stribeck = stribeck_rows(model, train, STRIBECK_VELOCITIES[len(STRIBECK_VELOCITIES) // 2], parallel)

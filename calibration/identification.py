@@ -164,10 +164,9 @@ class EffectTerm:
 
     def rows(self, slope: float, data, parallel: bool) -> np.ndarray:
         """The columns as equation rows of processed ``data``: with ``parallel``, computed on
-        the measured q and dq, as a prediction computes the effect (a hysteresis state on the
-        filtered motion is another function: fitted on it, a joint-3 Dahl level predicted the
-        real arm's held-out block at 0.17 instead of 0.06), and low-passed like the torques;
-        otherwise of the filtered motion (see :func:`equation_rows`)."""
+        the measured q and dq, as a prediction and the controller's feedforward compute the
+        effect (a hysteresis state runs on the raw samples there), and low-passed like the
+        torques; otherwise of the filtered motion (see :func:`equation_rows`)."""
         fn = lambda q, dq, ddq: self.columns(q, dq, ddq, data.rate, slope)   # noqa: E731
         if parallel and data.context is not None:
             return data.context.rows_raw(fn, data.n_samples)

@@ -198,17 +198,16 @@ def _identified_with_effects(written, q, dq, tau, rate: float, breaks, tmp: Path
 
     from calibration.discrepancy import Settings
     from calibration.generalisation import plain_training_block
-    from calibration.identification import (DEADBAND, effect_terms, fit_identification, fit_plausible_effects,
-                                            inseparable_effects)
+    from calibration.identification import DEADBAND, effect_terms, fit_identification, fit_with_effects
 
     terms, _ = effect_terms(written.effects, name)
-    train = plain_training_block(q, dq, tau, rate, Settings().heldout, breaks, name)
-    bad = inseparable_effects(train, terms)
-    terms = [t for t in terms if all(t is not b for b, _ in bad)]
     if not terms:
         return None
-    out, _ = fit_plausible_effects(lambda ts: fit_identification(train, "auto", "auto", deadband=DEADBAND, parallel=True,
-                                                                 stribeck=True, effects=ts), terms)
+    train = plain_training_block(q, dq, tau, rate, Settings().heldout, breaks, name)
+    out, _ = fit_with_effects(train, terms, lambda ts: fit_identification(
+        train, "auto", "auto", deadband=DEADBAND, parallel=True, stribeck=True, effects=ts))
+    if not out.effects:
+        return None
     sdp = out.fits["sdp"]
     m = _model_file(tmp, f"{name}-identified.json", sdp.pi, list(out.model.param_names()), out.slope, out.gravity,
                     out.stribeck())

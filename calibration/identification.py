@@ -232,6 +232,19 @@ def fit_plausible_effects(fit, terms) -> tuple[FitOutcome, list[str]]:
         terms = [t for t in terms if all(t is not b for b, _ in bad)]
 
 
+def fit_with_effects(train, terms, fit, parallel: bool = True) -> tuple[FitOutcome, list[str]]:
+    """``fit(terms) -> FitOutcome`` (fit_identification with those effects) on processed
+    ``train``, with the effects the joint's own friction reproduces left out beforehand
+    (`inseparable_effects`) and those the fit leaves implausible after (`fit_plausible_effects`):
+    the outcome and a line per effect left out."""
+    bad = inseparable_effects(train, terms, parallel)
+    left = [f"{t.effect}@{t.joint}: not separable from joint {t.joint}'s friction in the identification's band "
+            f"(its column is R^2 {r2:.3f} >= {SEPARABLE_R2} of Fc, Fv, Fo, Ia" + (", Stribeck" if t.joint == 3 else "")
+            + ")" for t, r2 in bad]
+    outcome, implausible = fit_plausible_effects(fit, [t for t in terms if all(t is not b for b, _ in bad)])
+    return outcome, left + implausible
+
+
 def effect_terms(entries, source: str) -> tuple[list[EffectTerm], list[str]]:
     """Model-file ``effects`` entries (e.g. `rig discrepancy`'s model.json) as EffectTerms at
     their non-linear parameters (``params[grid_name]``, with the option a pair), every column

@@ -92,7 +92,7 @@ def _require_motion(train, source: str, purpose: str) -> None:
             "with --model (its gravity is used)")
 
 
-def identify_plain(q, dq, tau, rate: float, settings, source: str = "the data", breaks=()):
+def identify_plain(q, dq, tau, rate: float, settings, source: str = "the data", breaks=(), train=None):
     """The plain model: `rig identify --csv`'s fit at its defaults on the training block
     (`calibration.generalisation.plain_fit`), a FitOutcome. Its gravity direction: the
     sphere scanned by least squares on the moving samples
@@ -100,13 +100,15 @@ def identify_plain(q, dq, tau, rate: float, settings, source: str = "the data", 
     hemisphere fitted by the physically consistent SDP, the better fit deciding the sign (a
     mirrored direction fits the data almost as well by least squares alone). With ``breaks``
     (continuous pieces put end to end), each piece is filtered on its own and the training
-    block is the first share of the pieces' processed samples, as of one record's."""
+    block is the first share of the pieces' processed samples, as of one record's. ``train``:
+    that block, when the caller has it already (`calibration.generalisation.plain_training_block`)."""
     from calibration.base_params import RankDeficientError
     from calibration.discrepancy import DiscrepancyError
     from calibration.generalisation import plain_fit, plain_training_block
 
-    train = plain_training_block(q, dq, tau, rate, settings.heldout, breaks,
-                                 source if len(breaks) else "the training block")
+    if train is None:
+        train = plain_training_block(q, dq, tau, rate, settings.heldout, breaks,
+                                     source if len(breaks) else "the training block")
     _require_motion(train, source, "identify the plain model and estimate the gravity direction")
     try:
         return plain_fit(train)
@@ -390,7 +392,10 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
                 given_extra = lambda p: extra_effort(plain, p)   # noqa: E731  the model whole
                 kind = f"given model {plain.path} (whole: Stribeck excess and effects included)"
             else:
-                outcome = identify_plain(q, dq, tau, rate, settings, source, breaks)
+                # the block the plain model is fitted on: the gate may identify it again with the effects
+                training = plain_training_block(q, dq, tau, rate, settings.heldout, breaks,
+                                                source if len(breaks) else "the training block")
+                outcome = identify_plain(q, dq, tau, rate, settings, source, breaks, training)
                 sdp = outcome.fits["sdp"]
                 plain_path = save_model(
                     rn.dir / "plain_model.json", standard=sdp.pi, names=list(outcome.model.param_names()),
@@ -399,9 +404,6 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
                     provenance_info=provenance(source, rn.dir, {"procedure": PROCEDURE, "model": "plain"}),
                     extra={"note": "the model `rig identify --csv` fits at its defaults on this training block"})
                 plain = load_model(plain_path)
-                # the block it was fitted on: the effects may be identified with it again (the gate)
-                training = plain_training_block(q, dq, tau, rate, settings.heldout, breaks,
-                                                source if len(breaks) else "the training block")
                 g = estimate_gravity(all_q, all_dq, all_tau, rate, settings, source, all_breaks)
                 model = PSMDynamics(PSMParameters(drive=DriveParameters()), gravity=g)
                 kind = ("thesis model identified on the training block (gravity estimated: "

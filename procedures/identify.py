@@ -71,7 +71,7 @@ import numpy as np
 
 from calibration.datasets import load_timed_csv
 from calibration.identification import (CUTOFF_HZ, DEADBAND, FILTER_ORDER, FitOutcome, fit_identification,
-                                        fit_plausible_effects, make_model, predict,
+                                        fit_with_effects, make_model, predict,
                                         validation_table)
 from rig.params import Parameter, with_parameters
 from rig import provenance
@@ -205,16 +205,14 @@ def effects_from(parameters: dict) -> tuple[list, list[str]]:
     return terms, left
 
 
-def separable_only(train, terms, parallel: bool) -> tuple[list, list[str]]:
-    """``terms`` less those the joint's own friction columns reproduce in the identification's
-    band (`calibration.identification.inseparable_effects`), and a line for each left out."""
-    from calibration.identification import SEPARABLE_R2, inseparable_effects
-
-    bad = inseparable_effects(train, terms, parallel)
-    lines = [f"{t.effect}@{t.joint}: not separable from joint {t.joint}'s friction in the identification's "
-             f"band (its column is R^2 {r2:.3f} >= {SEPARABLE_R2} of Fc, Fv, Fo, Ia"
-             + (", Stribeck" if t.joint == 3 else "") + ")" for t, r2 in bad]
-    return [t for t in terms if all(t is not b for b, _ in bad)], lines
+def _fit(train, gmode, smode, configured_gravity, parameters: dict, terms, say):
+    """The identification at the command's options, with --effects-from's effects (those the
+    fit can take): the FitOutcome and a line per effect left out."""
+    return fit_with_effects(train, terms, lambda ts: fit_identification(
+        train, gmode, smode, configured_gravity=configured_gravity, progress=say,
+        deadband=DEADBAND if parameters["fit_deadband"] else None, parallel=parameters["parallel_filter"],
+        stribeck=parameters["stribeck"], position_friction=parse_position_friction(parameters["position_friction"]),
+        effects=ts), parameters["parallel_filter"])
 
 
 def parse_position_friction(text: str):
@@ -716,13 +714,8 @@ def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
                 val_source = (f"held-out last {parameters['heldout'] * 100:.0f} % of {parameters['csv']} "
                               f"({val.n_samples} samples, guard {guard})")
         with run.step(STEPS_CSV[2]):
-            terms, inseparable = separable_only(train, terms, parameters["parallel_filter"])
-            left_out = left_out + inseparable
-            outcome, implausible = fit_plausible_effects(lambda ts: fit_identification(
-                train, gmode, smode, progress=say, deadband=DEADBAND if parameters["fit_deadband"] else None,
-                parallel=parameters["parallel_filter"], stribeck=parameters["stribeck"],
-                position_friction=parse_position_friction(parameters["position_friction"]), effects=ts), terms)
-            left_out = left_out + implausible
+            outcome, more = _fit(train, gmode, smode, None, parameters, terms, say)
+            left_out = left_out + more
         with run.step(STEPS_CSV[3]):
             result = _finish_fit(run, outcome, train, val, val_source, "csv", str(parameters["csv"]), parameters,
                                  None, np.array([0.0, 0.0, -9.81]), provenance.recording(parameters["csv"]),
@@ -786,14 +779,8 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
                 val = processed(block_mean(rec_v, parameters["sample_rate"], f"{run.dir / 'run.mcap'} validation"),
                                 parameters["cutoff"], parameters["filter_order"])
             with run.step(STEPS_LIVE[5]):
-                terms, inseparable = separable_only(train, terms, parameters["parallel_filter"])
-                left_out = left_out + inseparable
-                outcome, implausible = fit_plausible_effects(lambda ts: fit_identification(
-                    train, gmode, smode, configured_gravity=g_config, progress=say,
-                    deadband=DEADBAND if parameters["fit_deadband"] else None, parallel=parameters["parallel_filter"],
-                    stribeck=parameters["stribeck"],
-                    position_friction=parse_position_friction(parameters["position_friction"]), effects=ts), terms)
-                left_out = left_out + implausible
+                outcome, more = _fit(train, gmode, smode, g_config, parameters, terms, say)
+                left_out = left_out + more
             with run.step(STEPS_LIVE[6]):
                 extra = {**({"effects_left_out": left_out} if left_out else {}), "arm": arm_name, "excitation": {"cached": exc["cached"], "cache_file": exc["path"],
                                                          "trajectory": traj.to_dict(), **{k: v for k, v in exc["figures"].items() if k != "starts"}},

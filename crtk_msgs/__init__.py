@@ -1,19 +1,24 @@
-"""crtk_msgs: the CRTK operating-state messages of the dVRK, as ROS 2 Jazzy Python messages.
+"""crtk_msgs: the CRTK messages and services of the dVRK, as ROS 2 Jazzy Python interfaces.
 
-    from crtk_msgs.msg import OperatingState, StringStamped
+    from crtk_msgs.msg import OperatingState, StringStamped, CartesianImpedance, ...
+    from crtk_msgs.srv import QueryForwardKinematics, QueryInverseKinematics, TriggerOperatingState
 
-The definitions are ours (msgs/crtk_msgs/msg/*.msg) with the fields, order and types of
-collaborative-robotics/crtk_msgs 1.3.0, so the DDS type names
-(crtk_msgs::msg::dds_::OperatingState_, ...::StringStamped_), the CDR layout and the
-RIHS01 type hashes are those of a real dVRK. The ROS 2 Jazzy code generators from PyPI
-built what is in this folder, for CPython 3.11 on Linux x86_64; BUILD_INFO.json says
-against which ROS wheels. `.venv/bin/python msgs/build_crtk_msgs.py` builds it again.
+Every message and service of collaborative-robotics/crtk_msgs 1.3.0: msgs/crtk_msgs/msg
+and srv hold upstream's definition files byte for byte, so the DDS type names
+(crtk_msgs::msg::dds_::OperatingState_, crtk_msgs::srv::dds_::QueryForwardKinematics_Request_,
+...), the CDR layout and the RIHS01 type hashes are those of a real dVRK. The ROS 2 Jazzy
+code generators from PyPI built what is in this folder, for CPython 3.11 on Linux x86_64;
+BUILD_INFO.json says against which ROS wheels and lists every type hash.
+`.venv/bin/python msgs/build_crtk_msgs.py` builds it again.
 
 This module is not generated. It loads the package's C libraries, by path, before any
 message is used: rosidl_typesupport_c finds a package's Fast DDS type support with
 dlopen("libcrtk_msgs__rosidl_typesupport_fastrtps_c.so"), a bare name that the dynamic
 loader then resolves to the library already loaded under that name. (A ROS install
-would find it through LD_LIBRARY_PATH; this folder is not on it.)
+would find it through LD_LIBRARY_PATH; this folder is not on it.) The services live in the
+same five libraries as the messages. What these link against, the std_msgs,
+geometry_msgs, builtin_interfaces and service_msgs libraries and the rosidl runtime, come
+from the ROS wheels' folders, which the venv's interpreter puts on LD_LIBRARY_PATH.
 """
 
 from __future__ import annotations

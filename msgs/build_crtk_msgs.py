@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Regenerate the shipped `crtk_msgs` Python messages from msgs/crtk_msgs/.
+"""Regenerate the shipped `crtk_msgs` Python messages and services from msgs/crtk_msgs/.
 
     .venv/bin/python msgs/build_crtk_msgs.py
 
@@ -14,10 +14,12 @@ What it does:
 2. runs the ordinary ROS build of the package in msgs/crtk_msgs (cmake with ament_cmake
    and rosidl_generate_interfaces, as colcon would) into build/crtk_msgs/install;
 3. copies what rclpy needs at run time into the importable package crtk_msgs/ at the top
-   of the repository: the generated message modules (crtk_msgs/msg/_*.py), the C
-   libraries of the message structs and of the C, Fast DDS and introspection type
-   supports, and the Python extension modules; and writes crtk_msgs/BUILD_INFO.json
-   (platform, versions built against, the sources' SHA-256, the RIHS01 type hashes).
+   of the repository: the generated message and service modules (crtk_msgs/msg/_*.py,
+   crtk_msgs/srv/_*.py), the C libraries of the message and service structs and of the
+   C, Fast DDS and introspection type supports, and the Python extension modules; and
+   writes crtk_msgs/BUILD_INFO.json (platform, versions built against, the sources'
+   SHA-256, the RIHS01 type hashes of every message, service, request, response and
+   service event type).
 
 crtk_msgs/__init__.py is not generated and is left alone: it loads the libraries.
 
@@ -62,9 +64,13 @@ GENERATORS = [
     "catkin-pkg>=1.0",
 ]
 # What the project's messages depend on at run time; pinned to the project's versions.
-RUNTIME = ["ros-jazzy-std-msgs", "ros-jazzy-rclpy[fastrtps]"]
+# (service_msgs, which every service's event message uses, comes with rclpy.)
+RUNTIME = ["ros-jazzy-std-msgs", "ros-jazzy-geometry-msgs", "ros-jazzy-rclpy[fastrtps]"]
+# The generated Python modules: one folder per interface kind upstream has.
+KINDS = ("msg", "srv")
 
-# Shipped: every library rclpy loads for a C/Python message package, in load order.
+# Shipped: every library rclpy loads for a C/Python interface package, in load order (one
+# set for the whole package: its services live in the same libraries as its messages).
 # (The C++ type supports, headers and CMake exports are for C++ users and stay out.)
 LIBRARIES = [
     "libcrtk_msgs__rosidl_generator_c.so",
@@ -82,7 +88,8 @@ EXTENSIONS = [
 ABI_WHEELS = [
     "ros-rosidl-runtime-c", "ros-rosidl-typesupport-c", "ros-rosidl-typesupport-fastrtps-c",
     "ros-rosidl-typesupport-introspection-c", "ros-rosidl-generator-py", "ros-fastcdr",
-    "ros-rcutils", "ros-std-msgs", "ros-builtin-interfaces", "ros-rmw", "ros-rclpy",
+    "ros-rcutils", "ros-std-msgs", "ros-builtin-interfaces", "ros-geometry-msgs", "ros-service-msgs",
+    "ros-rmw", "ros-rclpy",
 ]
 PLATFORM = {"system": "Linux", "machine": "x86_64", "python": "3.11", "implementation": "cpython"}
 
@@ -160,12 +167,13 @@ def sha256(path: Path) -> str:
 
 def ship(install: Path, venv: Path, pins: dict[str, str]) -> None:
     site = install / "lib" / f"python{PLATFORM['python']}" / "site-packages" / "crtk_msgs"
-    # Old generated files go first, so a message that was removed does not linger.
-    for old in [*TARGET.glob("*.so"), *(TARGET / "msg").glob("*.py")]:
+    # Old generated files go first, so an interface that was removed does not linger.
+    for old in [*TARGET.glob("*.so"), *(p for kind in KINDS for p in (TARGET / kind).glob("*.py"))]:
         old.unlink()
-    (TARGET / "msg").mkdir(parents=True, exist_ok=True)
-    for py in sorted((site / "msg").glob("*.py")):
-        shutil.copy2(py, TARGET / "msg" / py.name)
+    for kind in KINDS:
+        (TARGET / kind).mkdir(parents=True, exist_ok=True)
+        for py in sorted((site / kind).glob("*.py")):
+            shutil.copy2(py, TARGET / kind / py.name)
     for name in EXTENSIONS:
         shutil.copy2(site / name, TARGET / name)
     for name in LIBRARIES:
@@ -173,8 +181,10 @@ def ship(install: Path, venv: Path, pins: dict[str, str]) -> None:
     if shutil.which("strip"):
         run(["strip", "--strip-unneeded", *(TARGET / n for n in LIBRARIES + EXTENSIONS)])
 
+    # Every type the package defines: the messages, each service and its _Request,
+    # _Response and _Event messages.
     hashes = {}
-    for desc in sorted((install / "share" / "crtk_msgs" / "msg").glob("*.json")):
+    for desc in sorted(p for kind in KINDS for p in (install / "share" / "crtk_msgs" / kind).glob("*.json")):
         for entry in json.loads(desc.read_text())["type_hashes"]:
             if entry["type_name"].startswith("crtk_msgs/"):
                 hashes[entry["type_name"]] = entry["hash_string"]
@@ -195,8 +205,11 @@ def ship(install: Path, venv: Path, pins: dict[str, str]) -> None:
         "cc": subprocess.run(["cc", "--version"], capture_output=True, text=True).stdout.split("\n")[0],
     }
     (TARGET / "BUILD_INFO.json").write_text(json.dumps(info, indent=2) + "\n")
+    modules = sum(len(list((TARGET / kind).glob("*.py"))) for kind in KINDS)
     log(f"wrote {TARGET.relative_to(REPO)}/: {len(LIBRARIES)} libraries, {len(EXTENSIONS)} "
-        f"extension modules, {len(list((TARGET / 'msg').glob('*.py')))} Python modules; {hashes}")
+        f"extension modules, {modules} Python modules, {len(hashes)} type hashes")
+    for name, digest in sorted(hashes.items()):
+        log(f"  {name} {digest}")
 
 
 def main() -> None:

@@ -1,0 +1,12 @@
+from crtk_msgs.srv._query_forward_kinematics import QueryForwardKinematics  # noqa: F401
+from crtk_msgs.srv._query_forward_kinematics import QueryForwardKinematics_Event  # noqa: F401
+from crtk_msgs.srv._query_forward_kinematics import QueryForwardKinematics_Request  # noqa: F401
+from crtk_msgs.srv._query_forward_kinematics import QueryForwardKinematics_Response  # noqa: F401
+from crtk_msgs.srv._query_inverse_kinematics import QueryInverseKinematics  # noqa: F401
+from crtk_msgs.srv._query_inverse_kinematics import QueryInverseKinematics_Event  # noqa: F401
+from crtk_msgs.srv._query_inverse_kinematics import QueryInverseKinematics_Request  # noqa: F401
+from crtk_msgs.srv._query_inverse_kinematics import QueryInverseKinematics_Response  # noqa: F401
+from crtk_msgs.srv._trigger_operating_state import TriggerOperatingState  # noqa: F401
+from crtk_msgs.srv._trigger_operating_state import TriggerOperatingState_Event  # noqa: F401
+from crtk_msgs.srv._trigger_operating_state import TriggerOperatingState_Request  # noqa: F401
+from crtk_msgs.srv._trigger_operating_state import TriggerOperatingState_Response  # noqa: F401

@@ -102,3 +102,28 @@ def test_skip_reasons(monkeypatch, tmp_path):
         (tmp_path / "absent" / src / package / "__init__.py").write_text("")
     monkeypatch.setattr(helper, "DEBIAN_DIST_PACKAGES", tmp_path / "no-dist-packages")
     assert skip_reason() == "PyKDL is absent: apt-get install python3-pykdl"
+
+
+def test_probe_lists_what_the_client_uses():
+    """bench/probe_dvrk_client.py, run as a person runs it, lists the client's names: for
+    one PSM, the system and the console, 29 topics published, 18 subscribed, 3 services."""
+    why = skip_reason()
+    if why is not None:
+        pytest.skip(why)
+    env = dict(os.environ)
+    env.pop("ROS_DOMAIN_ID", None)
+    done = subprocess.run([sys.executable, str(REPO / "bench" / "probe_dvrk_client.py"), "--json",
+                           "--domain", str(100 + (os.getpid() + 23) % 40)],
+                          env=env, cwd=REPO.parent, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    doc = json.loads(done.stdout)
+    assert doc["counts"] == {"publishes": 29, "subscribes": 18, "calls": 3, "serves": 0}
+    used = {(e["name"], e["type"], e["client"]) for e in doc["endpoints"]}
+    assert {("/PSM1/measured_js", "sensor_msgs/msg/JointState", "subscribes"),
+            ("/PSM1/operating_state", "crtk_msgs/msg/OperatingState", "subscribes"),
+            ("/PSM1/state_command", "crtk_msgs/msg/StringStamped", "publishes"),
+            ("/PSM1/servo_jp", "sensor_msgs/msg/JointState", "publishes"),
+            ("/PSM1/forward_kinematics", "crtk_msgs/srv/QueryForwardKinematics", "calls"),
+            ("/PSM1/inverse_kinematics", "crtk_msgs/srv/QueryInverseKinematics", "calls"),
+            ("/system/power_on", "std_msgs/msg/Empty", "publishes")} <= used
+    assert "/rosout (publishes)" in doc["left_out"]

@@ -22,6 +22,9 @@ What it does:
    service event type).
 
 crtk_msgs/__init__.py is not generated and is left alone: it loads the libraries.
+msgs/crtk_msgs/msg and srv are upstream's files (collaborative-robotics/crtk_msgs 1.3.0)
+byte for byte; msgs/upstream_type_hashes.py computes the type hashes of upstream's own
+files, without this build, for tests/msgs to hold BUILD_INFO.json's against.
 
 Needs: CPython 3.11 on Linux x86_64 (the platform of the ROS wheels and of what is
 shipped), cmake >= 3.16, gcc and g++, and PyPI. Takes about a minute, most of it pip.

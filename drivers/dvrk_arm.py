@@ -1,6 +1,6 @@
-"""A dVRK arm over ROS 2 (rclpy) on the dVRK 2.3 CRTK topics: `RosArm`.
+"""A dVRK arm over ROS 2 (rclpy) on the dVRK's CRTK topics: `RosArm`.
 
-Topics under the arm's namespace (e.g. /PSM1), as the dVRK 2.3 ROS 2 bridge names them:
+Topics under the arm's namespace (e.g. /PSM1), as the dVRK 2.3 / 2.4 ROS 2 bridge names them:
 
   subscribed   measured_js, setpoint_js          sensor_msgs/JointState
                measured_cp, local/measured_cp    geometry_msgs/PoseStamped
@@ -24,6 +24,21 @@ ENABLED and homed (FAULT, DISABLED, PAUSED, unhomed) makes `measured_js()` and
 flag to rise within `BUSY_RISE` s of the command, then to fall; without operating_state
 (or if the flag never rises on an arm that is ready) it waits on the measured joints
 (goal within `ARRIVAL_TOLERANCE` and at rest).
+
+The whole arm. A dVRK PSM publishes six joints (outer_yaw, outer_pitch, outer_insertion,
+outer_roll, outer_wrist_pitch, outer_wrist_yaw; older configurations say yaw, pitch, ...)
+and its jaw on topics of its own. The rig's procedures model joints 1-3: the driver finds
+them in every message by name (by position when a message carries no names), and gives
+`measured_js()` those three. Commands of three joints are completed for the whole arm:
+servo_jp and move_jp hold the wrist at `wrist_hold` (where it was when `ready()`
+returned, else as last measured), servo_jf holds it with a soft PD of its own
+(WRIST_KP, WRIST_KD) at the rate the procedure commands, `hold()` holds every joint where
+it is. The jaw is left to the arm (the dVRK keeps its goal).
+
+The dVRK publishes operating_state as events, on change only. A driver that subscribes
+after the last change hears nothing until the next: `wait_for_state` then asks the arm's
+`operating_state` service (crtk_msgs/TriggerOperatingState, as the dVRK's bridge serves
+it), and `ready()` does so while it waits.
 
 Threading model. The driver is given a node (STYLE item 1) and never creates one. Its
 subscription callbacks only copy the newest message under a lock; they run on whatever
@@ -66,6 +81,15 @@ BUSY_RISE = 0.5
 #: s between repeats of a state command while `ready()` waits (one sent before the
 #: arm's subscription matched would be lost; enable and home are idempotent on the dVRK)
 RESEND = 1.0
+
+#: N m/rad and N m s/rad of the wrist's hold under servo_jf: soft enough to be stable at a
+#: 100 Hz command rate on the wrist's ~1e-5 kg m^2 (kd T / I < 1), enough to keep the tool
+#: from drifting on its own friction
+WRIST_KP = 0.2
+WRIST_KD = 0.0005
+#: the names of joints 1-3 in a dVRK PSM's measured_js: 2.x's, and the bare ones of some
+#: configurations
+_MODEL_JOINTS = (("outer_yaw", "yaw"), ("outer_pitch", "pitch"), ("outer_insertion", "insertion"))
 
 #: the arm's state topics RosArm can subscribe (measured_js is always subscribed)
 ALL_STREAMS = ("measured_js", "setpoint_js", "measured_cp", "local/measured_cp", "body/measured_cf")
@@ -148,6 +172,13 @@ class RosArm:
         self.move_wait: str | None = None
         self.states_error: str | None = None  # why states are not read, if they are not
         self._command_qos = None
+        # the whole arm: where joints 1-3 are in its messages, how many it has, the wrist
+        self._index: tuple[int, ...] | None = None
+        self._names: tuple[str, ...] = ()
+        self.joint_count = 3
+        self._full: tuple[np.ndarray, np.ndarray] | None = None  # all joints' (q, dq), newest
+        self.wrist_hold: np.ndarray | None = None
+        self._state_client = None
         self._console = console if console == "auto" else "/" + console.strip("/")
         if self._console != "auto":
             self._set_console(self._console)
@@ -184,6 +215,12 @@ class RosArm:
                                                            self._on_operating_state, sensor_qos))
                 self._subs.append(node.create_subscription(String, t["error"], self._on_error, sensor_qos))
                 self._pubs["state_command"] = node.create_publisher(StringStamped, t["state_command"], command_qos)
+                try:
+                    from crtk_msgs.srv import TriggerOperatingState
+                except ImportError:
+                    pass
+                else:
+                    self._state_client = node.create_client(TriggerOperatingState, t["operating_state"])
         else:
             self.states_error = "states=False"
         self._command_qos = command_qos
@@ -229,9 +266,32 @@ class RosArm:
         return Wrench(_stamp_seconds(m.header), np.array([f.x, f.y, f.z]), np.array([tq.x, tq.y, tq.z]),
                       m.header.frame_id)
 
+    def _map(self, names: tuple[str, ...], n: int) -> tuple[int, ...]:
+        """Indices of joints 1-3 in a message with `names` (n values), found once per naming."""
+        if names != self._names or self._index is None:
+            index = []
+            for options in _MODEL_JOINTS:
+                found = next((names.index(o) for o in options if o in names), None)
+                index.append(found)
+            if None in index:
+                index = list(range(min(3, n)))  # no names, or other ones: by position
+            self._index, self._names = tuple(index), names
+            self.joint_count = n
+        return self._index
+
     def _on_measured_js(self, m) -> None:
-        js = self._joint_state(m)
+        full = self._joint_state(m)
+        n = len(full.position)
+        idx = self._map(full.names, n)
+        if n > 3 or idx != (0, 1, 2):
+            def pick(v):
+                return v[list(idx)] if len(v) == n else v[:3]
+            js = JointState(full.t, pick(full.position), pick(full.velocity), pick(full.effort),
+                            tuple(full.names[i] for i in idx) if full.names else ())
+        else:
+            js = full
         with self._cond:
+            self._full = (full.position, full.velocity)
             self._js = js
             self._js_log.append(js)
             self._js_rx = time.monotonic()
@@ -276,7 +336,9 @@ class RosArm:
             self.stale_events += 1
             err = StaleStream(self.topic["measured_js"], age, self.watchdog)
             try:
-                self._publish("servo_jp", position=js.position)
+                with self._lock:
+                    full = self._full
+                self._publish("servo_jp", position=full[0] if full is not None else js.position)
             except Exception:  # noqa: BLE001 - a dead context must not stop the callbacks
                 pass
             for cb in list(self._stale_callbacks):
@@ -383,13 +445,57 @@ class RosArm:
             m.effort = _vector(effort, key)
         self._pubs[key].publish(m)
 
+    def _whole(self, values, fill: np.ndarray | None) -> list[float] | None:
+        """`values` for joints 1-3 (or the whole arm) as a command of every joint the arm has:
+        joints 1-3 at their places, the others from `fill`."""
+        if values is None:
+            return None
+        v = np.asarray(_vector(values, "command"), float)
+        with self._lock:
+            n, idx = self.joint_count, self._index
+        if n <= 3 or v.size >= n or idx is None:
+            return v.tolist()
+        out = np.zeros(n) if fill is None else np.array(fill, float)
+        out[list(idx[:v.size])] = v[:len(idx)]
+        return out.tolist()
+
+    def _wrist_fill(self) -> np.ndarray | None:
+        """Every joint's hold position: the newest measured, the wrist at `wrist_hold`."""
+        with self._lock:
+            full, idx, hold = self._full, self._index, self.wrist_hold
+        if full is None or idx is None:
+            return None
+        q = np.array(full[0], float)
+        rest = [i for i in range(len(q)) if i not in idx]
+        if hold is not None and len(hold) == len(rest):
+            q[rest] = hold
+        return q
+
+    def _wrist_effort(self) -> np.ndarray | None:
+        """Efforts that hold the wrist at `wrist_hold` (a soft PD), zero on joints 1-3."""
+        with self._lock:
+            full, idx, hold = self._full, self._index, self.wrist_hold
+        if full is None or idx is None:
+            return None
+        q, dq = np.asarray(full[0], float), np.asarray(full[1], float)
+        out = np.zeros(len(q))
+        rest = [i for i in range(len(q)) if i not in idx]
+        if hold is None or len(hold) != len(rest) or len(dq) != len(q):
+            return out
+        out[rest] = WRIST_KP * (hold - q[rest]) - WRIST_KD * dq[rest]
+        return out
+
     def servo_jp(self, position, velocity=None) -> None:
-        """Joint position set-point (rad, m), with an optional velocity feed-forward."""
-        self._publish("servo_jp", position=position, velocity=velocity)
+        """Joint position set-point (rad, m), with an optional velocity feed-forward; three
+        values for joints 1-3 (the wrist held), or the whole arm's."""
+        fill = self._wrist_fill()
+        self._publish("servo_jp", position=self._whole(position, fill),
+                      velocity=self._whole(velocity, None if fill is None else np.zeros(len(fill))))
 
     def servo_jf(self, effort) -> None:
-        """Joint efforts (N m, N) in the JointState effort field."""
-        self._publish("servo_jf", effort=effort)
+        """Joint efforts (N m, N) in the JointState effort field; three values for joints
+        1-3 (the wrist held by a soft PD), or the whole arm's."""
+        self._publish("servo_jf", effort=self._whole(effort, self._wrist_effort()))
 
     def move_jp(self, position, wait: bool = True, timeout: float = 10.0) -> bool:
         """Start the dVRK's trajectory to `position`; with wait, block until it is done.
@@ -408,7 +514,7 @@ class RosArm:
         with self._lock:
             since = self._state_count
             states = self._state is not None
-        self._publish("move_jp", position=goal)
+        self._publish("move_jp", position=self._whole(goal, self._wrist_fill()))
         if not wait:
             return True
         deadline = time.monotonic() + timeout
@@ -471,10 +577,10 @@ class RosArm:
     def hold(self) -> None:
         """Hold the last measured position (servo_jp there). Works while merely stale."""
         with self._lock:
-            js = self._js
+            js, full = self._js, self._full
         if js is None:
             raise StaleStream(self.topic["measured_js"], float("inf"), self.watchdog)
-        self._publish("servo_jp", position=js.position)
+        self._publish("servo_jp", position=full[0] if full is not None else js.position)
 
     # -- operating state ----------------------------------------------------------------
     def operating_state(self) -> OperatingState | None:
@@ -483,15 +589,49 @@ class RosArm:
             return self._state
 
     def wait_for_state(self, timeout: float) -> bool:
-        """Block until an operating_state arrived (True) or `timeout` s passed (False)."""
+        """Block until an operating_state arrived (True) or `timeout` s passed (False). The
+        dVRK publishes it on change only: the arm's operating_state service is asked too."""
         deadline = time.monotonic() + timeout
+        asked = -1.0
         with self._cond:
             while self._state is None:
-                left = deadline - time.monotonic()
+                now = time.monotonic()
+                left = deadline - now
                 if left <= 0 or self._StringStamped is None:
                     return False
-                self._cond.wait(left)
+                if now - asked >= 0.25:
+                    asked = now
+                    self._cond.release()
+                    try:
+                        self._ask_state()
+                    finally:
+                        self._cond.acquire()
+                    continue
+                self._cond.wait(min(left, 0.05))
         return True
+
+    def _ask_state(self) -> None:
+        """Ask the arm's operating_state service (asynchronously; the answer is taken as an
+        operating_state message when it comes)."""
+        client = self._state_client
+        if client is None or not client.service_is_ready():
+            return
+        from crtk_msgs.srv import TriggerOperatingState
+
+        future = client.call_async(TriggerOperatingState.Request())
+        future.add_done_callback(self._on_state_answer)
+
+    def _on_state_answer(self, future) -> None:
+        try:
+            res = future.result()
+        except Exception:  # noqa: BLE001 - the service went away: the topic will tell
+            return
+        if res is None:
+            return
+        with self._lock:
+            newer = self._state is None or _stamp_seconds(res.operating_state.header) > self._state.t
+        if newer:
+            self._on_operating_state(res.operating_state)
 
     def state_command(self, command: str) -> None:
         """Send one of STATE_COMMANDS on state_command (asynchronous, as on the dVRK)."""
@@ -529,6 +669,9 @@ class RosArm:
                         else "; resume it at the dVRK console, then re-run"))
                 if st.ready and not st.is_busy:
                     with self._lock:
+                        if self._full is not None and self._index is not None:
+                            q = np.asarray(self._full[0], float)
+                            self.wrist_hold = q[[i for i in range(len(q)) if i not in self._index]].copy()
                         self._in_control = True
                         self._fault = self._fault_error = None
                         if not self._state.ready:  # it changed since
@@ -544,6 +687,9 @@ class RosArm:
                         say(f"{self.name}: {want}")
                     self.state_command(want)
                     sent[want] = time.monotonic()
+            elif time.monotonic() - sent.get("ask", -RESEND) >= 0.25:
+                self._ask_state()  # events only: ask what the state is
+                sent["ask"] = time.monotonic()
             now = time.monotonic()
             if now >= deadline:
                 raise self._not_ready(st, f"not ENABLED and homed within {timeout:g} s"
@@ -646,6 +792,9 @@ class RosArm:
             self._spin_thread.join(timeout=5.0)
         for s in self._subs:
             self.node.destroy_subscription(s)
+        if self._state_client is not None:
+            self.node.destroy_client(self._state_client)
+            self._state_client = None
         for p in self._pubs.values():
             self.node.destroy_publisher(p)
         self._subs, self._pubs = [], {}

@@ -16,9 +16,11 @@ documentation and messages describe it), on the simulated clock:
   dropped with the dVRK's warning `<arm>: <command>, arm not ready`, at most once every
   NOT_READY_PERIOD s, with `(N errors)` counting the ones dropped before it since the arm
   was last ready, once there are more than one.
-* is_busy is true while powering, while homing, and after a move_jp until the arm has
-  arrived (`SimArm.arrived`: at the goal within the arrival tolerance, at rest), or
-  MOVE_GRACE s after its trajectory ended (then a warning that the goal was not reached).
+* is_busy is true while powering, while homing, and from a move (move_jp, move_jr,
+  move_cp, jaw/move_jp) until its trajectory reached its goal: the set-point, as the
+  dVRK's Reflexxes final state; the joints settle on it afterwards under the PID.
+  `events` holds an OperatingState for every change and every accepted state command
+  (the dVRK publishes operating_state as events, not periodically).
 * Faults: a joint past its Table 4.2 limit (beyond LIMIT_MARGIN) while the arm is powered;
   and, once armed (`servo_watchdog`, s), servo commands that stop arriving: an arm in
   servo mode (its last command servo_jp or servo_jf) with none for longer than that. The
@@ -30,8 +32,8 @@ taking the object with it; the real arm's drives are off and its joints rest on 
 friction and counterweights.
 
 `command()` and `servo_jp()` ... are called by rig sim's main thread as the messages are
-applied, `step(t)` once per tick; `changed` says the state changed since the server last
-published it (it also publishes at OPERATING_STATE_RATE), and `messages` holds the
+applied, `step(t)` once per tick; the server publishes `events` (and empties it), and
+`messages` holds the
 (level, text) pairs to send on <arm>/warning and <arm>/error.
 """
 
@@ -52,12 +54,8 @@ HOMING = 1.5
 HOMING_TIMEOUT = 10.0
 #: s between two "arm not ready" warnings (the dVRK's throttle)
 NOT_READY_PERIOD = 2.0
-#: s after a move_jp's trajectory ended within which the arm must have arrived
-MOVE_GRACE = 2.0
 #: rad, rad, m beyond the joint limits at which a powered arm faults
 LIMIT_MARGIN = np.array([0.01, 0.01, 0.002])
-#: Hz at which rig sim publishes operating_state (and on every change)
-OPERATING_STATE_RATE = 100.0
 
 # the dVRK's allowed state commands per operating state (prmOperatingState::ValidCommand);
 # in DISABLED the dVRK also accepts home and pause (its switch falls through to ENABLED)
@@ -85,7 +83,9 @@ class SimArmState:
         self.state = "DISABLED"
         self.is_homed = False
         self.is_busy = False
-        self.changed = True
+        #: every change of (state, is_homed, is_busy) and every accepted state command, in
+        #: order, for the server to publish one operating_state each (the dVRK's events)
+        self.events: list[OperatingState] = [OperatingState(0.0, self.state, self.is_homed, self.is_busy)]
         self.messages: list[tuple[str, str]] = []
         self.dropped = 0  # motion commands dropped (not ready)
         self.fault_reason = ""
@@ -113,10 +113,15 @@ class SimArmState:
         return self.state == "ENABLED" and self.is_homed
 
     def _set(self, state: str | None = None, busy: bool | None = None, homed: bool | None = None) -> None:
-        for attr, value in (("state", state), ("is_busy", busy), ("is_homed", homed)):
+        changed = False
+        for attr, value in (("state", state), ("is_homed", homed), ("is_busy", busy)):
             if value is not None and getattr(self, attr) != value:
                 setattr(self, attr, value)
-                self.changed = True
+                changed = True
+        if changed:
+            self.events.append(self.operating_state())
+            if hasattr(self.arm, "homed"):
+                self.arm.homed = self.is_homed
 
     def _say(self, level: str, text: str) -> None:
         self.messages.append((level, text))
@@ -128,6 +133,9 @@ class SimArmState:
         if command not in _ALLOWED.get(self.state, ()):
             self._say("warning", f"{self.name}: command \"{command}\" is not supported in state \"{self.state}\"")
             return
+        # the dVRK pushes its operating state on every valid command (SetDesiredState's
+        # StateEvents): a client that just connected learns the state from its own command
+        self.events.append(self.operating_state())
         if command == "enable":
             self._power_on(t)
         elif command == "disable":
@@ -213,13 +221,29 @@ class SimArmState:
         self._set(busy=False)
 
     def move_jp(self, position, t: float) -> bool:
-        if not self._accept("move_jp", t):
+        return self.motion("move_jp", t, lambda: self.arm.move_jp(position, wait=False), moving=True)
+
+    def motion(self, what: str, t: float, act, moving: bool = False, servo: bool = True) -> bool:
+        """A motion command `what` at sim time t: `act()` runs if the arm is ready (True),
+        else it is dropped with the dVRK's throttled warning (False). `moving`: it starts a
+        trajectory (busy until it ends; an act returning False started none); `servo`: a
+        servo command (it counts for the servo watchdog and ends a move). A ValueError of
+        `act` (a malformed command) propagates."""
+        if not self._accept(what, t):
             return False
-        self.arm.move_jp(position, wait=False)  # a goal outside the limits raises ValueError
-        self._servo_mode = False
-        self._moving = True
-        self._move_ended = None
-        self._set(busy=True)
+        started = act()
+        if moving:
+            self._servo_mode = False
+            if started is False:
+                return True
+            self._moving = True
+            self._move_ended = None
+            # (the dVRK's UpdateIsBusy(true): an event even when busy already, a new move)
+            if self.is_busy:
+                self.events.append(self.operating_state())
+            self._set(busy=True)
+        elif servo:
+            self._servo(t)
         return True
 
     # -- faults ---------------------------------------------------------------------------
@@ -273,15 +297,8 @@ class SimArmState:
             elif t - self._homing_since > HOMING_TIMEOUT:
                 self.fault(f"{self.name}: homing did not reach the home position in {HOMING_TIMEOUT:g} s")
             return
-        if self._moving:
-            if self.arm.arrived():
-                self._moving = False
-                self._set(busy=False)
-            elif not self.arm.is_moving():
-                if self._move_ended is None:
-                    self._move_ended = t
-                elif t - self._move_ended > MOVE_GRACE:
-                    self._moving = False
-                    self._say("warning", f"{self.name}: move_jp did not reach its goal within {MOVE_GRACE:g} s "
-                                         "of the trajectory's end")
-                    self._set(busy=False)
+        if self._moving and not self.arm.is_moving():
+            # the dVRK's trajectory reached its final state (the set-point is at the goal):
+            # busy ends, whatever the measured joints do next (Reflexxes' FINAL_STATE_REACHED)
+            self._moving = False
+            self._set(busy=False)

@@ -288,7 +288,32 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say) -> dict:
         rates["mocap"] = min(body_rates)
         parts.append(f"mocap {len(rig.tracker.bodies)} bodies {min(body_rates):.0f}-{max(body_rates):.0f} Hz")
     say("connected: " + "; ".join(parts))
+    check_stream_rates(rig, cfg, names, rates)
     return rates
+
+
+#: a stream heard below this fraction of the rate the rig's loop needs is refused
+RATE_MARGIN = 0.6
+
+
+def check_stream_rates(rig: Rig, cfg, names: list[str], rates: dict) -> None:
+    """Refuse, in one line, arms whose measured_js comes slower than the rig's loop needs.
+
+    Every control tick of a run on ROS arms waits for a fresh measured_js of every arm
+    (`rig.clock.StreamClock` at [rig] rate): a console publishing at 100 Hz (`dvrk_system`'s
+    default `-p 0.01`) would run a 500 Hz loop at 100 Hz, where the effort loops of the
+    procedures are not stable. The line names the rate heard, the rate needed and the
+    console option to change."""
+    needed = float(cfg.rig["rate"])
+    for n in names:
+        topic = rig.arms[n].topic["measured_js"]
+        heard = rates.get(topic, 0.0)
+        if heard < RATE_MARGIN * needed:
+            period = 1.0 / needed
+            raise ConnectError(
+                f"{topic}: heard at {heard:.0f} Hz, the rig's loop needs {needed:g} Hz ([rig] rate in "
+                f"{cfg.source}): start the dVRK console with `dvrk_system -p {period:g}` (or `rig sim --ros-period "
+                f"{period:g}`), or lower [rig] rate to {max(1, int(heard)):d}")
 
 
 #: s an arm whose measured_js came is given for its first operating_state

@@ -60,7 +60,8 @@ def rig_sim():
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env = dict(os.environ, RIG_CONFIG="")
     env.pop("RIG_CONFIG")
-    proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "sim", "--duration", "60", "--seed", "3"],
+    proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "sim", "--duration", "60", "--seed", "3",
+                             "--ros-period", "0.001"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
                             cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))))
     ctx = Context()
@@ -138,11 +139,13 @@ def test_measured_js_streams_every_rig_period_and_cp_matches_kinematics(rig_sim)
     # the simulator re-anchors its time (REANCHOR), and measured_js() returns nothing older
     # than the watchdog (0.5 s here); 1 s more for delivery on a loaded machine. Rig time
     # from zero or the monotonic clock would be off by days or decades.
-    from procedures.sim import REANCHOR
+    from rig.sim_server import REANCHOR
     assert -0.01 < time.time() - js.t < REANCHOR + arm.watchdog + 1.0
     cp = arm.measured_cp()
-    T = K.tip_pose_rcm(arm.measured_js().position)
-    assert np.allclose(cp.position, T[:3, 3], atol=2e-3)  # 100 Hz pose vs newest joints
+    # the dVRK's tool tip (the large needle driver's, wrist straight as the driver holds it)
+    from rig.psm_arm_kinematics import RIG_TIP_TO_TOOL_TIP
+    T = K.tip_pose_rcm(arm.measured_js().position) @ RIG_TIP_TO_TOOL_TIP
+    assert np.allclose(cp.position, T[:3, 3], atol=2e-3)  # pose vs newest joints
     assert np.allclose(cp.rotation, T[:3, :3], atol=2e-2)
     assert arm.local_measured_cp().frame == cp.frame
     assert np.all(np.isfinite(arm.body_measured_cf().force))

@@ -77,7 +77,9 @@ class ServedRig:
         self.folder.mkdir(parents=True, exist_ok=True)
         self.domain = domain
         self.toml = toml if toml is not None else lab_toml(self.folder)
-        self.sim_args = tuple(sim_args)
+        # the procedures' 500 Hz loops need the arms' streams at 1 kHz (the dVRK console's
+        # default period is 0.01 s; procedures refuse it in one line)
+        self.sim_args = tuple(sim_args) if "--ros-period" in sim_args else ("--ros-period", "0.001", *sim_args)
         self.proc: subprocess.Popen | None = None
         self.sim_lines: list[str] = []
 

@@ -1,0 +1,349 @@
+"""The CRTK ROS 2 interface of one served dVRK PSM: its topics, services and events, as the dVRK bridges them.
+
+`ArmBridge` puts a `drivers.sim_psm.SimPSM` and its operating state
+(`drivers.sim_arm_state.SimArmState`) on the topics that jhu-cisst/cisst-ros's CRTK bridge
+(`mts_ros_crtk_bridge_provided.cpp`) gives a dVRK 2.4 PSM under /<arm>:
+
+* published every ROS period while someone subscribes: measured_js, setpoint_js,
+  measured_cp, setpoint_cp, local/measured_cp, local/setpoint_cp, measured_cv,
+  local/measured_cv, body/measured_cf, spatial/measured_cf, body/jacobian,
+  spatial/jacobian (std_msgs/Float64MultiArray, 6 x 6, row major), jaw/measured_js,
+  jaw/setpoint_js;
+* published as events (on change only, as the dVRK's events bridge): operating_state,
+  error, warning, status, goal_reached, trajectory_j/ratio (and ratio_v, ratio_a);
+* subscribed: servo_jp, servo_jr, move_jp, move_jr, servo_jf (sensor_msgs/JointState),
+  servo_cp, move_cp (PoseStamped), body/servo_cf, spatial/servo_cf (WrenchStamped),
+  servo_ci (crtk_msgs/CartesianImpedance), hold, free (Empty), state_command,
+  use_gravity_compensation, body/set_cf_orientation_absolute, emulate_tool_present (Bool),
+  trajectory_j/set_ratio (Float64), jaw/servo_jp, jaw/move_jp, jaw/servo_jf;
+* services: forward_kinematics, local/forward_kinematics, inverse_kinematics
+  (crtk_msgs Query*Kinematics) and operating_state (crtk_msgs/TriggerOperatingState).
+
+Subscriptions only queue (the server applies them on its main thread, the world's only
+writer); services answer from the executor thread with kinematics alone. Publishers use
+the dVRK's default QoS (reliable, volatile, depth 10).
+"""
+
+from __future__ import annotations
+
+from array import array
+
+import numpy as np
+
+#: topics published every ROS period (while subscribed)
+STREAMS = ("measured_js", "setpoint_js", "measured_cp", "setpoint_cp", "local/measured_cp", "local/setpoint_cp",
+           "measured_cv", "local/measured_cv", "body/measured_cf", "spatial/measured_cf", "body/jacobian",
+           "spatial/jacobian", "jaw/measured_js", "jaw/setpoint_js")
+#: commands that count as motion (they pass the arm's operating state and its stamp order)
+MOTION = ("servo_jp", "servo_jr", "move_jp", "move_jr", "servo_cp", "move_cp", "servo_jf", "body/servo_cf",
+          "spatial/servo_cf", "servo_ci", "hold", "free", "jaw/servo_jp", "jaw/move_jp", "jaw/servo_jf")
+#: of those, the ones that start a trajectory (busy until its end)
+MOVES = ("move_jp", "move_jr", "move_cp", "jaw/move_jp")
+
+
+def pose_to_matrix(pose) -> np.ndarray:
+    from drivers.quaternion import quat_xyzw_to_matrix
+
+    o, p = pose.orientation, pose.position
+    T = np.eye(4)
+    T[:3, :3] = quat_xyzw_to_matrix(np.array([o.x, o.y, o.z, o.w], float))
+    T[:3, 3] = (p.x, p.y, p.z)
+    return T
+
+
+def matrix_to_pose(T: np.ndarray, pose) -> None:
+    from drivers.quaternion import matrix_to_quat_xyzw
+
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in T[:3, 3])
+    o = pose.orientation
+    o.x, o.y, o.z, o.w = (float(v) for v in matrix_to_quat_xyzw(T[:3, :3]))
+
+
+def _quat_matrix(q) -> np.ndarray:
+    from drivers.quaternion import quat_xyzw_to_matrix
+
+    v = np.array([q.x, q.y, q.z, q.w], float)
+    if not np.any(v):  # an all-zero quaternion (a message left at its defaults): identity
+        return np.eye(3)
+    return quat_xyzw_to_matrix(v / np.linalg.norm(v))
+
+
+def impedance_from_msg(m):
+    """A crtk_msgs/CartesianImpedance as `drivers.sim_psm.Impedance`."""
+    from drivers.sim_psm import Impedance
+
+    def gains(g):
+        return tuple(np.array([v.x, v.y, v.z], float) for v in (g.p, g.d, g.bias, g.deadband))
+
+    p = m.force_position
+    return Impedance([p.x, p.y, p.z], _quat_matrix(m.force_orientation), _quat_matrix(m.torque_orientation),
+                     {"position_positive": gains(m.position_positive),
+                      "position_negative": gains(m.position_negative),
+                      "orientation_positive": gains(m.orientation_positive),
+                      "orientation_negative": gains(m.orientation_negative)})
+
+
+class ArmBridge:
+    """One served PSM's CRTK topics on `node` (see the module docstring).
+
+    psm: the `SimPSM`; state: its `SimArmState`; queue(fn, key, msg): how a received
+    command reaches the main thread; stamp(msg, t): fills a header stamp for sim time t;
+    event_stamp(msg): fills a header stamp for an event (strictly increasing).
+    """
+
+    def __init__(self, node, psm, state, queue, stamp, event_stamp):
+        from crtk_msgs.msg import CartesianImpedance, OperatingState, StringStamped
+        from crtk_msgs.srv import QueryForwardKinematics, QueryInverseKinematics, TriggerOperatingState
+        from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+        from rclpy.qos import QoSProfile
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, MultiArrayDimension, String
+
+        self.node, self.psm, self.state = node, psm, state
+        self.name = psm.name
+        self._stamp, self._event_stamp = stamp, event_stamp
+        self._T = {"js": JointState, "pose": PoseStamped, "twist": TwistStamped, "wrench": WrenchStamped,
+                   "mat": Float64MultiArray, "dim": MultiArrayDimension, "state": OperatingState,
+                   "string": String, "bool": Bool, "float": Float64}
+        qos = QoSProfile(depth=10)
+        ns = "/" + self.name
+        types = {"measured_js": JointState, "setpoint_js": JointState, "jaw/measured_js": JointState,
+                 "jaw/setpoint_js": JointState, "measured_cv": TwistStamped, "local/measured_cv": TwistStamped,
+                 "body/measured_cf": WrenchStamped, "spatial/measured_cf": WrenchStamped,
+                 "body/jacobian": Float64MultiArray, "spatial/jacobian": Float64MultiArray}
+        self.pub = {k: node.create_publisher(types.get(k, PoseStamped), f"{ns}/{k}", qos) for k in STREAMS}
+        events = {"operating_state": OperatingState, "error": String, "warning": String, "status": String,
+                  "goal_reached": Bool, "trajectory_j/ratio": Float64, "trajectory_j/ratio_v": Float64,
+                  "trajectory_j/ratio_a": Float64}
+        self.event_pub = {k: node.create_publisher(t, f"{ns}/{k}", qos) for k, t in events.items()}
+        subs = {"servo_jp": JointState, "servo_jr": JointState, "move_jp": JointState, "move_jr": JointState,
+                "servo_jf": JointState, "servo_cp": PoseStamped, "move_cp": PoseStamped,
+                "body/servo_cf": WrenchStamped, "spatial/servo_cf": WrenchStamped, "servo_ci": CartesianImpedance,
+                "hold": Empty, "free": Empty, "state_command": StringStamped, "use_gravity_compensation": Bool,
+                "body/set_cf_orientation_absolute": Bool, "emulate_tool_present": Bool,
+                "trajectory_j/set_ratio": Float64, "jaw/servo_jp": JointState, "jaw/move_jp": JointState,
+                "jaw/servo_jf": JointState}
+        self.subs = [node.create_subscription(t, f"{ns}/{k}", queue(self.apply, k), qos) for k, t in subs.items()]
+        self.services = [
+            node.create_service(QueryForwardKinematics, f"{ns}/forward_kinematics", self._fk),
+            node.create_service(QueryForwardKinematics, f"{ns}/local/forward_kinematics",
+                                lambda req, res: self._fk(req, res, local=True)),
+            node.create_service(QueryInverseKinematics, f"{ns}/inverse_kinematics", self._ik),
+            node.create_service(TriggerOperatingState, f"{ns}/operating_state", self._trigger_state),
+        ]
+        self.watched: set[str] = set()
+        self._js = {k: JointState() for k in ("measured_js", "setpoint_js", "jaw/measured_js", "jaw/setpoint_js")}
+        for k, m in self._js.items():
+            m.name = ["jaw"] if k.startswith("jaw/") else list(psm.joint_names)
+        self.published = 0
+        self.tool_present = True
+
+    # -- services (executor thread: kinematics only) -------------------------------------
+    def _fk(self, req, res, local: bool = False):
+        try:
+            T = self.psm.forward_kinematics(np.asarray(req.jp, float), local=local)
+        except ValueError as exc:
+            res.result, res.message = False, str(exc)
+            return res
+        matrix_to_pose(T, res.cp)
+        res.result = True
+        return res
+
+    def _ik(self, req, res):
+        try:
+            q = self.psm.inverse_kinematics(np.asarray(req.jp, float), pose_to_matrix(req.cp))
+        except ValueError as exc:
+            res.result, res.message = False, ("incorrect number of joints" if "incorrect" in str(exc)
+                                             else "inverse kinematics failed")
+            res.jp = list(np.asarray(req.jp, float))
+            return res
+        res.jp, res.result = [float(v) for v in q], True
+        return res
+
+    def _trigger_state(self, _req, res):
+        st = self.state.operating_state()
+        self._event_stamp(res.operating_state)
+        res.operating_state.state, res.operating_state.is_homed = st.state, st.is_homed
+        res.operating_state.is_busy = st.is_busy
+        return res
+
+    # -- commands (main thread) -------------------------------------------------------------
+    def apply(self, key: str, m) -> bool:
+        """Apply one received message; True when a motion command was obeyed. A malformed
+        one raises ValueError (the server counts and logs it)."""
+        psm, state, t = self.psm, self.state, self.psm.world.t
+        if key == "state_command":
+            state.command(str(m.string), t)
+            return False
+        if key in ("use_gravity_compensation", "body/set_cf_orientation_absolute", "emulate_tool_present"):
+            value = bool(m.data)
+            if key == "use_gravity_compensation":
+                psm.use_gravity_compensation(value)
+            elif key == "body/set_cf_orientation_absolute":
+                psm.body_cf_absolute = value
+            else:
+                # the simulated PSM always carries its tool; accepted and logged, as a
+                # tool that is really present makes the emulation moot
+                self.tool_present = value or True
+                psm.messages.append(("status", f"{self.name}: emulate_tool_present {value} (the simulated "
+                                               f"{psm.tool.name} is always present)"))
+            return False
+        if key == "trajectory_j/set_ratio":
+            psm.set_trajectory_ratio(float(m.data))
+            return False
+        act = self._motion(key, m)
+        return state.motion(key.replace("/", "_") if key.startswith("jaw/") else key, t, act,
+                            moving=key in MOVES, servo=key not in ("hold",))
+
+    def _motion(self, key: str, m):
+        psm = self.psm
+        if key in ("servo_jp", "move_jp", "servo_jr", "move_jr"):
+            p = list(m.position)
+            v = list(m.velocity)
+            fn = {"servo_jp": lambda: psm.servo_jp(p, v if len(v) else None), "move_jp": lambda: psm.move_jp(p),
+                  "servo_jr": lambda: psm.servo_jr(p), "move_jr": lambda: psm.move_jr(p)}[key]
+            if len(p) < 6:
+                raise ValueError(f"{key} needs 6 joint positions, got {len(p)}")
+            return fn
+        if key == "servo_jf":
+            e = list(m.effort)
+            if len(e) < 6:
+                raise ValueError(f"servo_jf needs 6 joint efforts, got {len(e)}")
+            return lambda: psm.servo_jf(e)
+        if key in ("servo_cp", "move_cp"):
+            T = pose_to_matrix(m.pose)
+            return (lambda: psm.servo_cp(T)) if key == "servo_cp" else (lambda: psm.move_cp(T))
+        if key in ("body/servo_cf", "spatial/servo_cf"):
+            f, tq = m.wrench.force, m.wrench.torque
+            w = [f.x, f.y, f.z, tq.x, tq.y, tq.z]
+            return lambda: psm.servo_cf(w, kind=key.split("/")[0])
+        if key == "servo_ci":
+            goal = impedance_from_msg(m)
+            return lambda: psm.servo_ci(goal)
+        if key == "hold":
+            return psm.hold
+        if key == "free":
+            return psm.free
+        if key in ("jaw/servo_jp", "jaw/move_jp"):
+            p = list(m.position)
+            if len(p) < 1:
+                raise ValueError(f"{key} needs 1 jaw position, got 0")
+            return (lambda: psm.jaw_servo_jp(p)) if key == "jaw/servo_jp" else (lambda: psm.jaw_move_jp(p))
+        if key == "jaw/servo_jf":
+            e = list(m.effort)
+            if len(e) < 1:
+                raise ValueError("jaw/servo_jf needs 1 jaw effort, got 0")
+            return lambda: psm.jaw_servo_jf(e)
+        raise ValueError(f"unknown command {key}")
+
+    # -- publishing (main thread) ------------------------------------------------------------
+    def refresh_watched(self, everything: bool = False) -> None:
+        """The streams to publish: those with a subscriber, or all of them."""
+        self.watched = set(self.pub) if everything else {k for k, p in self.pub.items()
+                                                          if p.get_subscription_count() > 0}
+
+    def publish_events(self) -> None:
+        """The operating state's and the arm's events and messages, in order."""
+        T, state, psm = self._T, self.state, self.psm
+        for st in state.events:
+            m = T["state"]()
+            self._event_stamp(m)
+            m.header.frame_id = self.name
+            m.state, m.is_homed, m.is_busy = st.state, st.is_homed, st.is_busy
+            self.event_pub["operating_state"].publish(m)
+        state.events.clear()
+        for kind, value in psm.events:
+            if kind == "goal_reached":
+                self.event_pub["goal_reached"].publish(T["bool"](data=bool(value)))
+            elif kind == "ratio":
+                for k in ("trajectory_j/ratio", "trajectory_j/ratio_v", "trajectory_j/ratio_a"):
+                    self.event_pub[k].publish(T["float"](data=float(value)))
+        psm.events.clear()
+        log = self.node.get_logger()
+        for level, text in state.messages + psm.messages:
+            # (one call site per severity: rclpy ties a call site to its first severity)
+            if level == "error":
+                log.error(text)
+            elif level == "warning":
+                log.warning(text)
+            else:
+                log.info(text)
+            self.event_pub[level].publish(T["string"](data=text))
+        state.messages.clear()
+        psm.messages.clear()
+
+    def _joint(self, key: str, q, dq, e, t: float) -> None:
+        m = self._js[key]
+        self._stamp(m, t)
+        # array('d') skips the generated setters' per-element checks
+        m.position, m.velocity, m.effort = array("d", q), array("d", dq), array("d", e)
+        self.pub[key].publish(m)
+
+    def _pose(self, key: str, T: np.ndarray, t: float, frame: str) -> None:
+        m = self._T["pose"]()
+        self._stamp(m, t)
+        m.header.frame_id = frame
+        matrix_to_pose(T, m.pose)
+        self.pub[key].publish(m)
+
+    def publish_streams(self, t: float) -> None:
+        """Every watched stream at sim time t (measured_js always: it is the arm's heartbeat)."""
+        psm, w = self.psm, self.watched
+        q, dq, e = psm.measured_js()
+        self._joint("measured_js", q[:6], dq[:6], e[:6], t)
+        self.published += 1
+        if not w:
+            return
+        if "jaw/measured_js" in w:
+            self._joint("jaw/measured_js", q[6:], dq[6:], e[6:], t)
+        if w & {"setpoint_js", "jaw/setpoint_js"}:
+            sq, sdq, se = psm.setpoint_js()
+            if "setpoint_js" in w:
+                self._joint("setpoint_js", sq[:6], sdq[:6], se[:6], t)
+            if "jaw/setpoint_js" in w:
+                self._joint("jaw/setpoint_js", sq[6:], sdq[6:], se[6:], t)
+        base = psm.reference_frame
+        for key, local in (("measured_cp", False), ("local/measured_cp", True)):
+            if key in w:
+                self._pose(key, psm.measured_cp(local=local), t, base)
+        if w & {"setpoint_cp", "local/setpoint_cp"}:
+            T_local = psm.setpoint_cp(local=True)
+            if "setpoint_cp" in w:
+                self._pose("setpoint_cp", psm.base_frame @ T_local, t, base)
+            if "local/setpoint_cp" in w:
+                self._pose("local/setpoint_cp", T_local, t, base)
+        for key, local in (("measured_cv", False), ("local/measured_cv", True)):
+            if key in w:
+                v = psm.measured_cv(local=local)
+                m = self._T["twist"]()
+                self._stamp(m, t)
+                m.header.frame_id = base
+                m.twist.linear.x, m.twist.linear.y, m.twist.linear.z = (float(x) for x in v[:3])
+                m.twist.angular.x, m.twist.angular.y, m.twist.angular.z = (float(x) for x in v[3:])
+                self.pub[key].publish(m)
+        for key in ("body/measured_cf", "spatial/measured_cf"):
+            if key in w:
+                f = psm.body_measured_cf() if key.startswith("body") else psm.spatial_measured_cf()
+                m = self._T["wrench"]()
+                self._stamp(m, t)
+                m.header.frame_id = psm.name if key.startswith("body") else base
+                m.wrench.force.x, m.wrench.force.y, m.wrench.force.z = (float(x) for x in f[:3])
+                m.wrench.torque.x, m.wrench.torque.y, m.wrench.torque.z = (float(x) for x in f[3:])
+                self.pub[key].publish(m)
+        for key in ("body/jacobian", "spatial/jacobian"):
+            if key in w:
+                J = psm.jacobian(key.split("/")[0])
+                m = self._T["mat"]()
+                m.layout.dim = [self._T["dim"](label="rows", size=J.shape[0], stride=J.size),
+                                self._T["dim"](label="columns", size=J.shape[1], stride=J.shape[1])]
+                m.data = array("d", J.ravel())
+                self.pub[key].publish(m)
+
+    def publish_initial(self) -> None:
+        """What a client that connects first finds: the trajectory ratio (latched nowhere on
+        the dVRK either; sent once at start)."""
+        self.psm.events.append(("ratio", self.psm.ratio))
+
+    def close(self) -> None:
+        for s in self.services:
+            self.node.destroy_service(s)

@@ -190,7 +190,8 @@ class RosArm:
         command_qos = QoSProfile(depth=qos_depth, history=HistoryPolicy.KEEP_LAST,
                                  reliability=ReliabilityPolicy.RELIABLE)
         t = self.topic
-        store = {"setpoint_js": (JointStateMsg, self._joint_state), "measured_cp": (PoseStamped, self._pose),
+        store = {"setpoint_js": (JointStateMsg, lambda m: self._model_joints(self._joint_state(m))),
+                 "measured_cp": (PoseStamped, self._pose),
                  "local/measured_cp": (PoseStamped, self._pose), "body/measured_cf": (WrenchStamped, self._wrench)}
         unknown = set(streams) - set(ALL_STREAMS)
         if unknown:
@@ -279,17 +280,21 @@ class RosArm:
             self.joint_count = n
         return self._index
 
+    def _model_joints(self, full: JointState) -> JointState:
+        """Joints 1-3 of a message of the whole arm (found by name, see the module docstring)."""
+        n = len(full.position)
+        idx = self._map(full.name, n)
+        if n <= 3 and idx == (0, 1, 2):
+            return full
+
+        def pick(v):
+            return v[list(idx)] if len(v) == n else v[:3]
+        return JointState(full.t, pick(full.position), pick(full.velocity), pick(full.effort),
+                          tuple(full.name[i] for i in idx) if full.name else ())
+
     def _on_measured_js(self, m) -> None:
         full = self._joint_state(m)
-        n = len(full.position)
-        idx = self._map(full.names, n)
-        if n > 3 or idx != (0, 1, 2):
-            def pick(v):
-                return v[list(idx)] if len(v) == n else v[:3]
-            js = JointState(full.t, pick(full.position), pick(full.velocity), pick(full.effort),
-                            tuple(full.names[i] for i in idx) if full.names else ())
-        else:
-            js = full
+        js = self._model_joints(full)
         with self._cond:
             self._full = (full.position, full.velocity)
             self._js = js

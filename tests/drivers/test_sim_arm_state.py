@@ -82,13 +82,21 @@ def test_enable_then_home_takes_its_time_busy_meanwhile(rig):
     assert not s.is_busy
 
 
-def test_busy_during_move_jp_until_arrived(rig):
+def test_busy_during_move_jp_until_its_trajectory_ends(rig):
+    """The dVRK's busy ends when the trajectory's set-point reached the goal (Reflexxes'
+    final state); the joints settle on it under the PID afterwards."""
     rig.ready()
     s = rig.state
     goal = rig.arm.home_position + np.array([0.2, -0.1, 0.02])
     assert s.move_jp(goal, rig.t) and s.is_busy
+    t0 = rig.t
     while s.is_busy:
-        rig.run(0.005)
+        assert rig.arm.is_moving()
+        rig.run(0.001)
+    assert not rig.arm.is_moving()
+    assert rig.t - t0 > 0.2  # 0.2 rad at half of 2 rad/s, on a smooth profile
+    np.testing.assert_allclose(rig.world.setpoint_js("PSM1")[0], goal, atol=1e-12)
+    rig.run(1.0)
     assert rig.arm.arrived()
     assert np.all(np.abs(rig.q() - goal) <= [2e-3, 2e-3, 1e-3])
     assert s.servo_jp(goal, None, rig.t) and not s.is_busy

@@ -192,8 +192,8 @@ class ArmBridge:
             psm.set_trajectory_ratio(float(m.data))
             return False
         act = self._motion(key, m)
-        return state.motion(key.replace("/", "_") if key.startswith("jaw/") else key, t, act,
-                            moving=key in MOVES, servo=key not in ("hold",))
+        # the dVRK's names in its "arm not ready" warning: jaw_servo_jp, body_servo_cf, ...
+        return state.motion(key.replace("/", "_"), t, act, moving=key in MOVES, servo=key not in ("hold",))
 
     def _motion(self, key: str, m):
         psm = self.psm

@@ -1,0 +1,36 @@
+"""A procedure that needs a faster arm stream than it hears says so in one line.
+
+`rig sim` at the dVRK console's default ROS period (0.01 s: measured_js at 100 Hz) and a
+procedure whose loop runs at 500 Hz (the default on ROS arms): it stops when connecting,
+before anything moves, with one line naming the rate heard, the rate needed and the
+console option to change. A procedure that moves no arm is not held to it.
+"""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+pytest.importorskip("rclpy")
+
+from tests.hil.harness import ServedRig, completed, lab_toml  # noqa: E402
+
+pytestmark = [pytest.mark.ros, pytest.mark.hil]
+
+
+def test_a_slow_stream_is_refused_in_one_line(tmp_path):
+    domain = 160 + (os.getpid() + 3) % 30
+    with ServedRig(tmp_path, domain, toml=lab_toml(tmp_path), sim_args=("--ros-period", "0.01", "--no-mocap")) as rig:
+        out = rig.run("loadcell-calibrate", "--seconds", "0.3")  # no arm: the stream rate does not matter
+        completed(out, "loadcell-calibrate")
+        out = rig.run("friction-ramp", "--no-plots")
+        assert out.code == 3, out.stderr[-2000:]
+        assert "Traceback" not in out.stderr
+        line = out.last_line
+        for words in ("/PSM1/measured_js", "heard at", "needs 500 Hz", "dvrk_system -p 0.002",
+                      "rig sim --ros-period 0.002"):
+            assert words in line, line
+        heard = float(line.split("heard at ")[1].split(" Hz")[0])
+        assert 50 <= heard <= 130, line  # 100 Hz, as the console publishes
+        assert out.doc is not None and out.doc["status"] == "aborted"

@@ -187,20 +187,29 @@ class SimPSM:
         self.homed = False  # set by the operating state: joint goals are clipped once homed
         self._cache_key = None
         self._cache: dict = {}
+        self._sample_key = None
+        self._sample = None
 
     # -- reading (what the dVRK computes in get_robot_data) --------------------------------
     def measured_js(self):
-        """(position (7,), velocity (7,), effort (7,)): joints 1-6 then the jaw."""
-        q3, dq3, e3 = self.world.measured_js(self.name)
-        qw, dqw, ew = self.wrist.measured()
-        return np.concatenate([q3, qw]), np.concatenate([dq3, dqw]), np.concatenate([e3, ew])
+        """(position (7,), velocity (7,), effort (7,)): joints 1-6 then the jaw. One sample
+        per period (the encoders and currents read once): every reading of a period, the
+        poses and wrenches included, comes from it."""
+        key = self.world.steps
+        if self._sample_key != key:
+            q3, dq3, e3 = self.world.measured_js(self.name)
+            qw, dqw, ew = self.wrist.measured()
+            self._sample = (np.concatenate([q3, qw]), np.concatenate([dq3, dqw]), np.concatenate([e3, ew]))
+            self._sample_key = key
+        q, dq, e = self._sample
+        return q.copy(), dq.copy(), e.copy()
 
     def setpoint_js(self):
         """(position, velocity, effort) set-points of joints 1-6 and the jaw; in effort mode
         the position set-point follows the measured position (the PID is in torque mode)."""
         q3, dq3, e3 = self.world.setpoint_js(self.name)
         if self.world.mode(self.name) != "position":
-            q3, dq3 = self.world.measured_js(self.name)[:2]
+            q3, dq3 = (v[:3] for v in self.measured_js()[:2])
         qw, dqw, ew = self.wrist.setpoint()
         return np.concatenate([q3, qw]), np.concatenate([dq3, dqw]), np.concatenate([e3, ew])
 
@@ -418,7 +427,7 @@ class SimPSM:
         self._set_space_mode(JOINT, POSITION)
         self._servo_goal = self.setpoint_js()[0]
         if self.world.mode(self.name) != "position":
-            self._servo_goal[:3] = self.world.measured_js(self.name)[0]
+            self._servo_goal[:3] = self.measured_js()[0][:3]
         self._servo_v = np.zeros(7)
         self._new_goal = True
         self.powered = True
@@ -482,7 +491,7 @@ class SimPSM:
         goal[6] = float(np.clip(goal[6], self.q_min[6], self.q_max[6]))
         start = self.setpoint_js()[0]
         if self.world.mode(self.name) != "position":
-            start[:3] = self.world.measured_js(self.name)[0]
+            start[:3] = self.measured_js()[0][:3]
         self.trajectory = JointTrajectory.plan(start, goal, self.clock.now(), self.ratio * self.dq_base,
                                                self.ratio * self.ddq_base)
         self.powered = True
@@ -501,7 +510,7 @@ class SimPSM:
 
         if self.trajectory is not None:
             return False
-        q, dq, _ = self.world.measured_js(self.name)
+        q, dq = (v[:3] for v in self.measured_js()[:2])
         goal = self._servo_goal[:3]
         return bool(np.all(np.abs(q - goal) <= ARRIVAL_TOLERANCE) and np.all(np.abs(dq) <= REST_VELOCITY))
 
@@ -516,7 +525,7 @@ class SimPSM:
     def _apply_effort(self, tau6: np.ndarray) -> None:
         tau = tau6.copy()
         if self.gravity_compensation:
-            tau[:3] += self._gc_model.gravity_torque(self.world.measured_js(self.name)[0])
+            tau[:3] += self._gc_model.gravity_torque(self.measured_js()[0][:3])
         self.world.servo_jf(self.name, tau[:3])
         self.wrist.servo_jf(np.concatenate([tau[3:6], [self._jaw_jf]]))
 

@@ -131,12 +131,12 @@ def run(ral, arm_name: str, system_name: str) -> dict:
     # servo_jp: a 2 s sine on joint 1 at 100 Hz, then servo_jr
     start, _ = psm.setpoint_jp()
     rate = ral.create_rate(100)
-    for i in range(200):
+    for i in range(201):
         g = numpy.copy(start)
         g[0] = start[0] + 0.05 * math.sin(2 * math.pi * i / 200)
         psm.servo_jp(g)
         rate.sleep()
-    time.sleep(0.3)
+    time.sleep(1.0)
     rec("after_servo_jp.measured_jp", psm.measured_jp)
     rec("servo_jr", psm.servo_jr, numpy.array([0.0, 0.0, 0.01, 0.0, 0.0, 0.0]))
     time.sleep(0.5)
@@ -179,40 +179,65 @@ def run(ral, arm_name: str, system_name: str) -> dict:
         rate.sleep()
     time.sleep(0.5)
     rec("jaw.after_servo_jp.measured_jp", psm.jaw.measured_jp)
-    # efforts: the arm at rest holds with some effort; each effort command is given that
-    # effort (as joint efforts, as a spatial and as a body wrench) so the arm stays, and
-    # the set-point's effort (what the arm applies) is recorded against the command
+    # efforts. A wrench and the joint state of the same period (the same stamp) first: the
+    # wrench is what the efforts make through the Jacobians. Then each effort command, for a
+    # tenth of a second from a held arm and back to hold: the effort that holds the arm, the
+    # same as a spatial and as a body wrench (through the Jacobians the arm publishes), zero
+    # with gravity compensation, free; the set-point's effort (what the arm applies, with
+    # the joints of the same period) is recorded against the command.
     rec("body_set_cf_orientation_absolute", psm.body_set_cf_orientation_absolute, False)
     time.sleep(0.5)
+    for kind, cf in (("spatial", psm.spatial.measured_cf), ("body", psm.body.measured_cf)):
+        t_end = time.monotonic() + 5.0
+        while time.monotonic() < t_end:
+            w, t_w = cf()
+            js = psm.measured_js()
+            if abs(js[3] - t_w) < 1e-6:
+                rec(f"effort.{kind}_wrench", lambda w=w: w)
+                rec(f"effort.{kind}_wrench_js", lambda js=js: js)
+                break
+            time.sleep(0.001)
     rest = rec("effort.rest_js", psm.measured_js)
     tau = numpy.array(rest[2])
-    rec("servo_jf", psm.servo_jf, tau)
-    time.sleep(0.3)
-    rec("after_servo_jf.setpoint_js", psm.setpoint_js)
-    wrench_s, _ = psm.spatial.measured_cf()
-    rec("effort.spatial_wrench", lambda: wrench_s)
-    rec("effort.spatial_wrench_js", psm.measured_js)
-    rec("spatial.servo_cf", psm.spatial.servo_cf, wrench_s)
-    time.sleep(0.3)
-    rec("after_spatial_cf.setpoint_js", psm.setpoint_js)
-    wrench_b, _ = psm.body.measured_cf()
-    rec("effort.body_wrench", lambda: wrench_b)
-    rec("effort.body_wrench_js", psm.measured_js)
-    rec("body.servo_cf", psm.body.servo_cf, wrench_b)
-    time.sleep(0.3)
-    rec("after_body_cf.setpoint_js", psm.setpoint_js)
-    rec("after_body_cf.measured_jp", psm.measured_jp)
+    # each wrench through the Jacobian the arm publishes just before it is sent (held still)
+    def wrench(kind: str):
+        J = (psm.spatial if kind == "spatial" else psm.body).jacobian()[0]
+        w = numpy.linalg.solve(J.T, tau)
+        rec(f"{kind}_cf.wrench", lambda: w)
+        (psm.spatial if kind == "spatial" else psm.body).servo_cf(w)
+
+    commands = {"servo_jf": lambda: psm.servo_jf(tau), "spatial_cf": lambda: wrench("spatial"),
+                "body_cf": lambda: wrench("body")}
+    def setpoint_after(sent: float):
+        """The first setpoint_js stamped 20 ms or more after `sent` (the arm's own clock;
+        on a loaded machine the arm runs behind)."""
+        t_end = time.monotonic() + 3.0
+        sp = psm.setpoint_js()
+        while sp[3] < sent + 0.02 and time.monotonic() < t_end:
+            time.sleep(0.002)
+            sp = psm.setpoint_js()
+        return sp
+
+    for name, command in commands.items():
+        sent = ral.to_sec(ral.now())
+        rec(name, command)
+        rec(f"after_{name}.setpoint_js", setpoint_after, sent)
+        psm.hold()
+        time.sleep(0.3)
+    rec("after_efforts.measured_jp", psm.measured_jp)
     rec("jaw.servo_jf", psm.jaw.servo_jf, numpy.array([0.0]))
+    psm.hold()
     # gravity compensation: the arm adds its model's gravity torque to the command
     rec("use_gravity_compensation", psm.use_gravity_compensation, True)
-    time.sleep(0.1)
+    time.sleep(0.2)
+    sent = ral.to_sec(ral.now())
     rec("servo_jf.gc", psm.servo_jf, numpy.zeros(6))
-    time.sleep(0.05)
-    rec("after_servo_jf_gc.setpoint_js", psm.setpoint_js)
-    rec("after_servo_jf_gc.measured_jp", psm.measured_jp)
+    rec("after_servo_jf_gc.setpoint_js", setpoint_after, sent)
+    psm.hold()
+    time.sleep(0.3)
+    sent = ral.to_sec(ral.now())
     rec("free", psm.free)
-    time.sleep(0.05)
-    rec("after_free.setpoint_js", psm.setpoint_js)
+    rec("after_free.setpoint_js", setpoint_after, sent)
     rec("hold", psm.hold)
     time.sleep(1.0)
     rec("after_hold.measured_js", psm.measured_js)

@@ -33,4 +33,3 @@ def test_a_slow_stream_is_refused_in_one_line(tmp_path):
             assert words in line, line
         heard = float(line.split("heard at ")[1].split(" Hz")[0])
         assert 50 <= heard <= 130, line  # 100 Hz, as the console publishes
-        assert out.doc is not None and out.doc["status"] == "aborted"

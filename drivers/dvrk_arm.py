@@ -179,6 +179,7 @@ class RosArm:
         self._full: tuple[np.ndarray, np.ndarray] | None = None  # all joints' (q, dq), newest
         self.wrist_hold: np.ndarray | None = None
         self._state_client = None
+        self._impedance_type = None
         self._console = console if console == "auto" else "/" + console.strip("/")
         if self._console != "auto":
             self._set_console(self._console)
@@ -501,6 +502,57 @@ class RosArm:
         """Joint efforts (N m, N) in the JointState effort field; three values for joints
         1-3 (the wrist held by a soft PD), or the whole arm's."""
         self._publish("servo_jf", effort=self._whole(effort, self._wrist_effort()))
+
+    def servo_ci(self, position, orientation=None, stiffness=(0.0, 0.0, 0.0), damping=(0.0, 0.0, 0.0),
+                 bias=(0.0, 0.0, 0.0), deadband=(0.0, 0.0, 0.0), torque_stiffness=(0.0, 0.0, 0.0),
+                 torque_damping=(0.0, 0.0, 0.0)) -> None:
+        """The arm's Cartesian impedance about the tool-tip goal `position` (m, 3) and
+        `orientation` (3x3; default: the force frame's identity and the newest measured_cp's
+        rotation for the torque), in the frame of measured_cp, run by the dVRK in its servo
+        loop (crtk_msgs/CartesianImpedance on <arm>/servo_ci): per axis of the base frame a
+        spring `stiffness` (N/m, >= 0), damper `damping` (N s/m), `bias` (N) and `deadband`
+        (m); the orientation's `torque_stiffness` (N m/rad) and `torque_damping`. The same
+        gains on both half-planes. The dVRK's controller adds p * (pose - goal): the
+        stiffness and damping are sent negated, as its own examples do."""
+        if self._impedance_type is None:
+            from crtk_msgs.msg import CartesianImpedance
+
+            self._impedance_type = CartesianImpedance
+            self._pubs["servo_ci"] = self.node.create_publisher(CartesianImpedance, f"{self.namespace}/servo_ci",
+                                                                self._command_qos)
+        from drivers.quaternion import matrix_to_quat_xyzw
+
+        m = self._impedance_type()
+        m.header.stamp = self.node.get_clock().now().to_msg()
+        p = _vector(position, "servo_ci position")
+        m.force_position.x, m.force_position.y, m.force_position.z = p[:3]
+        o = m.force_orientation
+        o.x, o.y, o.z, o.w = 0.0, 0.0, 0.0, 1.0
+        R = np.eye(3) if orientation is None else np.asarray(orientation, float)
+        t = m.torque_orientation
+        t.x, t.y, t.z, t.w = (float(v) for v in matrix_to_quat_xyzw(R))
+
+        def fill(gains, p_, d_, b_, dead_):
+            for field_, values, sign in (("p", p_, -1.0), ("d", d_, -1.0), ("bias", b_, 1.0),
+                                         ("deadband", dead_, 1.0)):
+                v = getattr(gains, field_)
+                v.x, v.y, v.z = (sign * float(x) for x in np.broadcast_to(np.asarray(values, float), (3,)))
+
+        for half, b in (("positive", bias), ("negative", bias)):
+            fill(getattr(m, f"position_{half}"), stiffness, damping, b, deadband)
+            fill(getattr(m, f"orientation_{half}"), torque_stiffness, torque_damping, (0.0, 0.0, 0.0),
+                 (0.0, 0.0, 0.0))
+        self._pubs["servo_ci"].publish(m)
+
+    def use_gravity_compensation(self, on: bool) -> None:
+        """Ask the arm to add its model's gravity torque to effort commands (servo_jf,
+        servo_cf, servo_ci), as the dVRK's feed-forward."""
+        from std_msgs.msg import Bool
+
+        if "use_gravity_compensation" not in self._pubs:
+            self._pubs["use_gravity_compensation"] = self.node.create_publisher(
+                Bool, f"{self.namespace}/use_gravity_compensation", self._command_qos)
+        self._pubs["use_gravity_compensation"].publish(Bool(data=bool(on)))
 
     def move_jp(self, position, wait: bool = True, timeout: float = 10.0) -> bool:
         """Start the dVRK's trajectory to `position`; with wait, block until it is done.

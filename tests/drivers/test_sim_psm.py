@@ -162,7 +162,9 @@ def test_servo_ci_is_a_spring_about_the_goal(rig):
         rig.run(2.0)
         rest.append(rig.psm.measured_cp()[:3, 3])
     assert np.linalg.norm(rest[0] - T0[:3, 3]) < 0.006
-    np.testing.assert_allclose(rest[1] - rest[0], [0.005, 0.0, 0.0], atol=1.5e-3)
+    # within the arm's friction band (about 2 N at the tip: 2 mm on 1000 N/m)
+    moved = rest[1] - rest[0]
+    assert abs(moved[0] - 0.005) < 3e-3 and np.all(np.abs(moved[1:]) < 1e-3), moved
 
 
 def test_deadband_and_bias_of_the_impedance(rig):

@@ -16,8 +16,12 @@ open are solved here rather than guessed:
   the wrist at (q3 - l_RCC + l_tool) past the RCM (l_RCC = 0.4318 m, l_tool = 0.4162 m for
   the large needle driver), so frame 7 gets a constant offset that makes the two agree.
 
-`measured_cp` of the dVRK is the tool-tip pose in the RCM frame: origin at the RCM, -z
-along the tool at q = 0, yaw about -y, pitch about -x. `RCM_FRAME` maps it to frame 0.
+The RCM frame is the dVRK's PSM kinematic base frame: origin at the RCM, -z along the tool
+at q = 0, yaw about -y, pitch about -x. `RCM_FRAME` maps it to frame 0. What this module
+calls the tip is the shaft end (the wrist-pitch axis point), where the simulated object
+is attached; the dVRK's `measured_cp` is the tool tip of its whole PSM with a tool, 9.1 mm
+further along the shaft for the large needle driver and turned 90 deg about it:
+`rig.psm_arm_kinematics` (forward(q) = tip_pose_rcm(q[:3]) @ RIG_TIP_TO_TOOL_TIP at wrist 0).
 
 Units: m and rad. Joint 3 (insertion) is in m.
 """
@@ -171,7 +175,8 @@ def tip_jacobian_rcm(q: np.ndarray) -> np.ndarray:
 
 
 def tip_pose_rcm(q: np.ndarray) -> np.ndarray:
-    """Tool-tip pose in the RCM frame (4x4), orientation of frame 7 (wrist at zero)."""
+    """Shaft-end pose in the RCM frame (4x4), orientation of frame 7 (wrist at zero); the
+    dVRK's tool tip is `rig.psm_arm_kinematics.PSMKinematics.forward`."""
     return RCM_FRAME_INV @ frames(q)["tip"]
 
 

@@ -44,7 +44,8 @@ def main() -> int:
     os.environ["ROS_DOMAIN_ID"] = str(100 + os.getpid() % 100)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "sim", "--arms", args.arms,
-                             "--rate", str(args.rate), "--duration", str(args.seconds + 30)],
+                             "--rate", str(args.rate), "--ros-period", str(1.0 / args.rate),
+                             "--duration", str(args.seconds + 30)],
                             stdout=subprocess.PIPE, text=True)
     for line in proc.stdout:
         if line.strip() == "ready":

@@ -136,7 +136,6 @@ class ArmBridge:
         for k, m in self._js.items():
             m.name = ["jaw"] if k.startswith("jaw/") else list(psm.joint_names)
         self.published = 0
-        self.tool_present = True
 
     # -- services (executor thread: kinematics only) -------------------------------------
     def _fk(self, req, res, local: bool = False):
@@ -182,9 +181,8 @@ class ArmBridge:
             elif key == "body/set_cf_orientation_absolute":
                 psm.body_cf_absolute = value
             else:
-                # the simulated PSM always carries its tool; accepted and logged, as a
-                # tool that is really present makes the emulation moot
-                self.tool_present = value or True
+                # the simulated PSM always carries its tool: accepted and logged, as a tool
+                # that is really present makes the emulation moot
                 psm.messages.append(("status", f"{self.name}: emulate_tool_present {value} (the simulated "
                                                f"{psm.tool.name} is always present)"))
             return False

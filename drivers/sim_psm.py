@@ -49,11 +49,9 @@ import numpy as np
 from drivers.crtk import PSM_JOINT_NAMES
 from drivers.sim_arm import DDQ_MAX, JointTrajectory
 from rig import psm_kinematics as K
+from rig.psm_arm_kinematics import rotation_error
+from rig.psm_tool import SAFE_DISTANCE_FROM_RCM, SAFE_DISTANCE_FROM_RCM_BUFFER
 
-#: m, the shaft end's least distance from the RCM for cartesian control (dVRK PSM::SafeDistanceFromRCM)
-SAFE_DISTANCE_FROM_RCM = 0.045
-#: m, the hysteresis the dVRK allows below it once in cartesian space
-SAFE_DISTANCE_BUFFER = 0.002
 #: rad/s and rad/s^2 of joints 4-6 and the jaw at trajectory ratio 1 (our choice: the
 #: tool's wrist turns a quarter turn in about half a second)
 WRIST_DQ = np.array([3.0, 3.0, 3.0, 3.0])
@@ -72,22 +70,6 @@ def _vector(values, n: int, what: str, at_least: int | None = None) -> np.ndarra
     if not np.all(np.isfinite(v)):
         raise ValueError(f"{what} contains a non-finite value: {v.tolist()}")
     return v
-
-
-def _rotation_log(R: np.ndarray) -> np.ndarray:
-    """Axis times angle of a rotation matrix (the dVRK's vctAxAnRot3)."""
-    c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
-    angle = float(np.arccos(c))
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    s = np.linalg.norm(w)
-    if angle < 1e-9:
-        return 0.5 * w
-    if s < 1e-9:  # angle ~ pi: the axis from the symmetric part
-        B = (R + np.eye(3)) / 2.0
-        axis = B[int(np.argmax(np.diag(B)))]
-        axis = axis / np.linalg.norm(axis)
-        return angle * axis
-    return angle * w / s
 
 
 class Impedance:
@@ -124,7 +106,7 @@ class Impedance:
         Rf, Rt, g = self.force_orientation, self.torque_orientation, self.gains
         err = Rf.T @ (T[:3, 3] - self.force_position)
         force = Rf @ self._axes(err, Rf.T @ v, g["position_positive"], g["position_negative"])
-        err_r = _rotation_log(Rt.T @ T[:3, :3])
+        err_r = rotation_error(Rt.T @ T[:3, :3], np.eye(3))  # axis times angle (vctAxAnRot3)
         torque = Rt @ self._axes(err_r, Rt.T @ w, g["orientation_positive"], g["orientation_negative"])
         return np.concatenate([force, torque])
 
@@ -289,7 +271,7 @@ class SimPSM:
     def _safe_for_cartesian(self) -> bool:
         q = self.measured_js()[0]
         depth = float(np.linalg.norm(self.kin.shaft_point(q[:6])))
-        return depth >= SAFE_DISTANCE_FROM_RCM - SAFE_DISTANCE_BUFFER
+        return depth >= SAFE_DISTANCE_FROM_RCM - SAFE_DISTANCE_FROM_RCM_BUFFER
 
     def _set_space_mode(self, space: str, mode: str) -> bool:
         """The dVRK's SetControlSpaceAndMode: False (and a warning, once) when cartesian

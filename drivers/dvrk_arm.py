@@ -180,6 +180,7 @@ class RosArm:
         self.wrist_hold: np.ndarray | None = None
         self._state_client = None
         self._impedance_type = None
+        self._stamps: deque[float] = deque(maxlen=64)  # header stamps of the newest measured_js
         self._console = console if console == "auto" else "/" + console.strip("/")
         if self._console != "auto":
             self._set_console(self._console)
@@ -218,11 +219,16 @@ class RosArm:
                 self._subs.append(node.create_subscription(String, t["error"], self._on_error, sensor_qos))
                 self._pubs["state_command"] = node.create_publisher(StringStamped, t["state_command"], command_qos)
                 try:
+                    from crtk_msgs.msg import CartesianImpedance
                     from crtk_msgs.srv import TriggerOperatingState
                 except ImportError:
                     pass
                 else:
                     self._state_client = node.create_client(TriggerOperatingState, t["operating_state"])
+                    # made with the others, so that discovery has matched it before a first servo_ci
+                    self._impedance_type = CartesianImpedance
+                    self._pubs["servo_ci"] = node.create_publisher(CartesianImpedance, f"{self.namespace}/servo_ci",
+                                                                   command_qos)
         else:
             self.states_error = "states=False"
         self._command_qos = command_qos
@@ -297,6 +303,7 @@ class RosArm:
         full = self._joint_state(m)
         js = self._model_joints(full)
         with self._cond:
+            self._stamps.append(full.t)
             self._full = (full.position, full.velocity)
             self._js = js
             self._js_log.append(js)
@@ -365,6 +372,16 @@ class RosArm:
         self._stale_callbacks.append(fn)
 
     # -- reading ------------------------------------------------------------------------
+    def published_rate(self) -> float:
+        """Hz at which the arm publishes measured_js, from the header stamps of the newest
+        messages (the median interval): what the console sends, whatever delays this
+        process's reading of them (0.0 before two messages)."""
+        with self._lock:
+            t = np.array(self._stamps)
+        d = np.diff(t)
+        d = d[d > 0]
+        return float(1.0 / np.median(d)) if d.size else 0.0
+
     def stream_age(self) -> float:
         """Seconds since the last measured_js (inf before the first)."""
         with self._lock:
@@ -515,11 +532,7 @@ class RosArm:
         gains on both half-planes. The dVRK's controller adds p * (pose - goal): the
         stiffness and damping are sent negated, as its own examples do."""
         if self._impedance_type is None:
-            from crtk_msgs.msg import CartesianImpedance
-
-            self._impedance_type = CartesianImpedance
-            self._pubs["servo_ci"] = self.node.create_publisher(CartesianImpedance, f"{self.namespace}/servo_ci",
-                                                                self._command_qos)
+            raise RuntimeError(f"{self.namespace}/servo_ci: crtk_msgs are not available ({self.states_error})")
         from drivers.quaternion import matrix_to_quat_xyzw
 
         m = self._impedance_type()
@@ -804,14 +817,15 @@ class RosArm:
 
     def console_namespace(self) -> str:
         """The console's namespace; with console="auto", found from the ROS graph: "/system"
-        when /system/ topics exist (dVRK 2.4), "/console" when /console/ ones do (2.3), and
-        "/console" if neither shows within 2 s."""
+        when /system/power_on exists (dVRK 2.4), "/console" when /console/power_on does
+        (2.3), and "/console" if neither shows within 2 s."""
         if self._console == "auto":
             # the graph fills in as discovery goes on: look for up to 2 s
             found, deadline = None, time.monotonic() + 2.0
             while found is None and time.monotonic() < deadline:
                 names = [n for n, _ in self.node.get_topic_names_and_types()]
-                found = next((ns for ns in ("/system", "/console") if any(n.startswith(ns + "/") for n in names)), None)
+                # the power topic itself: a 2.4 system has /console/teleop/... too
+                found = next((ns for ns in ("/system", "/console") if f"{ns}/power_on" in names), None)
                 if found is None:
                     time.sleep(0.05)
             self._set_console(found or "/console")
@@ -828,9 +842,10 @@ class RosArm:
         self._pubs["home"].publish(self._Empty())
 
     def wait_for_subscribers(self, timeout: float = 5.0) -> bool:
-        """Block until every command topic has a subscriber (the controller is there)."""
+        """Block until every command topic has a subscriber (the controller is there);
+        servo_ci not counted (a dVRK before 2.2 has none)."""
         deadline = time.monotonic() + timeout
-        while any(p.get_subscription_count() == 0 for p in self._pubs.values()):
+        while any(p.get_subscription_count() == 0 for k, p in self._pubs.items() if k != "servo_ci"):
             if time.monotonic() > deadline:
                 return False
             time.sleep(0.01)

@@ -297,21 +297,25 @@ RATE_MARGIN = 0.6
 
 
 def check_stream_rates(rig: Rig, cfg, names: list[str], rates: dict) -> None:
-    """Refuse, in one line, arms whose measured_js comes slower than the rig's loop needs.
+    """Refuse, in one line, arms whose measured_js is published slower than the rig's loop needs.
 
-    Every control tick of a run on ROS arms waits for a fresh measured_js of every arm
+    The rate published is read from the messages' header stamps (`RosArm.published_rate`),
+    not from how many arrived: a process starved of CPU reads a healthy stream late, and
+    must not take it for a slow console. Every control tick of a run on ROS arms waits for a fresh measured_js of every arm
     (`rig.clock.StreamClock` at [rig] rate): a console publishing at 100 Hz (`dvrk_system`'s
     default `-p 0.01`) would run a 500 Hz loop at 100 Hz, where the effort loops of the
     procedures are not stable. The line names the rate heard, the rate needed and the
     console option to change."""
     needed = float(cfg.rig["rate"])
     for n in names:
-        topic = rig.arms[n].topic["measured_js"]
-        heard = rates.get(topic, 0.0)
+        arm = rig.arms[n]
+        topic = arm.topic["measured_js"]
+        rate = getattr(arm, "published_rate", None)
+        heard = rate() if rate is not None else rates.get(topic, 0.0)
         if heard < RATE_MARGIN * needed:
             period = 1.0 / needed
             raise ConnectError(
-                f"{topic}: heard at {heard:.0f} Hz, the rig's loop needs {needed:g} Hz ([rig] rate in "
+                f"{topic}: heard at {heard:.0f} Hz (published, from its stamps), the rig's loop needs {needed:g} Hz ([rig] rate in "
                 f"{cfg.source}): start the dVRK console with `dvrk_system -p {period:g}` (or `rig sim --ros-period "
                 f"{period:g}`), or lower [rig] rate to {max(1, int(heard)):d}")
 

@@ -236,14 +236,14 @@ def test_servo_ci_is_a_spring_the_arm_closes_itself(rig_sim):
     start = arm.measured_cp()
     rest = []
     for dx in (0.0, 0.005):
-        arm.servo_ci(start.position + [dx, 0.0, 0.0], start.rotation, stiffness=1000.0, damping=25.0,
-                     torque_stiffness=0.05, torque_damping=0.001)
-        # the arm settles in well under a second of its time; on a loaded machine rig sim runs
-        # slower than real time: wait for 1.5 s of its own clock
+        # streamed, as servo commands are; the arm settles in well under a second of its
+        # time; on a loaded machine rig sim runs slower than real time: 1.5 s of its own clock
         t0 = arm.measured_js().t
         deadline = time.monotonic() + 30.0
         while arm.measured_js().t - t0 < 1.5 and time.monotonic() < deadline:
-            time.sleep(0.05)
+            arm.servo_ci(start.position + [dx, 0.0, 0.0], start.rotation, stiffness=1000.0, damping=25.0,
+                         torque_stiffness=0.05, torque_damping=0.001)
+            time.sleep(0.02)
         rest.append(arm.measured_cp().position)
     assert np.linalg.norm(rest[0] - start.position) < 0.006
     # within the arm's friction band: Coulomb friction of about 0.2 N m on joints 1-2 at

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rig import psm_kinematics as K
-from rig.faults import DeviceFault
+from rig.faults import DeviceFault, silence_text, starved_text
 
 # dVRK PSM joint names (sensor_msgs/JointState.name), joints 1-6; the jaw is separate.
 PSM_JOINT_NAMES = ("outer_yaw", "outer_pitch", "outer_insertion",
@@ -35,17 +35,26 @@ REST_VELOCITY = np.array([0.02, 0.02, 0.004])
 class StaleStream(DeviceFault):
     """An arm's measured_js stopped arriving for longer than the watchdog interval.
 
-    `topic` names the stream and `age` is seconds since its last message (inf if none).
+    `topic` names the stream, `age` is seconds since its last message (inf if none),
+    `watchdog` the limit (s), `rate_hz` the rate the arm had been publishing at (from its
+    header stamps; 0: unknown), `setting` the rig.toml key of the limit (default
+    `[arms.<name>] watchdog`, the name from the topic). The line says all of it, and that a
+    starved process looks the same as a stopped console.
     """
 
-    def __init__(self, topic: str, age: float, watchdog: float):
+    def __init__(self, topic: str, age: float, watchdog: float, *, rate_hz: float = 0.0,
+                 setting: str | None = None):
+        from rig.ros_session import domain_text
+
         self.topic = topic
         self.age = age
         self.watchdog = watchdog
-        since = "never received" if not np.isfinite(age) else f"no message for {age * 1e3:.0f} ms"
-        super().__init__(f"{topic}: stale stream, {since} (watchdog {watchdog * 1e3:.0f} ms); "
-                         "the driver commands the arm to hold. Check that the dVRK console (or `rig sim`) "
-                         "is running and ROS_DOMAIN_ID matches")
+        self.rate_hz = rate_hz
+        self.setting = setting or f"[arms.{topic.strip('/').split('/')[0]}] watchdog"
+        super().__init__(f"{topic}: stale stream, {silence_text(age, rate_hz)}, beyond the {watchdog * 1e3:.0f} ms "
+                         f"watchdog ({self.setting}); the driver commands the arm to hold. "
+                         + starved_text(self.setting, f"the dVRK console (or `rig sim`) runs on {domain_text()}",
+                                        "start it there"))
 
 
 #: crtk_msgs/OperatingState.state values

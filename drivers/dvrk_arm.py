@@ -122,13 +122,14 @@ class RosArm:
     counted up to then, so that a starved process never takes a healthy stream for a stale
     one (None: up to now, for an executor that is never starved); states: read
     operating_state and send state_command (False: neither, as on a controller without
-    the CRTK state machine).
+    the CRTK state machine); setting: the rig.toml key of `watchdog`, named by a stale
+    stream's line (default `[arms.<name>] watchdog`, the name from the namespace).
     """
 
     def __init__(self, node, namespace: str, watchdog: float = 0.05, *, spin: bool = True,
                  on_stale: StaleCallback | None = None, console: str = "/console", qos_depth: int = 10,
                  streams: tuple[str, ...] = ALL_STREAMS, polled: Callable[[], float] | None = None,
-                 states: bool = True):
+                 states: bool = True, setting: str | None = None):
         from geometry_msgs.msg import PoseStamped, WrenchStamped
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState as JointStateMsg
@@ -140,6 +141,8 @@ class RosArm:
         self.namespace = "/" + namespace.strip("/")
         self.name = self.namespace.strip("/").split("/")[-1]
         self.watchdog = float(watchdog)
+        #: the rig.toml key of the watchdog, for the stale stream's line
+        self.setting = setting or f"[arms.{self.name}] watchdog"
         self._polled = polled
         self._JointState = JointStateMsg
         self._Empty = Empty
@@ -347,7 +350,7 @@ class RosArm:
             with self._lock:
                 self._stale_fired = True
             self.stale_events += 1
-            err = StaleStream(self.topic["measured_js"], age, self.watchdog)
+            err = self._stale(age)
             try:
                 with self._lock:
                     full = self._full
@@ -359,6 +362,12 @@ class RosArm:
                     cb(err)
                 except Exception as exc:  # noqa: BLE001 - report, and still call the others
                     self.node.get_logger().error(f"{self.name}: stale callback failed: {exc}")
+
+    def _stale(self, age: float) -> StaleStream:
+        """The StaleStream of measured_js `age` s old: with the rate the arm had been
+        publishing at and the rig.toml key of the watchdog."""
+        return StaleStream(self.topic["measured_js"], age, self.watchdog, rate_hz=self.published_rate(),
+                           setting=self.setting)
 
     def _age(self, rx: float) -> float:
         """Seconds the executor has been looking for measured_js since the last one came."""
@@ -422,7 +431,7 @@ class RosArm:
             raise self._fault_raised(fault)
         age = float("inf") if rx is None else self._age(rx)
         if js is None or age > self.watchdog:
-            raise StaleStream(self.topic["measured_js"], age, self.watchdog)
+            raise self._stale(age)
         return js
 
     def drain_js(self) -> list[JointState]:
@@ -649,7 +658,7 @@ class RosArm:
         with self._lock:
             js, full = self._js, self._full
         if js is None:
-            raise StaleStream(self.topic["measured_js"], float("inf"), self.watchdog)
+            raise self._stale(float("inf"))
         self._publish("servo_jp", position=full[0] if full is not None else js.position)
 
     # -- operating state ----------------------------------------------------------------

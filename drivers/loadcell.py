@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Callable
 
 from drivers.interfaces import ForceSample
-from rig.faults import DeviceFault
+from rig.faults import DeviceFault, rate_of, silence_text, starved_text
 
 # --------------------------------------------------------------------------- protocol
 
@@ -715,6 +715,7 @@ class _StreamingLoadCell(abc.ABC):
         self._latest: ForceSample | None = None
         self._last_rx: float | None = None
         self._last_poll: float | None = None  # clock() when the reader last looked at the transport
+        self._device_times: deque[float] = deque(maxlen=64)  # device s of the newest samples (their rate)
         self._streaming = False
         self._error: LoadCellError | None = None
         self._replies: queue.Queue[tuple[int, bytes]] = queue.Queue()
@@ -728,6 +729,8 @@ class _StreamingLoadCell(abc.ABC):
         self._tare_pending = False
 
     _seq_bits = 32
+    #: the rig.toml key of `stale_timeout`, named by the stale line
+    setting = "[loadcell] stale_timeout"
     connect_timeout = 2.5  # s, covers the Arduino bootloader after a DTR reset
 
     # ---- reader-thread side
@@ -740,9 +743,18 @@ class _StreamingLoadCell(abc.ABC):
         if self._streaming and self._error is None and self._last_rx is not None:
             age = now - self._last_rx
             if age > self.stale_timeout:
-                self._fail(LoadCellDisconnected(
-                    f"load cell on {self.name}: no sample for {age * 1e3:.0f} ms "
-                    f"(stale timeout {self.stale_timeout * 1e3:.0f} ms); check the cable and power"))
+                self._fail(LoadCellDisconnected(self._stale_line(age)))
+
+    def _stale_line(self, age: float) -> str:
+        """The one line of a cell silent for `age` s: how long, at what rate its samples had
+        been coming (the device's own clock; the rate it was set to before two samples),
+        the limit and its key, and that a starved process looks the same as a dead cable."""
+        with self._lock:
+            rate = rate_of(self._device_times) or float(self.rate_hz)
+        return (f"load cell on {self.name}: {silence_text(age, rate, noun='sample')}, beyond the stale timeout "
+                f"{self.stale_timeout * 1e3:.0f} ms ({self.setting}). "
+                + starved_text(self.setting, "the cell is plugged in and powered (or `rig sim` runs)",
+                               "check the cable and power"))
 
     def _on_raw_sample(self, s: RawSample, rx: float, elapsed_periods: float | None = None) -> bool:
         """Deliver one decoded sample; False if it was out of order (counted, not delivered)."""
@@ -750,6 +762,7 @@ class _StreamingLoadCell(abc.ABC):
         if not self._seq.accept(s.seq, elapsed_periods):
             return False
         t = self._clockmap.map(s.t_us, rx)
+        device_t = self._clockmap._ext_us * 1e-6  # the unwrapped device time map() just took
         cal = self.calibration
         force = cal.newtons(s.counts) if cal is not None else math.nan
         sample = ForceSample(t=t, force=force, raw=s.counts, seq=s.seq)
@@ -763,6 +776,7 @@ class _StreamingLoadCell(abc.ABC):
             self._buffer.append(sample)
             self._latest = sample
             self._last_rx = rx
+            self._device_times.append(device_t)
         if self.on_sample is not None:
             self.on_sample(sample, rx)
         return True

@@ -13,8 +13,11 @@ ordered, so the missing ones will not come), or when the newest stamp seen is mo
 that drops lost bodies). Bodies without a message in a frame are None. A message for a
 stamp at or before the last emitted frame is late: it is counted and dropped, never
 merged into a later frame. A stream that has not delivered a message for `stale_timeout`
-s makes `frames()`/`latest()` raise MocapStaleError naming the body and topic; frames
-received before that are kept and returned by the next `frames()` call after recovery.
+s makes `frames()`/`latest()` raise MocapStaleError naming the body and topic, how long it
+has been silent, the rate it had been coming at (from its header stamps), the rig.toml key
+of the limit (`[mocap] stale_timeout`) and that a starved process looks the same as a
+stopped bridge; frames received before that are kept and returned by the next `frames()`
+call after recovery.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import numpy as np
 
 from drivers.interfaces import Pose, TrackerFrame
 from drivers.quaternion import quat_xyzw_to_matrix
-from rig.faults import DeviceFault
+from rig.faults import DeviceFault, rate_of, silence_text, starved_text
 
 
 class MocapStaleError(DeviceFault):
@@ -73,7 +76,9 @@ class RosMocapTracker:
 
     node: an rclpy Node that someone else spins (STYLE item 1: the driver gets its
     transport). bodies: rigid-body names. prefix: topic prefix (see `pose_topic`).
-    stale_timeout: s without a message on any body's topic before reads raise.
+    stale_timeout: s without a message on any body's topic before reads raise (the
+    `[mocap] stale_timeout` key; `rig.config.stale_default` derives its default from the
+    frame rate: 2.0 s at any rate above 5 Hz). setting: that key's name, for the stale line.
     assembly_window: s of stamp time after which an incomplete frame is emitted.
     reliable: subscribe RELIABLE (only matches reliable publishers) instead of the
     default BEST_EFFORT (matches both kinds, what bridges such as vrpn use).
@@ -84,9 +89,10 @@ class RosMocapTracker:
     """
 
     def __init__(self, node, bodies: Sequence[str], *, prefix: str = "mocap",
-                 stale_timeout: float = 0.5, assembly_window: float = 0.05,
+                 stale_timeout: float = 2.0, assembly_window: float = 0.05,
                  max_buffer: int = 100_000, qos_depth: int = 100, reliable: bool = False,
-                 clock: Callable[[], float] = time.monotonic, polled: Callable[[], float] | None = None):
+                 clock: Callable[[], float] = time.monotonic, polled: Callable[[], float] | None = None,
+                 setting: str = "[mocap] stale_timeout"):
         from geometry_msgs.msg import PoseStamped
         from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy
 
@@ -98,7 +104,10 @@ class RosMocapTracker:
         self.bodies = tuple(bodies)
         self.prefix = prefix
         self.topics = {b: pose_topic(prefix, b) for b in self.bodies}
+        if not stale_timeout > 0:
+            raise ValueError(f"stale_timeout must be > 0 s, got {stale_timeout}")
         self.stale_timeout = float(stale_timeout)
+        self.setting = setting
         self.assembly_window_ns = int(round(assembly_window * 1e9))
         self._clock = clock
         self._polled = polled
@@ -115,6 +124,8 @@ class RosMocapTracker:
         t0 = clock()
         self._last_rx: dict[str, float] = {b: t0 for b in self.bodies}
         self._ever_rx: dict[str, bool] = {b: False for b in self.bodies}
+        # header stamps (s) of each body's newest messages: the rate it had been coming at
+        self._stamps: dict[str, deque[float]] = {b: deque(maxlen=64) for b in self.bodies}
         self._latency_sum = 0.0
         self._latency_n = 0
         self.stats = MocapStats(received={b: 0 for b in self.bodies},
@@ -144,6 +155,7 @@ class RosMocapTracker:
         with self._cond:
             self._last_rx[body] = self._clock()
             self._ever_rx[body] = True
+            self._stamps[body].append(stamp * 1e-9)
             if stamp <= self._last_emitted:
                 # a repeat of a message already in an emitted frame is a duplicate; a body
                 # arriving after its frame left is late. Both are dropped.
@@ -213,6 +225,11 @@ class RosMocapTracker:
         with self._lock:
             return {b: now - self._last_rx[b] for b in self.bodies}
 
+    def rate(self, body: str) -> float:
+        """Hz at which `body`'s poses had been coming, from their header stamps (0.0 before two)."""
+        with self._lock:
+            return rate_of(self._stamps[body])
+
     def check_stale(self) -> None:
         """Raise MocapStaleError if any body's stream is older than stale_timeout."""
         ages = self.stale_ages()
@@ -220,12 +237,16 @@ class RosMocapTracker:
         if stale:
             parts = []
             for b, a in stale.items():
-                never = "" if self._ever_rx[b] else " (never received)"
-                parts.append(f"{b!r} on {self.topics[b]}: no message for {a:.3f} s{never}")
-            raise MocapStaleError("mocap stream stale beyond "
-                                  f"{self.stale_timeout:g} s: " + "; ".join(parts)
-                                  + ". Check the mocap bridge is running, the body is tracked "
-                                    "and ROS_DOMAIN_ID matches.")
+                if self._ever_rx[b]:
+                    parts.append(f"{b!r} on {self.topics[b]}: {silence_text(a, self.rate(b), seconds=True)}")
+                else:
+                    parts.append(f"{b!r} on {self.topics[b]}: no message for {a:.3f} s (never received)")
+            from rig.ros_session import domain_text
+
+            raise MocapStaleError(f"mocap stream stale beyond {self.stale_timeout:g} s ({self.setting}): "
+                                  + "; ".join(parts) + ". "
+                                  + starved_text(self.setting, f"the mocap bridge runs on {domain_text()} and the "
+                                                 "body is tracked", "start the bridge there"))
 
     def frames(self) -> list[TrackerFrame]:
         """Every frame assembled since the last call, oldest first.

@@ -45,7 +45,7 @@ import numpy as np
 from drivers.interfaces import Pose, TrackerFrame
 from drivers.mocap import MocapStaleError
 from drivers.quaternion import quat_xyzw_to_matrix
-from rig.faults import DeviceFault
+from rig.faults import DeviceFault, rate_of, silence_text, starved_text
 
 # --------------------------------------------------------------------------- message ids
 
@@ -827,16 +827,18 @@ class NatNetTracker:
     (datagram, "command" | "data") | None`, `close()` and `address` (STYLE item 1: the
     driver gets its transport). bodies: the rigid-body names to report (default: every
     rigid body the model definitions name). stale_timeout: s without a frame before
-    reads raise. keepalive: s between NAT_KEEPALIVEs in unicast (Motive forgets silent
-    unicast clients). clock: host seconds for frame times (`time.time`, as ROS stamps);
-    monotonic: for ages (injectable for tests). on_frame(frame, monotonic receipt time):
-    called on the reader thread for each frame (benchmarks).
+    reads raise (`[mocap] stale_timeout`; its stale line gives the rate the frames had
+    been coming at, from Motive's timestamps). keepalive: s between NAT_KEEPALIVEs in
+    unicast (Motive forgets silent unicast clients). clock: host seconds for frame times
+    (`time.time`, as ROS stamps); monotonic: for ages (injectable for tests).
+    on_frame(frame, monotonic receipt time): called on the reader thread for each frame
+    (benchmarks).
 
     `connect(timeout)` does the handshake (NAT_CONNECT until NAT_SERVERINFO, then
     NAT_REQUEST_MODELDEF until NAT_MODELDEF) and raises one line if it cannot.
     """
 
-    def __init__(self, transport, bodies: Sequence[str] | None = None, *, stale_timeout: float = 0.5,
+    def __init__(self, transport, bodies: Sequence[str] | None = None, *, stale_timeout: float = 2.0,
                  keepalive: float = 1.0, client: ConnectRequest = ConnectRequest(), max_buffer: int = 100_000,
                  clock: Callable[[], float] = time.time, monotonic: Callable[[], float] = time.monotonic,
                  on_frame: Callable | None = None, poll: float = 0.05):
@@ -876,6 +878,7 @@ class NatNetTracker:
         self._last_keepalive = t0
         self._modeldef_asked = -math.inf
         self._ever_frame = False
+        self._stamps: deque[float] = deque(maxlen=64)  # Motive's timestamps (s) of the newest frames: their rate
         self._reader_error: BaseException | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read_loop, name="natnet-reader", daemon=True)
@@ -1022,6 +1025,7 @@ class NatNetTracker:
                     return
                 self._last_frame_rx = rx_mono
                 self._ever_frame = True
+                self._stamps.append(data.timestamp)
                 if len(self._buffer) >= self._max_buffer:
                     self._buffer.popleft()
                     self.stats.overflow += 1
@@ -1134,10 +1138,16 @@ class NatNetTracker:
                               f"({last}); check Motive's streaming bitstream version")
         age = self.stream_age()
         if age > self.stale_timeout:
-            never = "" if self._ever_frame else " (none ever arrived)"
-            raise MocapStaleError(f"NatNet stream from {self.address}: no frame for {age:.3f} s{never}, beyond "
-                                  f"{self.stale_timeout:g} s; check that Motive is streaming and the network "
-                                  "between them")
+            if self._ever_frame:
+                with self._lock:
+                    rate = rate_of(self._stamps)
+                silence = silence_text(age, rate, noun="frame", seconds=True)
+            else:
+                silence = f"no frame for {age:.3f} s (none ever arrived)"
+            setting = "[mocap] stale_timeout"
+            raise MocapStaleError(f"NatNet stream from {self.address}: {silence}, beyond {self.stale_timeout:g} s "
+                                  f"({setting}). " + starved_text(setting, "Motive is streaming to this machine",
+                                                                  "start its streaming and check the network"))
 
     def frames(self) -> list[NatNetFrame]:
         """Every frame received since the last call, oldest first (raises, keeping them, if
@@ -1188,6 +1198,8 @@ def open_natnet_tracker(mocap: dict, bodies: Sequence[str] | None, timeout: floa
         raise NatNetConnectError(f"cannot open the NatNet channels towards {mocap['server']}:{mocap['command_port']}"
                                  f"{' (multicast ' + mocap['multicast'] + ')' if mocap['multicast'] else ''}: "
                                  f"{exc.strerror or exc}; check [mocap] server and multicast in rig.toml") from None
+    if "stale_timeout" in mocap:
+        kwargs.setdefault("stale_timeout", mocap["stale_timeout"])
     tracker = NatNetTracker(transport, bodies, **kwargs)
     try:
         tracker.connect(timeout)

@@ -111,15 +111,43 @@ ROS_DEFAULT_RATE = 500.0
 #: commands every arm; with three arms the cooperative loop reached 190-330 Hz of 500 and
 #: aborted on the effort ceiling, at 250 Hz it held 5 N within 0.09-0.10 N (bench_hil).
 ROS_DEFAULT_RATE_MANY_ARMS = 250.0
-#: s: the stale-stream watchdog of ROS arms, and the stale timeout of a serial or CAN load
-#: cell, when the file gives none. Above the longest silence this 2-core machine shows
-#: with two CPU burners beside the rig (bench/bench_hil.py measures both): processes are
-#: held off the CPU for up to ~0.2 s, and bytes written to a pty reach the reader up to
-#: ~0.35 s late (the kernel's tty flush runs in a worker the burners delay). A killed
-#: `rig sim` is still seen at once on the pty (the port closes) and within the watchdog on
-#: ROS. An in-process simulated rig has no such stalls and keeps 50 ms.
-ROS_DEFAULT_WATCHDOG = 0.25
-SERIAL_DEFAULT_STALE = 0.5
+#: Stale limits (the arms' `watchdog`, the load cell's and the mocap's `stale_timeout`):
+#: a stream is stale after STALE_PERIODS of its periods without a message, but never
+#: sooner than the floor of its transport. The periods: a healthy stream may lose a few
+#: messages in a row (best-effort ROS, a CAN error frame, an occluded body); ten in a row
+#: is a stream that stopped. The floor: silence alone cannot tell a stopped device from a
+#: process held off the CPU (this one, or the publisher: `rig sim`, the console, a bridge),
+#: so the floor is how long such a process was held on the machine the rig runs on.
+#: Measured over the wire on this 2-core machine (`rig sim` and the procedures as two
+#: processes, two CPU burners beside them, and other users' work: load average 15-26):
+#: the longest age the drivers' watchdogs computed (counted up to their executor's or
+#: reader's last look, so a starved subscriber is already discounted) during link-lengths,
+#: calibrate-rcm and friction-ramp was, at `rig sim --ros-period` 0.001/0.002 s,
+#: measured_js 0.25-1.26 s in single runs (1.8 s with a second rig beside it) and mocap
+#: poses 0.30-1.24 s (1.9 s). Those ages are not this process's: its executor kept
+#: looking and found nothing, so the stream was held up at the publisher or in transit,
+#: which no subscriber can tell from a stopped device. Hence 2.0 s for ROS 2 and NatNet. A
+#: serial cell's reader is the only one counting: its age stayed under 12 ms while samples
+#: reached the procedure up to 0.92 s apart (the procedure held off the CPU, discounted),
+#: and bytes written to a pty reach the reader up to ~0.35 s late under two burners
+#: (bench/bench_hil.py), hence 0.5 s.
+STALE_PERIODS = 10
+#: s: floor of the stale limit of a ROS 2 stream (arms' measured_js, mocap poses) or NatNet
+ROS_STALE_FLOOR = 2.0
+#: s: floor of the stale limit of a serial or CAN load cell
+SERIAL_STALE_FLOOR = 0.5
+#: s: floor of an in-process simulated device's: it runs on the simulated clock, which a
+#: busy machine slows but never makes skip, so only the periods count (and 50 ms at least)
+SIM_STALE_FLOOR = 0.05
+#: s: the dVRK console's publishing period unless started with another `dvrk_system -p`
+DVRK_DEFAULT_PERIOD = 0.01
+
+
+def stale_default(period: float, floor: float) -> float:
+    """The default stale limit of a stream published every `period` s: STALE_PERIODS
+    periods, or `floor` s if longer (see above)."""
+    return max(STALE_PERIODS * period, floor)
+
 
 SCHEMA: dict[str, dict[str, Key]] = {
     "rig": {
@@ -140,8 +168,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "q0": Key("vec3", [0.0, 0.0, 0.12], "initial joints of a simulated arm (rad, rad, m)"),
         "effort_limit": Key("vec3", [5.0, 5.0, 15.0], "drive effort ceiling (N m, N m, N)",
                             lambda v: all(x > 0 for x in v), "three efforts > 0"),
-        "watchdog": Key("float", 0.05, "stale measured_js interval that stops the run, s (default 0.05; 0.25 for "
-                        "ROS arms)", _positive, "an interval > 0 s"),
+        "watchdog": Key("float", SIM_STALE_FLOOR, "s without a measured_js that stops the run (the arm is told to "
+                        "hold): the stale limit of a ROS arm. Default: 10 of the console's periods ([ros] period) "
+                        "or 2.0 s, whichever is longer (2.0 s at the dVRK's 100 Hz); the 2.0 s covers a process "
+                        "held off the CPU on a busy 2-core machine, which looks the same as a stopped console. A "
+                        "simulated arm in this process runs on the simulated clock: 10 rig periods, 0.05 s at "
+                        "least", _positive, "an interval > 0 s"),
         "sensor_noise": Key("bool", True, "simulate encoder quantisation and velocity/effort noise"),
         "plant_model": Key("str", "", "model file (the model.json of `rig identify` or `rig discrepancy`) whose "
                            "parameters and effects a simulated arm's plant takes (default: the nominal PSM); "
@@ -156,8 +188,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "interface": Key("str", "socketcan", "python-can interface (driver = can)"),
         "channel": Key("str", "can0", "python-can channel (driver = can)"),
         "rate": Key("float", 500.0, "sample rate, Hz", lambda x: 1 <= x <= 2000, "a rate in [1, 2000] Hz"),
-        "stale_timeout": Key("float", 0.05, "no sample for this long stops the run, s (default 0.05; 0.5 for a "
-                             "serial or CAN cell)", _positive, "an interval > 0 s"),
+        "stale_timeout": Key("float", SIM_STALE_FLOOR, "s without a sample that stops the run: the load cell's "
+                             "stale limit. Default: 10 sample periods (1 / rate) or, if longer, 0.5 s for a serial "
+                             "or CAN cell (a process held off the CPU looks the same as a pulled cable) and 0.05 s "
+                             "for the simulated one", _positive, "an interval > 0 s"),
         "noise": Key("float", 0.02, "simulated load-cell noise, N rms", _nonneg, "a noise >= 0 N"),
         "element": Key("int", 0, "which object element (pair of arms) the load cell sits on", _nonneg, "an index >= 0"),
     },
@@ -171,6 +205,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "multicast": Key("str", "", "NatNet multicast group as set in Motive (e.g. '239.255.42.99'); empty: unicast",
                          _multicast_group, "'' (unicast) or an IPv4 multicast address (224.0.0.0-239.255.255.255)"),
         "rate": Key("float", 120.0, "frame rate, Hz", lambda x: 1 <= x <= 1000, "a rate in [1, 1000] Hz"),
+        "stale_timeout": Key("float", ROS_STALE_FLOOR, "s without a pose of a body (ros) or a frame (natnet) that "
+                             "stops the run: the mocap's stale limit. Default: 10 frame periods (1 / rate) or, if "
+                             "longer, 2.0 s (a process held off the CPU looks the same as a stopped bridge or "
+                             "Motive; 0.05 s for the simulated mocap)", _positive, "an interval > 0 s"),
         "noise": Key("float", 0.00025, "simulated marker noise, m rms", _nonneg, "a noise >= 0 m"),
         "latency": Key("float", 0.005, "simulated latency, s", _nonneg, "a latency >= 0 s"),
         "occlusion": Key("float", 0.0, "probability that a simulated body is occluded in a frame",
@@ -180,6 +218,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "console": Key("str", "auto", "namespace of the dVRK console's topics: '/console' (dVRK 2.3), '/system' "
                        "(dVRK 2.4), or 'auto' (whichever the running system publishes)",
                        lambda x: x == "auto" or (x.startswith("/") and len(x) > 1), "'auto' or a namespace like '/system'"),
+        "period": Key("float", DVRK_DEFAULT_PERIOD, "s between the messages the dVRK console publishes (its "
+                      "`dvrk_system -p`, `rig sim --ros-period`; the dVRK's default 0.01): the arms' default "
+                      "watchdog is 10 of them, 2.0 s at least", _positive, "a period > 0 s"),
         "connect_timeout": Key("float", 15.0, "wait this long for the first message of every stream, s (ROS 2 discovery "
                                "can take seconds on a loaded machine)",
                                _positive, "an interval > 0 s"),
@@ -348,17 +389,21 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
     n_ros = sum(a["driver"] == "ros" for a in arms.values())
     if "rate" not in document.get("rig", {}) and n_ros:
         rig["rate"] = ROS_DEFAULT_RATE if n_ros < 3 else ROS_DEFAULT_RATE_MANY_ARMS
+    ros = _section(source, "ros", SCHEMA["ros"], document.get("ros", {}))
     for name, a in arms.items():
-        if a["driver"] == "ros" and "watchdog" not in arms_doc[name]:
-            a["watchdog"] = ROS_DEFAULT_WATCHDOG
+        if "watchdog" not in arms_doc[name]:
+            # a ROS arm's stream comes at the console's period; a simulated one's at the rig's
+            a["watchdog"] = (stale_default(ros["period"], ROS_STALE_FLOOR) if a["driver"] == "ros"
+                             else stale_default(1.0 / rig["rate"], SIM_STALE_FLOOR))
     for name, a in arms.items():
         if not a["namespace"]:
             a["namespace"] = "/" + name
         if a["plant_model"]:
             a["plant_model"] = _plant_model(source, name, a)
     loadcell = _section(source, "loadcell", SCHEMA["loadcell"], document.get("loadcell", {}))
-    if loadcell["driver"] in ("serial", "can") and "stale_timeout" not in document.get("loadcell", {}):
-        loadcell["stale_timeout"] = SERIAL_DEFAULT_STALE
+    if "stale_timeout" not in document.get("loadcell", {}):
+        loadcell["stale_timeout"] = stale_default(1.0 / loadcell["rate"], SERIAL_STALE_FLOOR if loadcell["driver"]
+                                                  in ("serial", "can") else SIM_STALE_FLOOR)
     if loadcell["ports"] and loadcell["driver"] != "serial":
         raise ConfigError(f"{source}: loadcell.ports: only with loadcell.driver = 'serial'")
     if loadcell["ports"] and not loadcell["port"]:
@@ -366,6 +411,9 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
     if loadcell["driver"] == "serial" and not loadcell["port"]:
         raise ConfigError(f"{source}: loadcell.port: required when loadcell.driver = 'serial' (e.g. '/dev/ttyACM0')")
     mocap = _section(source, "mocap", SCHEMA["mocap"], document.get("mocap", {}))
+    if "stale_timeout" not in document.get("mocap", {}):
+        mocap["stale_timeout"] = stale_default(1.0 / mocap["rate"], ROS_STALE_FLOOR if mocap["driver"]
+                                               in ("ros", "natnet") else SIM_STALE_FLOOR)
     obj = _section(source, "object", SCHEMA["object"], document.get("object", {}))
     if "arms" not in document.get("object", {}):
         obj["arms"] = list(arms)[:2] if len(arms) >= 2 else []
@@ -393,7 +441,6 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
             raise ConfigError(f"{source}: effects.{name}: the arm's plant is arms.{name}.plant_model, effects "
                               "included; give one or the other")
         effects[name] = _section(source, f"effects.{name}", SCHEMA["effects"], e)
-    ros = _section(source, "ros", SCHEMA["ros"], document.get("ros", {}))
     operator = _section(source, "operator", SCHEMA["operator"], document.get("operator", {}))
     return RigConfig(source, rig, arms, loadcell, mocap, obj, effects, ros, operator)
 

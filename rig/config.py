@@ -124,9 +124,10 @@ ROS_DEFAULT_RATE_MANY_ARMS = 250.0
 #: reader's last look, so a starved subscriber is already discounted) during link-lengths,
 #: calibrate-rcm and friction-ramp was, at `rig sim --ros-period` 0.001/0.002 s,
 #: measured_js 0.25-1.26 s in single runs (1.8 s with a second rig beside it) and mocap
-#: poses 0.30-1.24 s (1.9 s). Those ages are not this process's: its executor kept
-#: looking and found nothing, so the stream was held up at the publisher or in transit,
-#: which no subscriber can tell from a stopped device. Hence 2.0 s for ROS 2 and NatNet. A
+#: poses 0.30-1.24 s (1.9 s). Those ages are not the procedure's Python held off the CPU
+#: (its executor kept looking and found nothing): the messages were held up at the
+#: publisher or in transit (DDS's own threads included), which no subscriber can tell
+#: from a stopped device. Hence 2.0 s for ROS 2 and NatNet streams. A
 #: serial cell's reader is the only one counting: its age stayed under 12 ms while samples
 #: reached the procedure up to 0.92 s apart (the procedure held off the CPU, discounted),
 #: and bytes written to a pty reach the reader up to ~0.35 s late under two burners

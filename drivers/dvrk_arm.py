@@ -108,6 +108,34 @@ def _vector(values, what: str) -> list[float]:
     return v.tolist()
 
 
+def impedance_message(m, position, orientation=None, stiffness=(0.0, 0.0, 0.0), damping=(0.0, 0.0, 0.0),
+                      bias=(0.0, 0.0, 0.0), deadband=(0.0, 0.0, 0.0), torque_stiffness=(0.0, 0.0, 0.0),
+                      torque_damping=(0.0, 0.0, 0.0), force_orientation=None, torque_bias=(0.0, 0.0, 0.0)):
+    """Fill the crtk_msgs/CartesianImpedance `m` as `RosArm.servo_ci` sends it (its
+    arguments; the header is left to the caller) and return it."""
+    from drivers.quaternion import matrix_to_quat_xyzw
+
+    p = _vector(position, "servo_ci position")
+    m.force_position.x, m.force_position.y, m.force_position.z = p[:3]
+    o = m.force_orientation
+    o.x, o.y, o.z, o.w = (0.0, 0.0, 0.0, 1.0) if force_orientation is None else (
+        float(v) for v in matrix_to_quat_xyzw(np.asarray(force_orientation, float)))
+    R = np.eye(3) if orientation is None else np.asarray(orientation, float)
+    t = m.torque_orientation
+    t.x, t.y, t.z, t.w = (float(v) for v in matrix_to_quat_xyzw(R))
+
+    def fill(gains, p_, d_, b_, dead_):
+        for field_, values, sign in (("p", p_, -1.0), ("d", d_, -1.0), ("bias", b_, 1.0),
+                                     ("deadband", dead_, 1.0)):
+            v = getattr(gains, field_)
+            v.x, v.y, v.z = (sign * float(x) for x in np.broadcast_to(np.asarray(values, float), (3,)))
+
+    for half in ("positive", "negative"):
+        fill(getattr(m, f"position_{half}"), stiffness, damping, bias, deadband)
+        fill(getattr(m, f"orientation_{half}"), torque_stiffness, torque_damping, torque_bias, (0.0, 0.0, 0.0))
+    return m
+
+
 class RosArm:
     """Arm protocol over the dVRK CRTK ROS 2 topics (see the module docstring).
 
@@ -529,41 +557,42 @@ class RosArm:
         1-3 (the wrist held by a soft PD), or the whole arm's."""
         self._publish("servo_jf", effort=self._whole(effort, self._wrist_effort()))
 
+    @property
+    def supports_servo_ci(self) -> bool:
+        """crtk_msgs/CartesianImpedance is available: `servo_ci` can be sent."""
+        return self._impedance_type is not None
+
+    def measured_arm(self) -> tuple[np.ndarray, np.ndarray]:
+        """The newest measured positions and velocities of the whole arm in the dVRK's order
+        (joints 1-3, then the others as the message carries them: the wrist), for the
+        PSM-with-tool kinematics (`rig.psm_arm_kinematics`). StaleStream and ArmFault as
+        measured_js()."""
+        js = self.measured_js()
+        with self._lock:
+            full, idx = self._full, self._index
+        if full is None or idx is None:
+            return np.asarray(js.position, float), np.asarray(js.velocity, float)
+        q, dq = np.asarray(full[0], float), np.asarray(full[1], float)
+        order = list(idx) + [i for i in range(len(q)) if i not in idx]
+        return q[order], (dq[order] if len(dq) == len(q) else np.zeros(len(q)))
+
     def servo_ci(self, position, orientation=None, stiffness=(0.0, 0.0, 0.0), damping=(0.0, 0.0, 0.0),
                  bias=(0.0, 0.0, 0.0), deadband=(0.0, 0.0, 0.0), torque_stiffness=(0.0, 0.0, 0.0),
-                 torque_damping=(0.0, 0.0, 0.0)) -> None:
+                 torque_damping=(0.0, 0.0, 0.0), force_orientation=None, torque_bias=(0.0, 0.0, 0.0)) -> None:
         """The arm's Cartesian impedance about the tool-tip goal `position` (m, 3) and
-        `orientation` (3x3; default: the force frame's identity and the newest measured_cp's
-        rotation for the torque), in the frame of measured_cp, run by the dVRK in its servo
-        loop (crtk_msgs/CartesianImpedance on <arm>/servo_ci): per axis of the base frame a
-        spring `stiffness` (N/m, >= 0), damper `damping` (N s/m), `bias` (N) and `deadband`
-        (m); the orientation's `torque_stiffness` (N m/rad) and `torque_damping`. The same
-        gains on both half-planes. The dVRK's controller adds p * (pose - goal): the
-        stiffness and damping are sent negated, as its own examples do."""
+        `orientation` (3x3, the torque frame; default identity), in the frame of measured_cp,
+        run by the dVRK in its servo loop (crtk_msgs/CartesianImpedance on <arm>/servo_ci):
+        per axis of `force_orientation` (3x3, its columns the axes in the base frame;
+        default the base frame's) a spring `stiffness` (N/m, >= 0), damper `damping`
+        (N s/m), `bias` (N) and `deadband` (m); the orientation's `torque_stiffness`
+        (N m/rad), `torque_damping` and `torque_bias` (N m, on the axes of `orientation`). The same gains on both half-planes. The dVRK's
+        controller adds p * (pose - goal): the stiffness and damping are sent negated, as
+        its own examples do."""
         if self._impedance_type is None:
             raise RuntimeError(f"{self.namespace}/servo_ci: crtk_msgs are not available ({self.states_error})")
-        from drivers.quaternion import matrix_to_quat_xyzw
-
-        m = self._impedance_type()
+        m = impedance_message(self._impedance_type(), position, orientation, stiffness, damping, bias, deadband,
+                              torque_stiffness, torque_damping, force_orientation, torque_bias)
         m.header.stamp = self.node.get_clock().now().to_msg()
-        p = _vector(position, "servo_ci position")
-        m.force_position.x, m.force_position.y, m.force_position.z = p[:3]
-        o = m.force_orientation
-        o.x, o.y, o.z, o.w = 0.0, 0.0, 0.0, 1.0
-        R = np.eye(3) if orientation is None else np.asarray(orientation, float)
-        t = m.torque_orientation
-        t.x, t.y, t.z, t.w = (float(v) for v in matrix_to_quat_xyzw(R))
-
-        def fill(gains, p_, d_, b_, dead_):
-            for field_, values, sign in (("p", p_, -1.0), ("d", d_, -1.0), ("bias", b_, 1.0),
-                                         ("deadband", dead_, 1.0)):
-                v = getattr(gains, field_)
-                v.x, v.y, v.z = (sign * float(x) for x in np.broadcast_to(np.asarray(values, float), (3,)))
-
-        for half, b in (("positive", bias), ("negative", bias)):
-            fill(getattr(m, f"position_{half}"), stiffness, damping, b, deadband)
-            fill(getattr(m, f"orientation_{half}"), torque_stiffness, torque_damping, (0.0, 0.0, 0.0),
-                 (0.0, 0.0, 0.0))
         self._pubs["servo_ci"].publish(m)
 
     def use_gravity_compensation(self, on: bool) -> None:

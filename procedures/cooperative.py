@@ -5,9 +5,12 @@ rig; the simulation on the simulated one); check the plan against every limit; h
 tension while the master moves (and rotates) the object; report.
 
 The master PSM follows its Cartesian trajectory under the dVRK's position control
-(servo_jp); each slave runs the impedance controller with tension tracking of
-`rig.cooperative` (servo_jf). Everything runs at the rig rate from the measured joint
-states and load-cell samples; every stream is recorded. Safety limits (tension ceiling,
+(servo_jp); each slave holds the object with the impedance of `rig.cooperative`, and its
+target moves to track the tension. Where the arms run a Cartesian impedance themselves
+(the dVRK's servo_ci, over ROS) the arm closes the spring and damper in its servo loop and
+this loop only moves the goal and its feedforward, at the rate the arms publish;
+elsewhere (the in-process simulated rig, `--slave-control effort`) this loop closes the
+impedance and commands efforts (servo_jf) at the rig rate. Every stream is recorded. Safety limits (tension ceiling,
 joint, velocity and effort limits, workspace box, stale streams) abort the run, which
 holds every arm it moved.
 """
@@ -82,6 +85,10 @@ def _vector(text: str | None, what: str) -> np.ndarray:
 @click.option("--force-model", is_flag=True,
               help="Use the --model file even though its provenance says it belongs to another arm or rig (or it "
                    "was edited): the run's report and result carry a warning.")
+@click.option("--slave-control", type=click.Choice(["auto", "arm", "effort"]), default="auto", show_default=True,
+              help="Who closes the slaves' impedance: 'arm' = the arm, in its servo loop (dVRK servo_ci over ROS; "
+                   "this loop moves its goal at the rate the arms publish, 100 Hz and up); 'effort' = this loop, "
+                   "commanding efforts (servo_jf) at [rig] rate; 'auto' = arm on ROS arms, effort in-process.")
 @click.option("--seed", type=int, default=None, help="Seed of the simulated rig.")
 @click.option("--dry-run", is_flag=True, help="Check the plan against every limit, print it, move nothing.")
 @click.option("--ros-commands", is_flag=True,
@@ -100,8 +107,8 @@ def _vector(text: str | None, what: str) -> np.ndarray:
 @json_option
 @click.pass_context
 @exit_on_abort
-def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, model_path, force_model, seed, dry_run,
-            ros_commands, interactive, list_steps, as_json):
+def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, model_path, force_model, slave_control,
+            seed, dry_run, ros_commands, interactive, list_steps, as_json):
     """Cooperative manipulation with force tracking (thesis 6.3, 7.7).
 
     Holds FORCE newtons of tension on the object between the tool tips while the master
@@ -133,7 +140,8 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
     cfg.object["arms"] = names
     result = run_cooperative(cfg, names, master, dict(parameters), translation, rotation, mode,
                              model_path=model_path, seed=seed, dry_run=dry_run, ros_commands=ros_commands,
-                             interactive=interactive, parameter_set=parameters, force_model=force_model)
+                             interactive=interactive, parameter_set=parameters, force_model=force_model,
+                             slave_control=slave_control)
     emit_result(result, as_json, report=format_report(result))
     exit_for_status("cooperative", result)
 
@@ -199,12 +207,12 @@ def _registration_for(cfg, names, simulated: bool, warnings: list | None = None)
 
 
 def build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
-                     object_kind, object_stiffness, elements, dt, effects=None):
+                     object_kind, object_stiffness, elements, dt, effects=None, slave_control="effort"):
     """The cooperative controller; ``effects`` (a model file's entries) are fed forward on
     every arm with its rigid-body model (`calibration.effects.EffectCompensation`)."""
     from calibration.effects import EffectCompensation
     from rig.control import FeedforwardModel, StickSlipCompensation
-    from rig.cooperative import CooperativeController, ForceLoop, Motion, PositionForceLoop, preset
+    from rig.cooperative import CooperativeController, ForceLoop, Motion, PositionForceLoop, arm_preset, preset
 
     d = dyn.params.drive
     friction = {}
@@ -221,14 +229,37 @@ def build_controller(cfg, names, master, params, translation, rotation, mode, dy
         params["force"], dt=dt, motion=Motion(translation, rotation, params["duration"], params["settle"]),
         loop=ForceLoop(), gains=gains, object_stiffness=object_stiffness, follow_measured_master=follow,
         mode=mode, position_loop=PositionForceLoop(deadband=params["deadband"]),
-        slew_translation=SLEW_M, slew_rotation=SLEW_RAD, slew_force=SLEW_N)
+        slew_translation=SLEW_M, slew_rotation=SLEW_RAD, slew_force=SLEW_N,
+        slave_control=slave_control, arm_gains=arm_preset(object_kind))
 
 
 # ----------------------------------------------------------------------------- the run
+#: Hz: the lowest rate of the arms' streams the arm-impedance path holds at (its loop runs
+#: at the rate the arms publish; the dVRK's default `-p 0.01` is 100 Hz)
+ARM_LOOP_MIN_RATE = 100.0
+
+
+def _pace_at_published_rate(rig, names, master) -> None:
+    """The arm-impedance path's loop runs at the rate the arms publish (at most [rig] rate):
+    every tick then has a fresh state of every arm (rig.clock.StreamClock); refuses, in
+    one line, a slave whose arm cannot run servo_ci."""
+    for n in names:
+        if n != master and not getattr(rig.arms[n], "supports_servo_ci", False):
+            raise AbortRun(f"{n} cannot run servo_ci (crtk_msgs/CartesianImpedance not available); "
+                           "use --slave-control effort")
+    rates = [rig.arms[n].published_rate() for n in names if hasattr(rig.arms[n], "published_rate")]
+    heard = min(r for r in rates if r > 0) if any(r > 0 for r in rates) else rig.clock.rate
+    if hasattr(rig.clock, "set_rate"):
+        rig.clock.set_rate(min(rig.clock.rate, float(round(heard))))
+
+
 def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, model_path=None, seed=None,
                     dry_run=False, ros_commands=False, interactive=False, parameter_set=None, model=None,
-                    progress=True, force_model=False):
-    """The procedure; returns the result document. `model` overrides the model file (tests, bench)."""
+                    progress=True, force_model=False, slave_control="auto"):
+    """The procedure; returns the result document. `model` overrides the model file (tests, bench).
+
+    slave_control: "arm" (the slaves' impedance in the arm: servo_ci), "effort" (closed
+    here: servo_jf) or "auto" (arm on ROS arms in impedance mode, else effort)."""
     from rig.devices import open_rig
     from rig.safety import SafetyLimits
 
@@ -243,19 +274,31 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
     if params["force"] >= limits.tension_ceiling:
         raise click.BadParameter(f"{params['force']} N is not below the tension ceiling "
                                  f"{limits.tension_ceiling} N", param_hint="--force")
-    rig = open_rig(cfg, names, seed=seed, uses=("loadcell",))
+    ros = all(cfg.arms[n]["driver"] == "ros" for n in names)
+    if slave_control == "auto":
+        slave_control = "arm" if ros and mode == "impedance" else "effort"
+    elif slave_control == "arm" and not ros:
+        raise click.BadParameter("'arm' needs ROS arms (the dVRK runs servo_ci); the in-process simulated arms "
+                                 "take efforts: use 'effort' or 'auto'", param_hint="--slave-control")
+    elif slave_control == "arm" and mode != "impedance":
+        raise click.BadParameter("'arm' is the impedance mode's; --mode position keeps the slaves on servo_jp",
+                                 param_hint="--slave-control")
+    rig = open_rig(cfg, names, seed=seed, uses=("loadcell",),
+                   loop_rate=ARM_LOOP_MIN_RATE if slave_control == "arm" else None)
     try:
         return _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
                     model_note, registration_note, limits, dry_run, ros_commands, interactive,
-                    parameter_set, seed, progress, effects, warnings)
+                    parameter_set, seed, progress, effects, warnings, slave_control)
     finally:
         rig.close()
 
 
 def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames, model_note,
          registration_note, limits, dry_run, ros_commands, interactive, parameter_set, seed, progress,
-         effects=(), warnings=()):
+         effects=(), warnings=(), slave_control="effort"):
     clock = rig.clock
+    if slave_control == "arm":
+        _pace_at_published_rate(rig, names, master)
     elements = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
     kind = cfg.object["kind"]
     stiffness = cfg.object["stiffness"]
@@ -269,7 +312,8 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             run._write(line + "\n")
         def new_controller():
             return build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick,
-                                    rcm_frames, kind, stiffness, elements, 1.0 / clock.rate, list(effects))
+                                    rcm_frames, kind, stiffness, elements, 1.0 / clock.rate, list(effects),
+                                    slave_control)
 
         if dry_run:
             # plan only: nothing is powered, moved or attached; the plan starts where a
@@ -340,6 +384,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         for n in names:
             log[f"{n}.x"] = np.empty((n_ticks, 3))
             log[f"{n}.xd"] = np.empty((n_ticks, 3))
+        servo_ci = _ServoCI(rig, controller.slaves) if slave_control == "arm" else None
         t_start = clock.now()
         overruns0, skipped0 = getattr(clock, "overruns", 0), getattr(clock, "skipped", 0)
         last_js_t = {n: None for n in names}
@@ -353,6 +398,11 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         # count that as silence. A tension no newer than the stale timeout ends the run.
         max_force_age = 2.0 / cfg.loadcell["rate"]
         stale_timeout = cfg.loadcell["stale_timeout"]
+        # With the impedance in the arm a late tension only holds the set-point where it
+        # is (the arm keeps the slaves in place): samples that reach the loop late, the
+        # cell still streaming, are then waited for as long as the arms' own streams are
+        loop_stale = (max(stale_timeout, *(cfg.arms[n]["watchdog"] for n in names)) if slave_control == "arm"
+                      else stale_timeout)
         last_force_t = [s.t for s in first]
         # The cells have streamed since they were opened: record what they hold now, so
         # the first tick of the hold does not (three cells held ~3900 samples each after
@@ -392,7 +442,8 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                     blind_ticks += 1
                     blind_longest = max(blind_longest, force_age)
                     if force_age > stale_timeout:
-                        _abort_stale_tension(sensors, force_age, stale_timeout)
+                        _check_stale_tension(sensors, force_age, stale_timeout, loop_stale, cfg.loadcell["rate"],
+                                             "[loadcell] stale_timeout")
                 live.poll(t)
                 c0 = time.perf_counter()
                 q = {n: js[n].position[:3] for n in names}
@@ -408,6 +459,9 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                     if cmd.kind == "position":
                         rig.arms[n].servo_jp(cmd.q, cmd.dq)
                         rec.joint_state(f"/{n}/servo_jp", t, cmd.q, cmd.dq, ())
+                    elif cmd.kind == "impedance":
+                        limits.check_effort(n, cmd.feedforward)
+                        servo_ci.send(n, cmd, t, rec)
                     else:
                         limits.check_effort(n, cmd.effort)
                         rig.arms[n].servo_jf(cmd.effort)
@@ -436,6 +490,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             result["loop_timing"].update(_force_hold_figures(blind_ticks, n_ticks, blind_longest, max_force_age))
             if ros_commands or interactive:
                 result["live_commands"] = live.summary(t_start)
+            result["slave_control"] = _slave_control_text(slave_control, mode, clock.rate)
             result.update({"model": model_note, "model_effects": model_effects, "registration": registration_note, "arms": names,
                            "master": master, "mode": mode, "object": kind,
                            "filter_delay": _filter_delays(controller), "warnings": list(warnings)})
@@ -445,6 +500,40 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             missed = _missed(result, params)
             run.finish(result, status="failed" if missed else "completed", reason=missed)
         return run.result
+
+
+class _ServoCI:
+    """Sends the slaves' arm-impedance commands as the dVRK's servo_ci (rig.arm_impedance),
+    with the tool-tip orientation held where it was when the loop started."""
+
+    def __init__(self, rig, slaves):
+        from rig.psm_arm_kinematics import PSMKinematics
+
+        self.arms = {n: rig.arms[n] for n in slaves}
+        self.kinematics = PSMKinematics()
+        self.hold = {n: self.kinematics.forward(self.arms[n].measured_arm()[0][:6])[:3, :3] for n in slaves}
+
+    def send(self, n: str, cmd, t: float, rec) -> None:
+        from rig.arm_impedance import servo_ci_goal
+
+        arm = self.arms[n]
+        q = arm.measured_arm()[0][:6]
+        g = servo_ci_goal(self.kinematics, q, cmd.target, cmd.velocity, cmd.u, cmd.stiffness, cmd.damping,
+                          cmd.feedforward, orientation=self.hold[n])
+        arm.servo_ci(g.position, g.orientation, g.stiffness, g.damping, g.bias,
+                     torque_stiffness=g.torque_stiffness, torque_damping=g.torque_damping, torque_bias=g.torque_bias,
+                     force_orientation=g.force_orientation)
+        rec.pose(f"/{n}/servo_ci/goal", t, g.position, (0.0, 0.0, 0.0, 1.0))
+        rec.wrench(f"/{n}/servo_ci/bias", t, g.force_orientation @ g.bias)
+
+
+def _slave_control_text(slave_control: str, mode: str, rate: float) -> str:
+    if mode == "position":
+        return f"position (slaves on servo_jp at {rate:g} Hz, thesis 7.7.3)"
+    if slave_control == "arm":
+        return (f"arm impedance (servo_ci: the arm closes the slaves' spring and damper; this loop moved "
+                f"their goals at {rate:g} Hz)")
+    return f"effort (servo_jf: this loop closed the slaves' impedance at {rate:g} Hz)"
 
 
 def _missed(result: dict, params: dict) -> str | None:
@@ -546,19 +635,26 @@ def _timing_line(lt: dict | None) -> str:
                if lt.get("force_hold_per_10k") else ""))
 
 
-def _abort_stale_tension(sensors, age: float, timeout: float) -> None:
-    """The newest tension is older than the stale timeout: end the run, naming the load cell
-    and whether it fell silent (its driver saw no sample either) or its samples did not
-    reach the loop (the driver's reader held up: the machine too loaded for the loop)."""
+def _check_stale_tension(sensors, age: float, timeout: float, loop_limit: float, rate: float, setting: str) -> None:
+    """The newest tension at the loop is `age` s old, beyond the stale `timeout`: end the
+    run if the cell fell silent (its driver saw no sample for longer than `timeout`), or
+    if samples have not reached the loop for longer than `loop_limit` while the cell
+    still streamed (this process held off the CPU); else keep holding."""
+    from rig.faults import silence_text, starved_text
+
     silent = max(s.stream_age() for s in sensors)
-    if silent > timeout:
-        raise AbortRun(f"load cell stale: no sample for {1000 * silent:.0f} ms "
-                       f"(stale timeout {1000 * timeout:.0f} ms)")
+    if silent <= timeout and age <= loop_limit:
+        return
     cells = ", ".join(str(getattr(s, "name", None) or f"element {k}") for k, s in enumerate(sensors))
+    if silent > timeout:
+        raise AbortRun(f"load cell stale: {silence_text(silent, rate, 'sample')}, beyond the stale timeout "
+                       f"{1000 * timeout:.0f} ms ({setting}). " + starved_text(
+                           setting, f"the cell{'s' if len(sensors) > 1 else ''} ({cells}) are plugged in and powered "
+                           "(or `rig sim` runs)", "check the cable and power"))
     raise AbortRun(f"load cell stale: no sample reached the control loop for {1000 * age:.0f} ms "
-                   f"(stale timeout {1000 * timeout:.0f} ms) while the cell{'s' if len(sensors) > 1 else ''} "
-                   f"({cells}) still streamed: the driver's reader was held up, the machine is too loaded "
-                   "for the loop (the force loop held meanwhile)")
+                   f"(limit {1000 * loop_limit:.0f} ms) while the cell{'s' if len(sensors) > 1 else ''} "
+                   f"({cells}) still streamed at {rate:g} Hz: this process was held off the CPU, the machine is too "
+                   f"busy for the loop (free a CPU or raise {setting}; the force loop held meanwhile)")
 
 
 def _force_hold_figures(blind_ticks: int, n_ticks: int, longest: float, max_age: float) -> dict:
@@ -629,6 +725,8 @@ def format_report(result: dict) -> str:
                           "limit; nothing moved"] + [f"  warning: {w}" for w in result.get("warnings") or []])
     lines = [f"cooperative ({result.get('mode')}, {result.get('object')}): {result.get('status')}",
              f"  {result.get('model')}", f"  {result.get('registration')}"]
+    if result.get("slave_control"):
+        lines.append(f"  slaves: {result['slave_control']}")
     lines += [f"  warning: {w}" for w in result.get("warnings") or []]
     if result.get("max_error_during_motion") is not None:
         lines += [f"  max |F - {result['force']:.2f} N| during the motion: {result['max_error_during_motion']:.3f} N",

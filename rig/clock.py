@@ -159,6 +159,14 @@ class StreamClock(WallClock):
         self.sources.append(source)
         self._seen.append(source.received)
 
+    def set_rate(self, rate: float) -> None:
+        """Pace at `rate` Hz from now on (a procedure whose loop runs at the rate the arms
+        publish, lower than [rig] rate)."""
+        if not rate > 0:
+            raise ValueError(f"clock rate must be > 0 Hz, got {rate}")
+        self.rate = float(rate)
+        self.period = 1.0 / self.rate
+
     def tick(self) -> None:
         self._k += 1
         earliest = self._last + self.min_fraction * self.period

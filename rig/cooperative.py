@@ -79,6 +79,7 @@ class ForceLoop:
     take_up_gain: float = 10.0
     x_f_limit: float = 0.03    # m: |x_f| ceiling (the object cannot need more)
     bandwidth_ratio: float = 3.0  # the loop stays this factor below the arm-object mode
+    tick_gain: float = 0.1        # and its crossover at most this over one loop period
 
 
 @dataclass
@@ -96,6 +97,17 @@ class ImpedanceGains:
     # error) by 1 + k_fp below the arm-object mode, which it stiffens by as much (the
     # damping is designed against Kp + (1 + k_fp) K_obj).
     force_feedback: float = 0.0
+
+
+@dataclass
+class ArmImpedanceGains:
+    """A slave's impedance run by the arm (the dVRK's servo_ci): a spring `kp_along` (N/m)
+    along the object and `kp_across` across it, damped at `damping_ratio` against the
+    arm's Cartesian inertia along each axis and the spring plus the object's stiffness."""
+
+    kp_along: float = 400.0
+    kp_across: float = 1000.0
+    damping_ratio: float = 0.7
 
 
 @dataclass
@@ -162,12 +174,41 @@ class Motion:
     start: float = 2.0
 
 
+def arm_preset(kind: str) -> ArmImpedanceGains:
+    """Gains of a slave whose impedance the arm runs (servo_ci), per object.
+
+    The arm closes the spring and damper in its own servo loop next to the motors, and the
+    set-point is fed forward (force and stretch), so the spring along the object only
+    has to carry what the feedforward misses: friction at the start and end of a motion,
+    model error. The stiffer it is, the less of that reaches the object (K_obj / (Kp +
+    K_obj)); the tension loop's gain is capped by the series stiffness, so stiffer is also
+    slower to correct. Chosen on bench/bench_cooperative_arm.py (the wire's timing in sim
+    time, 3 cm move, 5 N): spring 1000 N/m (400: 0.20 N at 100 Hz, 1000: 0.175 N), string
+    2000 N/m (1000: 0.28 N, 2000: 0.265 N at 100 Hz; 0.18 N at 500 Hz), both damped at a
+    ratio of 1 against spring + object (0.7 overshot the start-up ramp by 0.65-0.8 N on the
+    string). Across the object 1000 N/m holds the slave on its path."""
+    if kind == "spring":
+        return ArmImpedanceGains(kp_along=1000.0, damping_ratio=1.0)
+    if kind == "string":
+        return ArmImpedanceGains(kp_along=2000.0, damping_ratio=1.0)
+    raise ValueError(f"object kind must be 'spring' or 'string', got {kind!r}")
+
+
 @dataclass
 class ArmCommand:
-    kind: str                       # "position" or "effort"
+    kind: str                       # "position", "effort" or "impedance"
     q: np.ndarray | None = None     # servo_jp position (rad, rad, m)
     dq: np.ndarray | None = None    # servo_jp velocity
     effort: np.ndarray | None = None  # servo_jf effort (N m, N m, N)
+    # "impedance" (the arm's servo_ci, see rig.arm_impedance): the shaft end's target and
+    # velocity (RCM frame), the object's direction u there, the spring and damper on the
+    # axes of rig.arm_impedance.force_frame(u), joint feedforward (N m, N m, N)
+    target: np.ndarray | None = None
+    velocity: np.ndarray | None = None
+    u: np.ndarray | None = None
+    stiffness: np.ndarray | None = None
+    damping: np.ndarray | None = None
+    feedforward: np.ndarray | None = None
 
 
 class CooperativeController:
@@ -186,12 +227,19 @@ class CooperativeController:
                  gains: ImpedanceGains | None = None, force_noise: float = 0.02,
                  object_stiffness: float = 2450.0, follow_measured_master: bool = True,
                  mode: str = "impedance", position_loop: PositionForceLoop | None = None,
-                 slew_translation: float = 0.01, slew_rotation: float = 0.1, slew_force: float = 2.0):
+                 slew_translation: float = 0.01, slew_rotation: float = 0.1, slew_force: float = 2.0,
+                 slave_control: str = "effort", arm_gains: ArmImpedanceGains | None = None):
         if master not in arms:
             raise ValueError(f"master {master!r} is not among the arms {arms}")
         if mode not in ("impedance", "position"):
             raise ValueError(f"mode must be 'impedance' or 'position', got {mode!r}")
+        if slave_control not in ("effort", "arm"):
+            raise ValueError(f"slave_control must be 'effort' or 'arm', got {slave_control!r}")
         self.mode = mode
+        # "effort": the slaves' impedance closed here, their efforts commanded (servo_jf);
+        # "arm": the arm closes it (servo_ci), this loop moves its goal and feedforward
+        self.slave_control = slave_control
+        self.arm_gains = arm_gains or ArmImpedanceGains()
         self.slew_translation = slew_translation   # m/s of the user's Cartesian increments
         self.slew_rotation = slew_rotation         # rad/s of the object rotation increments
         self.slew_force = slew_force               # N/s of the tension increments
@@ -208,10 +256,13 @@ class CooperativeController:
         self.motion = motion or Motion()
         self.loop = loop or ForceLoop()
         g = gains or ImpedanceGains()
-        self.kp_along = float(np.mean(g.Kp))
-        # proportional tension feedback (dimensionless), with the arm's own inertia only
-        self.k_fp = float(g.force_feedback) if g.Md is None else 0.0
-        self.kp_across = g.Kp_across
+        arm = slave_control == "arm"
+        self.kp_along = self.arm_gains.kp_along if arm else float(np.mean(g.Kp))
+        # proportional tension feedback (dimensionless), with the arm's own inertia only;
+        # none in the arm (a measured force fed back at the rate heard over the wire would
+        # drive the arm-object mode)
+        self.k_fp = float(g.force_feedback) if g.Md is None and not arm else 0.0
+        self.kp_across = None if arm else g.Kp_across
         self.impedance = {s: Impedance(models[s], friction[s], None if g.Md is None else g.Md.copy(),
                                        g.Kp.copy(), g.Kd.copy(), g.damping_ratio,
                                        float(np.max(g.Kp)) + object_stiffness * (1.0 + self.k_fp))
@@ -227,6 +278,8 @@ class CooperativeController:
         self.tension_rate = np.zeros(len(self.elements))
         self.force_setpoint = 0.0
         self.blind = False  # the last step held the force loop (see step)
+        self._first_step = True
+        self._setpoint_rate = 0.0  # N/s
         # User increments (/psm/cmd_vel, /psm/cmd_force, keyboard): these are the targets;
         # the controller moves its applied offsets toward them at the slew rates, so that an
         # increment is a short ramp, not a step in one cycle.
@@ -264,15 +317,17 @@ class CooperativeController:
         self.tension = self.initial_element_tension.copy()
         self.tension_rate = np.zeros(len(self.tension))
         # the set-point ramp starts once every slave holds its object taut
-        self.slack = {s: (self.mode == "impedance" and self.force > self.loop.contact
+        # (in the arm the set-point's force feedforward takes the slack up by itself)
+        self.slack = {s: (self.mode == "impedance" and self.slave_control == "effort" and self.force > self.loop.contact
                           and self._tracked_tension(s, tension) < self.loop.contact) for s in self.slaves}
         self.ramp_start = t if not any(self.slack.values()) else None
         self.k_i = {s: self._force_gain(s, q[s]) for s in self.slaves}
         # x_f must be able to reach the ceiling tension through the impedance spring
         self.x_f_limit = max(self.loop.x_f_limit, 2.0 * self.force / self.kp_along + 0.01)
-        if self.mode == "impedance":
+        if self.mode == "impedance" and self.slave_control == "effort":
             # Pre-load each slave's impedance with the tension already on the object, so that
             # switching the slave to effort control does not let the object pull it in.
+            # (In the arm the set-point tension is a force feedforward: no pre-load.)
             for s in self.slaves:
                 tracked = [k for k, e in enumerate(self.elements) if s in e and self.master in e]
                 held = _mean_of(self.initial_element_tension, tracked)
@@ -292,6 +347,63 @@ class CooperativeController:
         q = K.ik_rcm(x_rcm)
         dq = np.linalg.solve(K.tip_jacobian_rcm(q), self.R[s].T @ v_d)
         return ArmCommand("position", q=q, dq=dq)
+
+    def _arm_impedance(self, s: str, q: np.ndarray, dq: np.ndarray, x_t: np.ndarray, v_d: np.ndarray, a_d: np.ndarray,
+                       u: np.ndarray, tips: dict[str, np.ndarray], mine: list[int], tracked: list[int],
+                       hold: bool) -> ArmCommand:
+        """The slave's goal for the impedance the arm runs (servo_ci; see rig.arm_impedance).
+
+        The set-point tension is a force feedforward along the object (each element it holds
+        pulls the tip toward its neighbour with the set-point: the arm pushes back with
+        it), so x_f only has to correct what the plan does not know; the model's
+        feedforward of the planned motion (rigid body, friction, offsets) rides with it."""
+        from rig.arm_impedance import cartesian_inertia, force_frame
+
+        R = self.R[s]
+        J = K.tip_jacobian_rcm(q)
+        v_r, a_r, u_r = R.T @ v_d, R.T @ a_d, R.T @ u
+        dq_plan = np.linalg.solve(J, v_r)
+        imp = self.impedance[s]
+        tau = imp.model(q, dq_plan, np.linalg.solve(J, a_r)) + imp.friction(dq, 0.0, dq_plan)
+        # the object's stretch for the set-point is fed forward too (its configured
+        # stiffness): with the force alone, the spring would take up part of every change
+        # of the set-point (K_obj / (Kp + K_obj) of it reaches the object) and x_f would
+        # have to integrate the rest
+        held = _mean_of(self.initial_element_tension, tracked)
+        target = x_t + u * ((self.force_setpoint - held) / self.object_stiffness)
+        f_world = np.zeros(3)
+        for k in mine:
+            a, b = self.elements[k]
+            other = b if a == s else a
+            d = tips[s] - tips[other]
+            w = d / max(np.linalg.norm(d), 1e-9)
+            f_world += self.force_setpoint * w
+            if k not in tracked:
+                # the slave-slave element: its tension error integrated into an offset along
+                # it, half by each of its slaves (as the effort path)
+                if not any(self.slack.values()) and not hold:
+                    e_k = self.force_setpoint - float(self.tension[k])
+                    g = 0.5 * self.k_i[s] * (e_k - np.sign(e_k) * self.loop.deadband) \
+                        if abs(e_k) > self.loop.deadband else 0.0
+                    r_k = g - 0.5 * self.loop.k_damp * float(self.tension_rate[k])
+                    self.x_g[(s, k)] = min(max(float(self.x_g.get((s, k), 0.0) + self.dt * r_k),
+                                               -self.x_f_limit), self.x_f_limit)
+                target = target + w * (self.x_g.get((s, k), 0.0)
+                                       + 0.5 * (self.force_setpoint - self.initial_element_tension[k])
+                                       / self.object_stiffness)
+        tau = tau + J.T @ (R.T @ f_world)
+        Rf = force_frame(u_r)
+        M = imp.model.mass_matrix(q)
+        g = self.arm_gains
+        stiffness = np.array([g.kp_along, g.kp_across, g.kp_across])
+        dirs = [R.T @ d for d in self._neighbour_directions(s, tips)]
+        damping = np.empty(3)
+        for i in range(3):
+            axis = Rf[:, i]
+            k_obj = self.object_stiffness * sum(float(axis @ d) ** 2 for d in dirs)
+            damping[i] = 2.0 * g.damping_ratio * np.sqrt((stiffness[i] + k_obj) * cartesian_inertia(M, J, axis))
+        return ArmCommand("impedance", target=R.T @ (target - self.p[s]), velocity=v_r, u=u_r,
+                          stiffness=stiffness, damping=damping, feedforward=tau)
 
     def _neighbour_directions(self, slave: str, tips: dict[str, np.ndarray]) -> list[np.ndarray]:
         """Unit vectors from each arm the slave shares an element with, to the slave."""
@@ -316,7 +428,11 @@ class CooperativeController:
         imp = self.impedance[slave]
         u_world = self._outward(slave, {**self.x0, slave: self.tip_world(slave, q)})
         u = self.R[slave].T @ u_world
-        if imp.Md is None:
+        if self.slave_control == "arm":
+            from rig.arm_impedance import cartesian_inertia
+
+            Lam = cartesian_inertia(imp.model.mass_matrix(q), K.tip_jacobian_rcm(q), u) * np.eye(3)
+        elif imp.Md is None:
             J = K.tip_jacobian_rcm(q)
             Lam = np.linalg.inv(J @ np.linalg.inv(imp.model.mass_matrix(q)) @ J.T)
         else:
@@ -330,7 +446,11 @@ class CooperativeController:
         # ... and divides d(tension of the tracked element)/d(x_f), the impedance in series
         # with the object, by as much: the integral gain grows with it, under the same cap
         series = self.object_stiffness * kp / (kp + k_obj * (1.0 + self.k_fp))
-        return float(min(self.loop.k_i * (1.0 + self.k_fp), omega / (self.loop.bandwidth_ratio * series)))
+        # and a tenth of the loop's own rate: over the wire the tension and the joints are
+        # a tick or two old when the loop acts (at 100 Hz, 10-20 ms), which a crossover of
+        # 0.1 / dt rad/s loses 0.1-0.2 rad of phase to
+        return float(min(self.loop.k_i * (1.0 + self.k_fp), omega / (self.loop.bandwidth_ratio * series),
+                         self.loop.tick_gain / (self.dt * series)))
 
     def desired(self, t: float, targets: bool = False
                 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
@@ -432,7 +552,10 @@ class CooperativeController:
         self.blind = hold
         self._slew_offsets()
         xd, vd, ad = self.desired(t)
+        previous = self.force_setpoint
         self.force_setpoint = self.force_target(t)
+        self._setpoint_rate = 0.0 if self._first_step else (self.force_setpoint - previous) / self.dt
+        self._first_step = False
         tips = {a: self.tip_world(a, qf[a]) for a in self.arms}
         commands: dict[str, ArmCommand] = {}
 
@@ -477,12 +600,22 @@ class CooperativeController:
                                                               for a in self.slaves]))
                 v_out = float(self.R[s] @ (K.tip_jacobian_rcm(qf[s]) @ dqf[s]) @ u - vd[s] @ u)
                 rate = self.loop.take_up_gain * (self.loop.take_up_speed - v_out)
-            elif abs(error) > self.loop.deadband:
-                rate = self.k_i[s] * (error - np.sign(error) * self.loop.deadband) - self.loop.k_damp * h_rate
             else:
-                rate = -self.loop.k_damp * h_rate
+                # in the arm the set-point's own rise is fed forward: the damping acts on
+                # the error's rate, not on the tension's (it would fight every ramp)
+                damped = h_rate - (self._setpoint_rate if self.slave_control == "arm" else 0.0)
+                rate = -self.loop.k_damp * damped
+                if abs(error) > self.loop.deadband:
+                    rate += self.k_i[s] * (error - np.sign(error) * self.loop.deadband)
             self.x_f[s] = min(max(float(self.x_f[s] + self.dt * rate), -self.x_f_limit), self.x_f_limit)
             x_t = xd[s] + u * self.x_f[s]
+            if self.slave_control == "arm":
+                # the set-point's stretch is motion the arm must make: its damping and friction
+                # are fed forward with the plan's (x_f's rate is not: fed back through the
+                # damping, the loop's own correction limit-cycled)
+                v_t = vd[s] + u * (self._setpoint_rate / self.object_stiffness)
+                commands[s] = self._arm_impedance(s, qf[s], dqf[s], x_t, v_t, ad[s], u, tips, mine, tracked, hold)
+                continue
             if self.kp_across is not None:
                 u_r = self.R[s].T @ u
                 self.impedance[s].Kp = (self.kp_across * np.eye(3)

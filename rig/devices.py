@@ -79,7 +79,7 @@ class ConnectError(DeviceFault):
 
 def open_rig(cfg, arms: list[str] | None = None, *, seed: int | None = None,
              uses: tuple[str, ...] = DEVICES, connect_timeout: float | None = None,
-             say=None, arm_streams: tuple[str, ...] = ("measured_js",)) -> Rig:
+             say=None, arm_streams: tuple[str, ...] = ("measured_js",), loop_rate: float | None = None) -> Rig:
     """Open the devices of `cfg` (a `rig.config.RigConfig`); `arms` limits which arms.
 
     uses: the devices besides the arms the procedure uses ("loadcell", "mocap"); the
@@ -90,6 +90,8 @@ def open_rig(cfg, arms: list[str] | None = None, *, seed: int | None = None,
     subscribe besides measured_js. `rig.operator` does the manual steps: the simulation
     on the simulated rig, `rig sim`'s operator with `[operator] driver = "ros"`, else the
     person at the console (`[operator] yes`: every request taken as done, for a prepared rig).
+    `loop_rate` (Hz): the lowest arm stream rate the procedure's loop works at (default
+    `[rig] rate`); a slower one is refused at connection (`check_stream_rates`).
     """
     unknown = set(uses) - set(DEVICES)
     if unknown:
@@ -111,7 +113,7 @@ def open_rig(cfg, arms: list[str] | None = None, *, seed: int | None = None,
     rig = _open_ros(cfg, names, uses, arm_streams)
     try:
         connect(rig, cfg, names, connect_timeout if connect_timeout is not None else cfg.ros["connect_timeout"],
-                say or _stderr)
+                say or _stderr, loop_rate)
     except BaseException:
         rig.close()
         raise
@@ -177,7 +179,7 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
     try:
         for n in names:
             a = cfg.arms[n]
-            arm = RosArm(session.node, a["namespace"], watchdog=a["watchdog"], spin=False,
+            arm = RosArm(session.node, a["namespace"], watchdog=a["watchdog"], spin=False, setting=f"[arms.{n}] watchdog",
                          console=cfg.ros["console"], streams=arm_streams, polled=session.executor_time)
             rig.arms[n] = arm
             rig.clock.add_source(arm)
@@ -201,7 +203,8 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
             from rig.sim import default_marker_bodies
 
             bodies = [mb.name for n in names for mb in default_marker_bodies(n)] + ["world"]
-            rig.tracker = RosMocapTracker(session.node, bodies, prefix=m["prefix"], polled=session.executor_time)
+            rig.tracker = RosMocapTracker(session.node, bodies, prefix=m["prefix"], stale_timeout=m["stale_timeout"],
+                                          polled=session.executor_time)
             rig._closers.append(rig.tracker.close)
         elif "mocap" in uses and m["driver"] == "natnet":
             from drivers.natnet import open_natnet_tracker
@@ -219,7 +222,7 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
     return rig
 
 
-def connect(rig: Rig, cfg, names: list[str], timeout: float, say) -> dict:
+def connect(rig: Rig, cfg, names: list[str], timeout: float, say, loop_rate: float | None = None) -> dict:
     """Wait for the first message of every stream the rig opened, then report what it found.
 
     Arms: measured_js; the load cell: a sample; mocap: a pose of every body. Progress is
@@ -288,7 +291,7 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say) -> dict:
         rates["mocap"] = min(body_rates)
         parts.append(f"mocap {len(rig.tracker.bodies)} bodies {min(body_rates):.0f}-{max(body_rates):.0f} Hz")
     say("connected: " + "; ".join(parts))
-    check_stream_rates(rig, cfg, names, rates)
+    check_stream_rates(rig, cfg, names, rates, loop_rate)
     return rates
 
 
@@ -296,7 +299,7 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say) -> dict:
 RATE_MARGIN = 0.6
 
 
-def check_stream_rates(rig: Rig, cfg, names: list[str], rates: dict) -> None:
+def check_stream_rates(rig: Rig, cfg, names: list[str], rates: dict, loop_rate: float | None = None) -> None:
     """Refuse, in one line, arms whose measured_js is published slower than the rig's loop needs.
 
     The rate published is read from the messages' header stamps (`RosArm.published_rate`),
@@ -305,8 +308,9 @@ def check_stream_rates(rig: Rig, cfg, names: list[str], rates: dict) -> None:
     (`rig.clock.StreamClock` at [rig] rate): a console publishing at 100 Hz (`dvrk_system`'s
     default `-p 0.01`) would run a 500 Hz loop at 100 Hz, where the effort loops of the
     procedures are not stable. The line names the rate heard, the rate needed and the
-    console option to change."""
-    needed = float(cfg.rig["rate"])
+    console option to change. `loop_rate`: the rate needed, if not [rig] rate (a procedure
+    whose arms close their own loops, e.g. `rig cooperative` on servo_ci)."""
+    needed = float(loop_rate if loop_rate is not None else cfg.rig["rate"])
     for n in names:
         arm = rig.arms[n]
         topic = arm.topic["measured_js"]
@@ -314,10 +318,12 @@ def check_stream_rates(rig: Rig, cfg, names: list[str], rates: dict) -> None:
         heard = rate() if rate is not None else rates.get(topic, 0.0)
         if heard < RATE_MARGIN * needed:
             period = 1.0 / needed
+            why = f"[rig] rate in {cfg.source}" if loop_rate is None else "this procedure's lowest"
+            lower = f", or lower [rig] rate to {max(1, int(heard)):d}" if loop_rate is None else ""
             raise ConnectError(
-                f"{topic}: heard at {heard:.0f} Hz (published, from its stamps), the rig's loop needs {needed:g} Hz ([rig] rate in "
-                f"{cfg.source}): start the dVRK console with `dvrk_system -p {period:g}` (or `rig sim --ros-period "
-                f"{period:g}`), or lower [rig] rate to {max(1, int(heard)):d}")
+                f"{topic}: heard at {heard:.0f} Hz (published, from its stamps), the rig's loop needs {needed:g} Hz "
+                f"({why}): start the dVRK console with `dvrk_system -p {period:g}` (or `rig sim --ros-period "
+                f"{period:g}`){lower}")
 
 
 #: s an arm whose measured_js came is given for its first operating_state

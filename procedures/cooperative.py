@@ -234,15 +234,22 @@ def build_controller(cfg, names, master, params, translation, rotation, mode, dy
 
 
 # ----------------------------------------------------------------------------- the run
-#: Hz: the lowest rate of the arms' streams the arm-impedance path holds at (its loop runs
-#: at the rate the arms publish; the dVRK's default `-p 0.01` is 100 Hz)
-ARM_LOOP_MIN_RATE = 100.0
+#: Hz, per object: the lowest rate of the arms' streams the arm-impedance path holds at
+#: (its loop runs at the rate the arms publish; the dVRK's default `-p 0.01` is 100 Hz).
+#: On bench_cooperative_arm the spring held 0.175 N at 100 Hz; the string 0.265 N at 100 Hz
+#: (over the 0.25 N target) and 0.18 N at 200 Hz: a slower console is refused for it
+ARM_LOOP_MIN_RATE = {"spring": 100.0, "string": 200.0}
+#: Hz: the arm-impedance loop runs at the rate the arms publish, up to this: it moves set-
+#: points, and 200 Hz held the string to 0.18 N on bench_cooperative_arm (500 Hz: 0.18,
+#: 100 Hz: 0.27) while leaving a loaded machine 5 ms per tick (a tick with two slaves takes
+#: 2-5 ms of Python here, 10+ ms with the CPU taken)
+ARM_LOOP_MAX_RATE = 200.0
 
 
 def _pace_at_published_rate(rig, names, master) -> None:
-    """The arm-impedance path's loop runs at the rate the arms publish (at most [rig] rate):
-    every tick then has a fresh state of every arm (rig.clock.StreamClock); refuses, in
-    one line, a slave whose arm cannot run servo_ci."""
+    """The arm-impedance path's loop runs at the rate the arms publish, at most
+    ARM_LOOP_MAX_RATE and [rig] rate: every tick has a fresh state of every arm
+    (rig.clock.StreamClock); refuses, in one line, a slave whose arm cannot run servo_ci."""
     for n in names:
         if n != master and not getattr(rig.arms[n], "supports_servo_ci", False):
             raise AbortRun(f"{n} cannot run servo_ci (crtk_msgs/CartesianImpedance not available); "
@@ -250,7 +257,7 @@ def _pace_at_published_rate(rig, names, master) -> None:
     rates = [rig.arms[n].published_rate() for n in names if hasattr(rig.arms[n], "published_rate")]
     heard = min(r for r in rates if r > 0) if any(r > 0 for r in rates) else rig.clock.rate
     if hasattr(rig.clock, "set_rate"):
-        rig.clock.set_rate(min(rig.clock.rate, float(round(heard))))
+        rig.clock.set_rate(min(rig.clock.rate, ARM_LOOP_MAX_RATE, float(round(heard))), min_fraction=0.9)
 
 
 def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, model_path=None, seed=None,
@@ -284,7 +291,7 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
         raise click.BadParameter("'arm' is the impedance mode's; --mode position keeps the slaves on servo_jp",
                                  param_hint="--slave-control")
     rig = open_rig(cfg, names, seed=seed, uses=("loadcell",),
-                   loop_rate=ARM_LOOP_MIN_RATE if slave_control == "arm" else None)
+                   loop_rate=ARM_LOOP_MIN_RATE[cfg.object["kind"]] if slave_control == "arm" else None)
     try:
         return _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
                     model_note, registration_note, limits, dry_run, ros_commands, interactive,
@@ -384,7 +391,15 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         for n in names:
             log[f"{n}.x"] = np.empty((n_ticks, 3))
             log[f"{n}.xd"] = np.empty((n_ticks, 3))
-        servo_ci = _ServoCI(rig, controller.slaves) if slave_control == "arm" else None
+        servo_ci = None
+        if slave_control == "arm":
+            servo_ci = _ServoCI(rig, controller.slaves)
+            # the set-point ramp starts with the loop (checking the plan took a while; in
+            # the effort path the slack take-up starts it)
+            js = {n: rig.arms[n].measured_js() for n in names}
+            newest = [s.read() for s in sensors]
+            controller.start(clock.now(), {n: js[n].position[:3] for n in names},
+                             {n: js[n].velocity[:3] for n in names}, np.array([s.force for s in newest]))
         t_start = clock.now()
         overruns0, skipped0 = getattr(clock, "overruns", 0), getattr(clock, "skipped", 0)
         last_js_t = {n: None for n in names}
@@ -396,7 +411,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         # reader thread held up on a loaded machine (100-475 ms seen over the wire with
         # one CPU burner) delivers them in a burst later, and its stream age does not
         # count that as silence. A tension no newer than the stale timeout ends the run.
-        max_force_age = 2.0 / cfg.loadcell["rate"]
+        max_force_age = max(2.0 / cfg.loadcell["rate"], 2.0 / clock.rate)
         stale_timeout = cfg.loadcell["stale_timeout"]
         # With the impedance in the arm a late tension only holds the set-point where it
         # is (the arm keeps the slaves in place): samples that reach the loop late, the

@@ -159,13 +159,16 @@ class StreamClock(WallClock):
         self.sources.append(source)
         self._seen.append(source.received)
 
-    def set_rate(self, rate: float) -> None:
-        """Pace at `rate` Hz from now on (a procedure whose loop runs at the rate the arms
-        publish, lower than [rig] rate)."""
+    def set_rate(self, rate: float, min_fraction: float | None = None) -> None:
+        """Pace at `rate` Hz from now on (a procedure whose loop runs slower than [rig]
+        rate); `min_fraction`: of a period between two ticks at least (1.0 for a loop
+        slower than its sources, which would otherwise tick at every new sample)."""
         if not rate > 0:
             raise ValueError(f"clock rate must be > 0 Hz, got {rate}")
         self.rate = float(rate)
         self.period = 1.0 / self.rate
+        if min_fraction is not None:
+            self.min_fraction = float(min_fraction)
 
     def tick(self) -> None:
         self._k += 1

@@ -278,7 +278,7 @@ class CooperativeController:
         self.tension_rate = np.zeros(len(self.elements))
         self.force_setpoint = 0.0
         self.blind = False  # the last step held the force loop (see step)
-        self._first_step = True
+        self._t_previous: float | None = None
         self._setpoint_rate = 0.0  # N/s
         # User increments (/psm/cmd_vel, /psm/cmd_force, keyboard): these are the targets;
         # the controller moves its applied offsets toward them at the slew rates, so that an
@@ -552,10 +552,12 @@ class CooperativeController:
         self.blind = hold
         self._slew_offsets()
         xd, vd, ad = self.desired(t)
-        previous = self.force_setpoint
+        previous, t_previous = self.force_setpoint, self._t_previous
         self.force_setpoint = self.force_target(t)
-        self._setpoint_rate = 0.0 if self._first_step else (self.force_setpoint - previous) / self.dt
-        self._first_step = False
+        # on the loop's own clock: a held tick is longer than dt
+        self._setpoint_rate = (0.0 if t_previous is None or t <= t_previous
+                               else (self.force_setpoint - previous) / (t - t_previous))
+        self._t_previous = t
         tips = {a: self.tip_world(a, qf[a]) for a in self.arms}
         commands: dict[str, ArmCommand] = {}
 

@@ -1,9 +1,78 @@
-"""Shared fixtures: every test writes runs into its own folder, and Ctrl-C reaches the
-processes the tests interrupt."""
+"""Shared fixtures: every test writes runs into its own folder, Ctrl-C reaches the
+processes the tests interrupt, and ROS nodes and local servers get a domain and ports no
+other test (in this run, another xdist worker or another pytest run) uses."""
 
+import os
 import signal
 
 import pytest
+
+from tests.ros_domains import claim_domain, claim_ports, ros_environment
+
+#: the files whose tests take longest, longest first. pyproject.toml runs `-n 2 --dist
+#: loadgroup --no-loadscope-reorder`: each test goes to whichever worker is free, in this
+#: order, so the two workers end together instead of one starting a long test when the
+#: other is done. Only the order changes: a file missing here runs all the same, after these.
+LONG_FIRST = (
+    "tests/hil/test_chain.py",
+    "tests/calibration/test_discrepancy.py",
+    "tests/procedures/test_cooperative.py",
+    "tests/procedures/test_identify.py",
+    "tests/procedures/test_discrepancy.py",
+    "tests/calibration/test_generalisation.py",
+    "tests/procedures/test_validate.py",
+    "tests/hil/test_dvrk_client.py",
+    "tests/procedures/test_provenance_chain.py",
+)
+
+
+def pytest_addoption(parser):
+    parser.addoption("--test-order", default="declared", choices=("declared", "reverse", "shuffle"),
+                     help="order of the tests within each file: reverse or shuffle them to check that no test "
+                          "depends on another having run (shuffle: --test-order-seed)")
+    parser.addoption("--test-order-seed", type=int, default=0, help="the seed of --test-order shuffle (default 0)")
+
+
+def _shares_a_module_fixture(item) -> bool:
+    """Does the test use a fixture set up once per module (or class, package): a rig sim
+    the module's tests share, say?"""
+    info = getattr(item, "_fixtureinfo", None)
+    defs = info.name2fixturedefs.values() if info is not None else ()
+    return any(d and d[-1].scope in ("module", "class", "package") for d in defs)
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist reads the xdist_group marks
+def pytest_collection_modifyitems(config, items):
+    """The long files first (LONG_FIRST); within each file the order --test-order asks for;
+    the tests of a file that shares a module fixture in one xdist group (one worker runs
+    them: its rig sim starts once), the others free to go to either worker."""
+    import random
+
+    root = str(config.rootpath)
+    files: dict = {}
+    for item in items:
+        files.setdefault(item.path, []).append(item)
+
+    def rel(path) -> str:
+        return os.path.relpath(str(path), root).replace(os.sep, "/")
+
+    def rank(path) -> int:
+        return LONG_FIRST.index(rel(path)) if rel(path) in LONG_FIRST else len(LONG_FIRST)
+
+    order = config.getoption("--test-order")
+    rng = random.Random(config.getoption("--test-order-seed"))
+    ordered = []
+    for path in sorted(files, key=rank):  # stable: the others keep their order
+        group = files[path]
+        if order == "reverse":
+            group.reverse()
+        elif order == "shuffle":
+            rng.shuffle(group)
+        if any(_shares_a_module_fixture(item) for item in group):
+            for item in group:
+                item.add_marker(pytest.mark.xdist_group(rel(path)))
+        ordered.extend(group)
+    items[:] = ordered
 
 
 @pytest.fixture(autouse=True)
@@ -26,3 +95,41 @@ def _sigint_delivered():
     yield
     if ignored:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _private_ros_domain():
+    """Every process of the session (this xdist worker) is on a domain of its own with
+    localhost discovery, so a ROS node a test starts without choosing a domain never
+    meets another run's nodes, nor the lab's on domain 0."""
+    with claim_domain() as domain, ros_environment(domain):
+        yield domain
+
+
+@pytest.fixture
+def ros_domain():
+    """A ROS domain claimed for this test (tests/ros_domains.py); the environment unchanged."""
+    with claim_domain() as domain:
+        yield domain
+
+
+@pytest.fixture
+def ros_env(ros_domain):
+    """This process on a claimed domain with localhost discovery for the test (set before
+    rclpy.init); the domain's number."""
+    with ros_environment(ros_domain):
+        yield ros_domain
+
+
+@pytest.fixture
+def free_ports():
+    """``free_ports(n)``: the first of n consecutive local ports claimed for this test."""
+    claims = []
+
+    def claim(count: int = 1) -> int:
+        claims.append(claim_ports(count))
+        return claims[-1].value
+
+    yield claim
+    for c in claims:
+        c.release()

@@ -1,7 +1,8 @@
 """The real ROS 2 arm driver (RosArm) against `rig sim` in another process, over loopback.
 
 One `rig sim` subprocess serves the module (starting one costs ~2 s); both processes get
-the same private ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST. The last test
+the same private ROS_DOMAIN_ID (claimed for the module: tests/ros_domains.py) and
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST. The last test
 kills the simulator with SIGKILL to check the stale-stream watchdog.
 
 The simulator shares the machine with this process and whatever else runs: on a loaded
@@ -31,6 +32,7 @@ from drivers.crtk import StaleStream  # noqa: E402
 from drivers.dvrk_arm import RosArm  # noqa: E402
 from drivers.interfaces import Arm  # noqa: E402
 from rig import psm_kinematics as K  # noqa: E402
+from tests.ros_domains import claim_domain, ros_environment  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -54,10 +56,11 @@ def _read_lines_until(proc, wanted: str, timeout: float) -> list[str]:
 
 @pytest.fixture(scope="module")
 def rig_sim():
-    domain = str(100 + os.getpid() % 100)
-    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
-    os.environ["ROS_DOMAIN_ID"] = domain
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    with claim_domain() as domain, ros_environment(domain):
+        yield from _rig_sim()
+
+
+def _rig_sim():
     env = dict(os.environ, RIG_CONFIG="")
     env.pop("RIG_CONFIG")
     proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "sim", "--duration", "60", "--seed", "3",
@@ -94,11 +97,6 @@ def rig_sim():
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 def test_startup_prints_loadcell_pty_and_ready(rig_sim):

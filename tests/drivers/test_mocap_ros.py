@@ -1,13 +1,12 @@
 """RosMocapTracker against a real rclpy publisher in the same process.
 
-Each test gets its own ROS_DOMAIN_ID (set before rclpy.init, discovery on localhost only)
-and its own rclpy Context, shut down at the end.
+Each test gets a ROS_DOMAIN_ID of its own (tests/conftest.py's ros_env: claimed across
+xdist workers and pytest runs, set before rclpy.init, discovery on localhost only) and its
+own rclpy Context, shut down at the end.
 """
 
 from __future__ import annotations
 
-import itertools
-import os
 import re
 import threading
 import time
@@ -27,15 +26,10 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from drivers.mocap import MocapStaleError, RosMocapTracker  # noqa: E402
 
 pytestmark = pytest.mark.ros
-_domains = itertools.count()
 
 
 @pytest.fixture
-def ros(monkeypatch):
-    # Spread domains over the pid so parallel test sessions do not cross-talk.
-    domain = 1 + (os.getpid() * 7 + next(_domains)) % 200
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+def ros(ros_env):
     ctx = Context()
     rclpy.init(context=ctx)
     pub_node = rclpy.create_node("fake_mocap_bridge", context=ctx)

@@ -10,7 +10,6 @@ answers) pairs in order: a send that differs, or a pair left unused, fails the t
 from __future__ import annotations
 
 import re
-import socket
 import struct
 import threading
 import time
@@ -500,11 +499,8 @@ def test_a_rigid_body_the_rig_needs_but_motive_does_not_define_is_one_line():
     tr.close()
 
 
-def test_no_server_is_one_line_naming_the_address_and_what_to_do():
-    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    probe.bind(("127.0.0.1", 0))
-    port = probe.getsockname()[1]
-    probe.close()  # nobody listens there now
+def test_no_server_is_one_line_naming_the_address_and_what_to_do(free_ports):
+    port = free_ports(2)  # claimed (tests/ros_domains.py) and free: nobody listens there
     tr = NatNetTracker(UdpTransport("127.0.0.1", port, port + 1), keepalive=0.0)
     with pytest.raises(NatNetConnectError) as e:
         tr.connect(timeout=0.3, retry=0.1)

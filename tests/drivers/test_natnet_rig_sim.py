@@ -8,8 +8,6 @@ stops with one line naming the address and what to do.
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pytest
 
@@ -30,14 +28,13 @@ def natnet_toml(folder, port: int, extra: str = "") -> str:
 # 29 s: left out of the default run (under 10 min); the driver's loopback tests and
 # test_no_natnet_server_is_one_line cover `rig sim --natnet` there. Run with -m slow.
 @pytest.mark.slow
-def test_calibrate_rcm_and_link_lengths_through_the_fake_motive(tmp_path):
+def test_calibrate_rcm_and_link_lengths_through_the_fake_motive(tmp_path, free_ports):
     from procedures.link_lengths import nominal_lengths
     from rig import config
     from rig import psm_kinematics as K
 
-    domain = 140 + os.getpid() % 29
-    port = 24000 + 2 * (os.getpid() % 500)
-    with ServedRig(tmp_path / "lab", domain, toml=natnet_toml(tmp_path / "lab", port),
+    port = free_ports(2)  # NatNet's command and data ports; the domain is claimed by ServedRig
+    with ServedRig(tmp_path / "lab", toml=natnet_toml(tmp_path / "lab", port),
                    sim_args=("--no-loadcell",)) as rig:
         assert f"natnet: 127.0.0.1:{port} (data {port + 1}, unicast, NatNet 4.1, 120 Hz)" in rig.sim_lines
         out = rig.run("calibrate-rcm", "--arm", "PSM1", "--duration", "6", "--q1-range", "0.5", "--q2-range", "0.4")
@@ -55,11 +52,10 @@ def test_calibrate_rcm_and_link_lengths_through_the_fake_motive(tmp_path):
     assert np.linalg.norm(np.array(doc["arms"]["PSM1"]["rcm"]) - true) < 0.002
 
 
-def test_no_natnet_server_is_one_line(tmp_path):
-    domain = 170 + os.getpid() % 29
-    port = 25000 + 2 * (os.getpid() % 500)
+def test_no_natnet_server_is_one_line(tmp_path, free_ports):
+    port = free_ports(2)  # nobody serves them: claimed, so no other test's fake Motive is there
     toml = natnet_toml(tmp_path / "lab", port, "\n[ros]\nconnect_timeout = 3.0\n")
-    with ServedRig(tmp_path / "lab", domain, toml=toml, sim_args=("--no-loadcell", "--no-natnet")) as rig:
+    with ServedRig(tmp_path / "lab", toml=toml, sim_args=("--no-loadcell", "--no-natnet")) as rig:
         out = rig.run("calibrate-rcm", "--arm", "PSM1")
     assert out.code == 3 and "Traceback" not in out.stderr
     assert out.last_line.startswith(f"rig calibrate-rcm: aborted: no NatNet server answered at 127.0.0.1:{port} "

@@ -5,6 +5,10 @@ port, ROS mocap, `rig sim`'s operator), starts `rig sim` on it with a private
 ROS_DOMAIN_ID and localhost discovery, and runs `rig <command> --json` as separate
 processes in the same folder, so results pass from one procedure to the next through its
 logs/ exactly as in a lab. The tests (tests/hil) and bench/bench_hil.py use it.
+
+Without a `domain`, it claims one for as long as it runs (tests/ros_domains.py: a lock
+no other test, xdist worker or pytest run on the machine can take, on a domain nobody's
+nodes are on), so tests can run side by side.
 """
 
 from __future__ import annotations
@@ -72,16 +76,38 @@ def completed(out: Outcome, what: str) -> dict:
 class ServedRig:
     """`rig sim` on `folder/rig.toml` (see the module docstring); a context manager."""
 
-    def __init__(self, folder: Path, domain: int, toml: str | None = None, sim_args: tuple[str, ...] = ()):
+    def __init__(self, folder: Path, domain: int | None = None, toml: str | None = None,
+                 sim_args: tuple[str, ...] = ()):
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
-        self.domain = domain
+        self._claim = None  # the domain this rig claimed (domain=None), held until stop()
+        self._domain = domain
         self.toml = toml if toml is not None else lab_toml(self.folder)
         # the procedures' 500 Hz loops need the arms' streams at 1 kHz (the dVRK console's
         # default period is 0.01 s; procedures refuse it in one line)
         self.sim_args = tuple(sim_args) if "--ros-period" in sim_args else ("--ros-period", "0.001", *sim_args)
         self.proc: subprocess.Popen | None = None
         self.sim_lines: list[str] = []
+        self.runs_since_start = 0  # `run` calls since this rig sim started (its arms start DISABLED)
+
+    @property
+    def domain(self) -> int:
+        """Its ROS_DOMAIN_ID: the one given, else one claimed now for as long as it runs."""
+        if self._domain is None:
+            from tests.ros_domains import claim_domain
+
+            self._claim = claim_domain()
+            self._domain = self._claim.value
+        return self._domain
+
+    @property
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def restart(self, timeout: float = 60.0) -> "ServedRig":
+        """A fresh `rig sim` on the same folder and domain (after `kill`, say): the logs stay."""
+        self.stop(keep_domain=True)
+        return self.start(timeout)
 
     def env(self, **extra: str) -> dict:
         env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
@@ -94,6 +120,7 @@ class ServedRig:
 
     def start(self, timeout: float = 60.0) -> "ServedRig":
         (self.folder / "rig.toml").write_text(self.toml)
+        self.sim_lines, self.runs_since_start = [], 0
         self.proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "sim", *self.sim_args],
                                      cwd=self.folder, env=self.env(RIG_LOGS=str(self.folder / "sim-logs")),
                                      stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -122,6 +149,7 @@ class ServedRig:
         fault lands in the step it is meant for however long connecting took.
         """
         argv = [sys.executable, "-m", "rig.cli", *args] + (["--json"] if json_doc else [])
+        self.runs_since_start += 1
         t0 = time.monotonic()
         proc = subprocess.Popen(argv, cwd=self.folder, env=env or self.env(), text=True,
                                 stdin=subprocess.PIPE if stdin is not None else subprocess.DEVNULL,
@@ -172,8 +200,17 @@ class ServedRig:
             self.proc.send_signal(sig)
             self.proc.wait(timeout=10)
 
-    def stop(self) -> str:
-        """Stop rig sim (SIGINT, as Ctrl-C); returns what it printed at exit."""
+    def stop(self, keep_domain: bool = False) -> str:
+        """Stop rig sim (SIGINT, as Ctrl-C); returns what it printed at exit. A domain it
+        claimed is given back unless `keep_domain`."""
+        try:
+            return self._stop()
+        finally:
+            if self._claim is not None and not keep_domain:
+                self._claim.release()
+                self._claim, self._domain = None, None
+
+    def _stop(self) -> str:
         if self.proc is None or self.proc.stdout is None or self.proc.stdout.closed:
             return ""
         if self.proc.poll() is None:

@@ -5,11 +5,16 @@ until enabled and homed): each procedure enables and homes the arms it opens whe
 connects, so the chain runs with state handling on throughout.
 
 One `rig sim` serves the module from a lab's rig.toml (ROS arms, the load cell on a serial
-port that rig sim links to its pty, ROS mocap, rig sim's simulated operator); each test
-runs one `rig <procedure> --json` process in the same folder, in the lab's order, so each
-procedure finds the results of the ones before it in logs/. Durations are short; the
-figures are checked against the simulated rig's truth (the nominal PSM geometry and
-parameters, and the configured arm placement, which rig sim serves).
+port that rig sim links to its pty, ROS mocap, rig sim's simulated operator), on a ROS
+domain claimed for the module (tests/ros_domains.py); each test runs `rig <procedure>
+--json` processes in the same folder, so a procedure finds the results of the ones it
+needs in logs/, as in a lab. No test relies on another having run: what a procedure needs
+(the load cell's calibration, the registration, the identified model, the friction ramp)
+is a module fixture that runs its procedure the first time a test asks for it, so the
+tests pass in any order, alone or in any subset. A test that kills rig sim leaves it dead;
+the next test gets a fresh one on the same folder and domain (the logs stay). Durations
+are short; the figures are checked against the simulated rig's truth (the nominal PSM
+geometry and parameters, and the configured arm placement, which rig sim serves).
 """
 
 from __future__ import annotations
@@ -23,14 +28,64 @@ import pytest
 pytest.importorskip("rclpy")
 
 from tests.hil.harness import ServedRig, completed  # noqa: E402
+from tests.ros_domains import ros_environment  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.hil]
 
+#: the chain's identify options (short; its excitation design is cached by its inputs)
+IDENTIFY = ("identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5", "--no-plots")
+
 
 @pytest.fixture(scope="module")
-def served(tmp_path_factory):
-    with ServedRig(tmp_path_factory.mktemp("lab"), domain=201 + (os.getpid() + 13) % 31) as rig:
+def lab(tmp_path_factory):
+    """The module's lab folder and its rig sim (a domain of its own, held to the end)."""
+    with ServedRig(tmp_path_factory.mktemp("lab")) as rig:
         yield rig
+
+
+def _running(lab: ServedRig) -> ServedRig:
+    """`lab` with its rig sim up: a fresh one on the same folder and domain if a test killed it."""
+    if not lab.running:
+        lab.restart()
+    return lab
+
+
+@pytest.fixture
+def served(lab):
+    return _running(lab)
+
+
+# -- what procedures need, made once per module by the first test that asks ---------------
+@pytest.fixture(scope="module")
+def calibrated_cell(lab):
+    """A completed `rig loadcell-calibrate` in the lab's logs (what `rig cooperative` opens the cell with)."""
+    return completed(_running(lab).run("loadcell-calibrate", "--seconds", "0.5"), "loadcell-calibrate")
+
+
+@pytest.fixture(scope="module")
+def registered(lab):
+    """A completed `rig register` (by touch) in the lab's logs."""
+    return completed(_running(lab).run("register", "--points", "6"), "register")
+
+
+@pytest.fixture(scope="module")
+def identified(lab):
+    """A completed `rig identify` of PSM1 in the lab's logs (the model)."""
+    return completed(_running(lab).run(*IDENTIFY), "identify")
+
+
+@pytest.fixture(scope="module")
+def ramped(lab, identified):
+    """A completed `rig friction-ramp` on the identified model (its stick-slip terms join the model)."""
+    return completed(_running(lab).run("friction-ramp", "--ramp-time", "1.5", "--speeds", "0.01,0.02,0.04",
+                                       "--no-plots"), "friction-ramp")
+
+
+@pytest.fixture
+def cooperative_ready(lab, calibrated_cell, registered, identified, ramped):
+    """The lab with everything `rig cooperative` uses: the cell's calibration, the
+    registration and the identified model with its friction ramp; rig sim running."""
+    return _running(lab)
 
 
 def _cfg(served):
@@ -39,9 +94,9 @@ def _cfg(served):
     return config.load(served.folder / "rig.toml")
 
 
-def test_loadcell_calibrate_hangs_masses_through_the_operator(served):
-    doc = completed(served.run("loadcell-calibrate", "--seconds", "0.5"), "loadcell-calibrate")
-    assert doc["device"]["port"] == str(served.folder / "loadcell")
+def test_loadcell_calibrate_hangs_masses_through_the_operator(lab, calibrated_cell):
+    doc = calibrated_cell
+    assert doc["device"]["port"] == str(lab.folder / "loadcell")
     # the simulated operator hung 0.5 kg: the check reads its weight back (noise 20 mN rms)
     assert abs(doc["check"]["error_n"]) < 0.02
 
@@ -49,6 +104,8 @@ def test_loadcell_calibrate_hangs_masses_through_the_operator(served):
 def test_link_lengths(served):
     from procedures.link_lengths import nominal_lengths
 
+    if served.runs_since_start:  # a fresh rig sim: its arms DISABLED, as a console's at power-up
+        served.restart()
     out = served.run("link-lengths", "--q1-range", "0.5", "--q2-range", "0.4", "--passes", "1", "--q3-stroke", "0.05")
     doc = completed(out, "link-lengths")
     # rig sim's arms start DISABLED, as a dVRK's: the first procedure to move PSM1 enabled
@@ -71,36 +128,35 @@ def test_calibrate_rcm(served):
         assert np.linalg.norm(np.array(doc["arms"][arm]["rcm"]) - true) < 0.002, arm
 
 
-def test_register_by_touch(served):
+def test_register_by_touch(lab, registered):
     from procedures.register import truth_errors
 
-    doc = completed(served.run("register", "--points", "6"), "register")
+    doc = registered
     T = np.array(doc["transforms"]["PSM2"]["T_ref_rcm_arm_rcm"])
-    err = truth_errors(_cfg(served), ["PSM1", "PSM2"], {"PSM1": np.eye(4), "PSM2": T})["PSM2"]
+    err = truth_errors(_cfg(lab), ["PSM1", "PSM2"], {"PSM1": np.eye(4), "PSM2": T})["PSM2"]
     assert err["rcm_translation_error"] < 0.002 and err["rcm_rotation_error_deg"] < 0.5, err
 
 
-def test_identify(served):
-    doc = completed(served.run("identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5",
-                         "--no-plots"), "identify")
+def test_identify(identified):
+    doc = identified
     assert doc["checks"]["sdp"] is True
     # a sanity bound: the accuracy over the wire (0.02-0.18 on joint 1, by the machine's
     # load) is bench_hil's figure against its 0.1 target
     assert np.all(np.array(doc["validation_moving"]["sdp"]) < 0.25), doc["validation_moving"]
 
 
-def test_friction_ramp(served):
+def test_friction_ramp(ramped):
     from rig.psm_dynamics import PSMParameters
 
-    doc = completed(served.run("friction-ramp", "--ramp-time", "1.5", "--speeds", "0.01,0.02,0.04", "--no-plots"),
-              "friction-ramp")
+    doc = ramped
     fc_true = PSMParameters().drive.Fc[2]
     fc = doc["fits"]["viscous_coulomb"]["Fc"]
     assert abs(fc - fc_true) < 0.25 * fc_true, (fc, fc_true)
 
 
 @pytest.mark.parametrize("kind", ["spring", pytest.param("string", marks=pytest.mark.slow)])
-def test_cooperative_holds_5_newtons(served, kind):
+def test_cooperative_holds_5_newtons(cooperative_ready, kind):
+    served = cooperative_ready
     doc = completed(served.run("cooperative", "--force", "5", "--object", kind, "--move", "0.03,0,0", "--duration", "2",
                          "--settle", "1.5", "--hold-after", "0.5"), f"cooperative --object {kind}")
     assert doc["max_error_during_motion"] <= 0.25, doc["summary"]
@@ -110,16 +166,16 @@ def test_cooperative_holds_5_newtons(served, kind):
     assert doc["model"].startswith("identified model "), doc["model"]
 
 
-def test_discrepancy_on_the_identify_run(served):
-    runs = sorted(p for p in (served.folder / "logs").iterdir() if p.name.endswith("-identify"))
-    doc = completed(served.run("discrepancy", str(runs[-1])), "discrepancy")
+def test_discrepancy_on_the_identify_run(served, identified):
+    doc = completed(served.run("discrepancy", identified["run_dir"]), "discrepancy")
     assert all(math.isfinite(v) for v in doc["baseline"]["heldout_rms"])
 
 
 # ------------------------------------------------------------------------------ faults
 # Each fault ends the procedure with one line on stderr naming the device and what to check,
 # a non-zero exit, no traceback, the arms it moved held and the recording closed with the
-# reason. The results of the chain above (model, registration, calibration) are used.
+# reason. The results of the chain (model, registration, calibration) are used: the
+# cooperative_ready fixture makes them when they are not there yet.
 
 def _one_clear_line(out, *words: str) -> None:
     assert out.code != 0
@@ -152,15 +208,19 @@ def _cooperative_args(duration: float = 6.0) -> list[str]:
     ["friction-ramp", "--no-plots"],
     ["cooperative", "--force", "5", "--object", "spring", "--duration", "1"],
 ], ids=lambda a: a[0])
-def test_wrong_domain_is_one_line_naming_the_topic_and_domain(served, args):
-    # every procedure that drives the arms; a short connect timeout keeps the wait brief
+def test_wrong_domain_is_one_line_naming_the_topic_and_domain(served, args, ros_domain, request):
+    # every procedure that drives the arms; a short connect timeout keeps the wait brief.
+    # The wrong domain is one claimed for the test: nobody's nodes are on it.
+    if args[0] == "cooperative":  # it finds its calibration, registration and model before connecting
+        request.getfixturevalue("cooperative_ready")
     short = served.folder / "short-connect.toml"
     short.write_text((served.folder / "rig.toml").read_text() + "\n[ros]\nconnect_timeout = 2.0\n")
-    out = served.run("--config", str(short), *args, env=served.env(ROS_DOMAIN_ID=str(served.domain + 1)))
-    _one_clear_line(out, "/PSM1/measured_js", f"ROS_DOMAIN_ID={served.domain + 1}", "no message within 2 s")
+    out = served.run("--config", str(short), *args, env=served.env(ROS_DOMAIN_ID=str(ros_domain)))
+    _one_clear_line(out, "/PSM1/measured_js", f"ROS_DOMAIN_ID={ros_domain}", "no message within 2 s")
 
 
-def test_a_pty_that_is_not_a_load_cell(served):
+def test_a_pty_that_is_not_a_load_cell(cooperative_ready):
+    served = cooperative_ready
     master, slave = os.openpty()  # nobody answers on it
     try:
         other = served.folder / "silent.toml"
@@ -173,9 +233,10 @@ def test_a_pty_that_is_not_a_load_cell(served):
         os.close(slave)
 
 
-def test_a_missing_calibration(served, tmp_path):
+def test_a_missing_calibration(cooperative_ready, tmp_path):
     import shutil
 
+    served = cooperative_ready
     logs = tmp_path / "logs"
     for run in (served.folder / "logs").iterdir():  # everything but the load-cell calibration
         if run.is_dir() and not run.name.endswith("loadcell-calibrate"):
@@ -189,36 +250,33 @@ def test_a_missing_calibration(served, tmp_path):
 HOLDING = "hold the tension while moving ["
 
 
-def test_load_cell_unplugged_mid_run(served):
+def test_load_cell_unplugged_mid_run(cooperative_ready):
     from rig.ros_session import RosSession
     from drivers.operator import RosOperator
 
+    served = cooperative_ready
+
     def pull_the_cable():
-        old = os.environ.get("ROS_DOMAIN_ID")
-        os.environ["ROS_DOMAIN_ID"] = str(served.domain)
-        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-        try:
+        with ros_environment(served.domain):
             session = RosSession("test_person")
             session.start()
             RosOperator(session.node, timeout=10.0).unplug("loadcell")
             session.close()
-        finally:
-            if old is None:
-                os.environ.pop("ROS_DOMAIN_ID", None)
-            else:
-                os.environ["ROS_DOMAIN_ID"] = old
 
-    out = served.run(*_cooperative_args(10.0), when=(HOLDING, pull_the_cable))
+    try:
+        out = served.run(*_cooperative_args(10.0), when=(HOLDING, pull_the_cable))
+    finally:
+        served.stop(keep_domain=True)  # its cell stays unplugged: the next test gets a fresh rig sim
     _one_clear_line(out, "load cell", "aborted")
     stop = _stopped_recording(out, ("load cell",))
     assert sorted(stop["held"]) == ["PSM1", "PSM2"]
 
 
 def test_rig_sim_killed_mid_run_is_seen_within_the_watchdog(served):
-    """Last: it kills the module's rig sim. The watchdog (0.25 s on ROS arms) sees it."""
-    # the chain's identify options (the design is cached): killed once the excitation streams
-    out = served.run("identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5",
-                     "--no-plots", when=("run the excitation trajectory [", served.kill))
+    """It kills the module's rig sim (the next test gets a fresh one). The watchdog (0.25 s
+    on ROS arms) sees it."""
+    # the chain's identify options: killed once the excitation streams
+    out = served.run(*IDENTIFY, when=("run the excitation trajectory [", served.kill))
     _one_clear_line(out, "aborted", "/PSM1/measured_js", "stale stream")
     stop = _stopped_recording(out, ("stale stream",))
     assert stop["held"] == ["PSM1"]
@@ -230,17 +288,12 @@ def test_rig_sim_killed_mid_run_is_seen_within_the_watchdog(served):
     assert 250 <= age_ms <= 300, out.doc["error"]
 
 
-def test_rig_sim_killed_mid_cooperative_holds_both_arms(served):
-    """After the test above: a fresh rig sim on the same folder, killed while the
-    cooperative procedure holds the object. Its load cell's pty closes with it and the
-    arms' streams stop: whichever the run sees first ends it, in one line. (The fresh rig
-    sim's arms start DISABLED: the procedure enables and homes them when connecting.)"""
-    rig = ServedRig(served.folder, served.domain, toml=served.toml)
-    rig.start()
-    try:
-        out = served.run(*_cooperative_args(10.0), when=(HOLDING, rig.kill))
-    finally:
-        rig.stop()
+def test_rig_sim_killed_mid_cooperative_holds_both_arms(cooperative_ready):
+    """The module's rig sim, killed while the cooperative procedure holds the object (the
+    next test gets a fresh one). Its load cell's pty closes with it and the arms' streams
+    stop: whichever the run sees first ends it, in one line."""
+    served = cooperative_ready
+    out = served.run(*_cooperative_args(10.0), when=(HOLDING, served.kill))
     assert out.code == 3 and "Traceback" not in out.stderr, out.stderr[-3000:]
     assert "aborted" in out.last_line
     assert ("stale stream" in out.last_line) or ("load cell" in out.last_line), out.last_line

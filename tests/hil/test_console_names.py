@@ -4,7 +4,6 @@ ROS graph and reaches the console that is there."""
 
 from __future__ import annotations
 
-import os
 import time
 
 import pytest
@@ -17,14 +16,11 @@ pytestmark = [pytest.mark.ros, pytest.mark.hil]
 
 
 @pytest.mark.parametrize("console", ["/system", "/console"])
-def test_auto_finds_the_console_rig_sim_serves(tmp_path, monkeypatch, console):
+def test_auto_finds_the_console_rig_sim_serves(tmp_path, ros_env, console):
     from drivers.dvrk_arm import RosArm
     from rig.ros_session import RosSession
 
-    domain = 50 + (os.getpid() + (7 if console == "/system" else 3)) % 50
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    with ServedRig(tmp_path, domain, toml='[arms.PSM1]\ndriver = "ros"\n',
+    with ServedRig(tmp_path, ros_env, toml='[arms.PSM1]\ndriver = "ros"\n',
                    sim_args=("--console", console, "--no-loadcell", "--no-mocap")):
         session = RosSession("console_probe")
         arm = RosArm(session.node, "/PSM1", watchdog=1.0, spin=False, polled=session.executor_time, console="auto")

@@ -17,7 +17,6 @@ Skipped with the reason where ../shared/dvrk-clients or PyKDL is absent.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -39,12 +38,9 @@ HERE = Path(__file__).resolve().parent
 ONE_ARM = '[arms.PSM1]\ndriver = "ros"\n\n[loadcell]\ndriver = "none"\n\n[mocap]\ndriver = "none"\n'
 
 
-def _domain(offset: int) -> int:
-    return 100 + (os.getpid() * 7 + offset) % 100
-
-
-def _served(tmp_path, domain: int, console: str) -> ServedRig:
-    return ServedRig(tmp_path, domain, toml=ONE_ARM,
+def _served(tmp_path, console: str) -> ServedRig:
+    """rig sim on a domain of its own (claimed by ServedRig until it stops: rig.domain)."""
+    return ServedRig(tmp_path, toml=ONE_ARM,
                      sim_args=("--console", console, "--ros-period", "0.01", "--no-loadcell", "--no-mocap"))
 
 
@@ -62,9 +58,8 @@ def _run(argv: list, domain: int, cwd: Path, stdin: str | None = None, timeout: 
 def calls(request, tmp_path_factory):
     console = request.param
     folder = tmp_path_factory.mktemp("client-calls")
-    domain = _domain(11 if console == "/system" else 13)
-    with _served(folder, domain, console) as rig:
-        out = _run([HERE / "dvrk_client_calls.py", "PSM1", "--system", console.strip("/")], domain, folder)
+    with _served(folder, console) as rig:
+        out = _run([HERE / "dvrk_client_calls.py", "PSM1", "--system", console.strip("/")], rig.domain, folder)
         sim_out = rig.stop()
     docs = [ln for ln in out.stdout.splitlines() if ln.startswith("{")]
     assert docs, f"no record from the client (exit {out.returncode}): {out.stderr[-3000:]}"
@@ -262,12 +257,12 @@ CHAINS = [
 ]
 
 
-def _chain(folder: Path, domain: int, console: str, scripts) -> list:
+def _chain(folder: Path, console: str, scripts) -> list:
     folder.mkdir(parents=True, exist_ok=True)
     out = []
-    with _served(folder, domain, console) as rig:
+    with _served(folder, console) as rig:
         for name, args, last in scripts:
-            out.append((name, last, _run([_script(name), *args], domain, folder, stdin="\n" * 20)))
+            out.append((name, last, _run([_script(name), *args], rig.domain, folder, stdin="\n" * 20)))
         rig.stop()
     return out
 
@@ -276,9 +271,8 @@ def _chain(folder: Path, domain: int, console: str, scripts) -> list:
 def test_the_clients_scripts_run_to_their_end(tmp_path, console):
     from concurrent.futures import ThreadPoolExecutor
 
-    base = 17 if console == "/system" else 19
     with ThreadPoolExecutor(max_workers=len(CHAINS)) as pool:
-        futures = [pool.submit(_chain, tmp_path / f"chain{i}", _domain(base + 40 * i), console, chain)
+        futures = [pool.submit(_chain, tmp_path / f"chain{i}", console, chain)
                    for i, chain in enumerate(CHAINS)]
         results = [r for f in futures for r in f.result()]
     assert [name for name, _, _ in results] == [name for chain in CHAINS for name, _, _ in chain]

@@ -42,13 +42,12 @@ print(json.dumps(out))
 """
 
 
-def test_the_client_imports_and_makes_its_node():
+def test_the_client_imports_and_makes_its_node(ros_domain):
     why = skip_reason()
     if why is not None:
         pytest.skip(why)
-    domain = 100 + (os.getpid() + 17) % 40
-    env = client_env(domain=domain)
-    assert env["ROS_VERSION"] == "2" and env["ROS_DOMAIN_ID"] == str(domain)
+    env = client_env(domain=ros_domain)
+    assert env["ROS_VERSION"] == "2" and env["ROS_DOMAIN_ID"] == str(ros_domain)
     # a guard against a hang, not a timing check
     done = subprocess.run([sys.executable, "-c", PROBE], env=env, cwd=REPO.parent, capture_output=True, text=True,
                           timeout=300)
@@ -104,7 +103,7 @@ def test_skip_reasons(monkeypatch, tmp_path):
     assert skip_reason() == "PyKDL is absent: apt-get install python3-pykdl"
 
 
-def test_probe_lists_what_the_client_uses():
+def test_probe_lists_what_the_client_uses(ros_domain):
     """bench/probe_dvrk_client.py, run as a person runs it, lists the client's names: for
     one PSM, the system and the console, 29 topics published, 18 subscribed, 3 services."""
     why = skip_reason()
@@ -113,7 +112,7 @@ def test_probe_lists_what_the_client_uses():
     env = dict(os.environ)
     env.pop("ROS_DOMAIN_ID", None)
     done = subprocess.run([sys.executable, str(REPO / "bench" / "probe_dvrk_client.py"), "--json",
-                           "--domain", str(100 + (os.getpid() + 23) % 40)],
+                           "--domain", str(ros_domain)],
                           env=env, cwd=REPO.parent, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
     doc = json.loads(done.stdout)

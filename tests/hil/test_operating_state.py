@@ -2,16 +2,21 @@
 
 One `rig sim` serves the module from a lab's rig.toml. This process is a client of its
 own (a RosSession with a RosArm on PSM2, the operator channel, and subscriptions that
-record PSM2's operating_state and warnings), and the last test runs a procedure on PSM1 in
-another process. In order: a never-enabled arm drops commands with the dVRK's warning and
-does not move; enable and home through RosArm; move_jp waits on is_busy; the servo
+record PSM2's operating_state and warnings), and the last tests run procedures on PSM1 in
+other processes. The cases: a never-enabled arm drops commands with the dVRK's warning
+and does not move; enable and home through RosArm; move_jp waits on is_busy; the servo
 watchdog faults an arm whose servo commands stop, and the fault is cleared by a disable;
 a FAULT mid-run (PSM1's joint 1 pushed past its limit) aborts the procedure with one line,
 the arm held, the recording closed with the reason; the next procedure on that arm stops
 when connecting, the FAULT left for a person to clear.
 
-Domains 20-49 (the console-name tests use 50-99, the arm driver's 100-199, the chain
-201-231; the short single-process pub/sub tests draw from 1-200), localhost discovery.
+Each test makes the state it needs (tests run in any order, alone or in any subset): one
+that needs an arm as a console leaves it at power-up (DISABLED, never homed; PSM1 not in
+FAULT) gets a fresh rig sim when an earlier test changed it; one that needs PSM2 enabled
+enables it; the one that needs PSM1 in FAULT faults it mid-run first if it is not. In
+the file's order nothing is restarted.
+
+A domain claimed for the module (tests/ros_domains.py), localhost discovery.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ import pytest
 pytest.importorskip("rclpy")
 
 from tests.hil.harness import ServedRig  # noqa: E402
+from tests.ros_domains import ros_environment  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.hil]
 
@@ -74,35 +80,49 @@ def _settle(arm, timeout: float = 20.0) -> None:
         q = q1
 
 
+def _connect(rig: ServedRig) -> None:
+    """This process's client on `rig` (rig.client), the object detached and PSM2 settled;
+    rig.changed: what tests did to the arms since this rig sim started."""
+    client = _Client()
+    rig.client, rig.changed = client, set()
+    assert client.arm.wait_for_data(30.0) and client.arm.wait_for_state(30.0)
+    assert client.arm.wait_for_subscribers(30.0)
+    client.operator.detach_object()  # the arms move free of the spring between them
+    _settle(client.arm)
+
+
+def _fresh(rig: ServedRig, unless_unchanged: tuple[str, ...]) -> ServedRig:
+    """`rig` as at power-up for what a test needs: a fresh rig sim and client if any of
+    `unless_unchanged` ("PSM2 enabled", "PSM1 faulted") happened to this one."""
+    if rig.changed & set(unless_unchanged):
+        rig.client.close()
+        rig.restart()
+        _connect(rig)
+    return rig
+
+
 @pytest.fixture(scope="module")
 def served(tmp_path_factory):
-    domain = 20 + (os.getpid() + 11) % 30
-    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
-    os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    try:
-        with ServedRig(tmp_path_factory.mktemp("states"), domain=domain) as rig:
-            client = _Client()
-            try:
-                assert client.arm.wait_for_data(30.0) and client.arm.wait_for_state(30.0)
-                assert client.arm.wait_for_subscribers(30.0)
-                client.operator.detach_object()  # the arms move free of the spring between them
-                _settle(client.arm)
-                rig.client = client
-                yield rig
-            finally:
-                client.close()
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+    with ServedRig(tmp_path_factory.mktemp("states")) as rig, ros_environment(rig.domain):
+        _connect(rig)
+        try:
+            yield rig
+        finally:
+            rig.client.close()
+
+
+def _ready_psm2(served: ServedRig):
+    """PSM2 ENABLED and homed (enabled and homed through RosArm if it is not)."""
+    served.changed.add("PSM2 enabled")
+    st = served.client.arm.ready(timeout=30.0)
+    assert st.ready, st
+    return served.client
 
 
 def test_a_never_enabled_arm_drops_commands_warns_and_does_not_move(served):
     from drivers.sim_arm_state import NOT_READY_PERIOD
 
-    c = served.client
+    c = _fresh(served, ("PSM2 enabled",)).client
     arm = c.arm
     st = arm.operating_state()
     assert (st.state, st.is_homed, st.is_busy) == ("DISABLED", False, False)
@@ -137,7 +157,8 @@ def test_a_never_enabled_arm_drops_commands_warns_and_does_not_move(served):
 def test_enable_and_home_through_rosarm_within_the_timeout(served):
     from drivers.sim_arm_state import HOMING
 
-    c = served.client
+    c = _fresh(served, ("PSM2 enabled",)).client
+    served.changed.add("PSM2 enabled")
     t0 = time.monotonic()
     st = c.arm.ready(timeout=30.0)
     took = time.monotonic() - t0
@@ -158,7 +179,7 @@ def test_enable_and_home_through_rosarm_within_the_timeout(served):
 
 
 def test_move_jp_waits_on_is_busy(served):
-    c = served.client
+    c = _ready_psm2(served)
     arm = c.arm
     q0 = arm.measured_js().position.copy()
     goal = q0 + np.array([-0.1, 0.05, 0.0])
@@ -178,7 +199,7 @@ def test_move_jp_waits_on_is_busy(served):
 def test_servo_watchdog_faults_an_arm_whose_servo_commands_stop(served):
     from drivers.crtk import ArmFault
 
-    c = served.client
+    c = _ready_psm2(served)
     arm = c.arm
     c.operator.fault("PSM2", "servo_watchdog", timeout=0.2)
     try:
@@ -215,19 +236,28 @@ def test_servo_watchdog_faults_an_arm_whose_servo_commands_stop(served):
     arm.measured_js()  # in control again: no fault raised
 
 
+def _fault_psm1_mid_run(served: ServedRig):
+    """A friction ramp on PSM1 with its joint 1 pushed past its limit once the first force
+    ramp is under way: the run's Outcome, and whether the fault was injected. It leaves
+    PSM1 in FAULT, past its limit."""
+    injected = threading.Event()
+
+    def push_joint_1():
+        served.client.operator.fault("PSM1", "joint_limit", joint=1)
+        injected.set()
+
+    served.changed.add("PSM1 faulted")
+    out = served.run("friction-ramp", "--arm", "PSM1", "--ramp-time", "1.5", "--speeds", "0.01,0.02,0.04",
+                     "--no-plots", when=("force ramp, positive direction [", push_joint_1))
+    return out, injected.is_set()
+
+
 def test_a_fault_mid_run_aborts_the_procedure_in_one_line(served):
     """It leaves PSM1 in FAULT, past its limit."""
     from rig.records import read_recording
 
-    injected = threading.Event()
-
-    def push_joint_1():  # once the first force ramp is under way
-        served.client.operator.fault("PSM1", "joint_limit", joint=1)
-        injected.set()
-
-    out = served.run("friction-ramp", "--arm", "PSM1", "--ramp-time", "1.5", "--speeds", "0.01,0.02,0.04",
-                     "--no-plots", when=("force ramp, positive direction [", push_joint_1))
-    assert injected.is_set(), out.stderr[-3000:]
+    out, injected = _fault_psm1_mid_run(_fresh(served, ("PSM1 faulted",)))
+    assert injected, out.stderr[-3000:]
     assert out.code == 3, out.stderr[-3000:]
     assert "Traceback" not in out.stderr, out.stderr[-3000:]
     line = out.last_line
@@ -244,8 +274,12 @@ def test_a_fault_mid_run_aborts_the_procedure_in_one_line(served):
 
 
 def test_a_procedure_on_a_faulted_arm_stops_when_connecting(served):
-    """After the test above: PSM1 is still in FAULT. A procedure does not clear a fault
-    behind a person's back; it stops before its run, in one line."""
+    """PSM1 in FAULT (as the test above leaves it; faulted the same way first if it is
+    not). A procedure does not clear a fault behind a person's back; it stops before its
+    run, in one line."""
+    if "PSM1 faulted" not in served.changed:
+        out, injected = _fault_psm1_mid_run(served)
+        assert injected and out.code == 3 and "went to FAULT" in out.last_line, out.stderr[-3000:]
     out = served.run("friction-ramp", "--arm", "PSM1", "--ramp-time", "1.5", "--speeds", "0.01,0.02,0.04",
                      "--no-plots")
     assert out.code == 3 and "Traceback" not in out.stderr, out.stderr[-3000:]

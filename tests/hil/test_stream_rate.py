@@ -8,8 +8,6 @@ console option to change. A procedure that moves no arm is not held to it.
 
 from __future__ import annotations
 
-import os
-
 import pytest
 
 pytest.importorskip("rclpy")
@@ -20,8 +18,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.hil]
 
 
 def test_a_slow_stream_is_refused_in_one_line(tmp_path):
-    domain = 160 + (os.getpid() + 3) % 30
-    with ServedRig(tmp_path, domain, toml=lab_toml(tmp_path), sim_args=("--ros-period", "0.01", "--no-mocap")) as rig:
+    with ServedRig(tmp_path, toml=lab_toml(tmp_path), sim_args=("--ros-period", "0.01", "--no-mocap")) as rig:
         out = rig.run("loadcell-calibrate", "--seconds", "0.3")  # no arm: the stream rate does not matter
         completed(out, "loadcell-calibrate")
         out = rig.run("friction-ramp", "--no-plots")

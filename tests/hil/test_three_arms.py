@@ -7,8 +7,6 @@ the cooperative procedure opens the three, each with its own calibration.
 
 from __future__ import annotations
 
-import os
-
 import pytest
 
 pytest.importorskip("rclpy")
@@ -21,15 +19,20 @@ pytestmark = [pytest.mark.ros, pytest.mark.hil]
 @pytest.fixture(scope="module")
 def triangle(tmp_path_factory):
     folder = tmp_path_factory.mktemp("triangle")
-    with ServedRig(folder, domain=180 + (os.getpid() + 5) % 20, toml=lab_toml(folder, three_arms=True)) as rig:
+    with ServedRig(folder, toml=lab_toml(folder, three_arms=True)) as rig:
         yield rig
 
 
-def test_each_element_has_its_cell_calibrated_on_its_own_port(triangle):
+@pytest.fixture(scope="module")
+def calibrated(triangle):
+    """Each element's cell calibrated on its own (`--element k`), once per module."""
+    return [completed(triangle.run("loadcell-calibrate", "--seconds", "0.5", "--element", str(k)),
+                      f"loadcell-calibrate --element {k}") for k in range(3)]
+
+
+def test_each_element_has_its_cell_calibrated_on_its_own_port(triangle, calibrated):
     ports = [str(triangle.folder / n) for n in ("loadcell", "loadcell1", "loadcell2")]
-    for k, port in enumerate(ports):
-        doc = completed(triangle.run("loadcell-calibrate", "--seconds", "0.5", "--element", str(k)),
-                  f"loadcell-calibrate --element {k}")
+    for k, (port, doc) in enumerate(zip(ports, calibrated)):
         assert doc["device"]["port"] == port
         # the simulated operator hung 0.5 kg on this element's cell (noise 20 mN rms)
         assert abs(doc["check"]["error_n"]) < 0.02, (k, doc["check"])
@@ -39,7 +42,7 @@ def test_each_element_has_its_cell_calibrated_on_its_own_port(triangle):
 
 
 @pytest.mark.slow
-def test_three_arms_hold_5_newtons_on_every_element(triangle):
+def test_three_arms_hold_5_newtons_on_every_element(triangle, calibrated):
     completed(triangle.run("register", "--points", "6"), "register")
     completed(triangle.run("identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5",
                      "--no-plots"), "identify")

@@ -30,7 +30,6 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import importlib
-import itertools
 import json
 import os
 import struct
@@ -414,16 +413,10 @@ def test_trigger_operating_state_bytes():
     assert deserialize_message(cdr.bytes(), TriggerOperatingState.Response) == response
 
 
-_domains = itertools.count()
-
-
 @pytest.fixture
-def ros_context(monkeypatch):
-    # Domains 1-200 spread over the pid, as in the other single-process ROS tests; the
-    # topic names are unique to this test as well.
-    domain = 1 + (os.getpid() * 13 + next(_domains)) % 200
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+def ros_context(ros_env):
+    # a domain claimed for the test (tests/conftest.py); the topic names are unique to
+    # this test as well
     ctx = Context()
     rclpy.init(context=ctx)
     yield ctx

@@ -5,7 +5,8 @@ wall clock (rig.pace = true), so that messages arrive while it holds the object;
 process is the other program: its own rclpy context and node publish /psm/cmd_vel and
 /psm/cmd_force. Two processes are the real claim (any device or program that publishes
 them can steer the object) and cost only the subprocess start (~3 s). Both get a private
-ROS_DOMAIN_ID (201-231: the other ROS tests use 1-200) and localhost-only discovery.
+ROS_DOMAIN_ID (claimed for the test: tests/conftest.py's ros_env) and localhost-only
+discovery.
 """
 
 from __future__ import annotations
@@ -35,14 +36,6 @@ pytestmark = pytest.mark.ros
 
 REPO = Path(__file__).resolve().parents[2]
 ARMS = ("PSM1", "PSM2")
-
-
-@pytest.fixture
-def ros_domain(monkeypatch):
-    domain = 201 + os.getpid() % 31
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    return domain
 
 
 class _Procedure:
@@ -140,7 +133,7 @@ class _Teleop:
 
 
 @pytest.fixture
-def teleop(ros_domain):
+def teleop(ros_env):
     t = _Teleop()
     yield t
     t.close()

@@ -429,6 +429,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                 rec.tension(topic, s.t, s.force)
                 last_force_t[k_el] = max(last_force_t[k_el], s.t)
         blind_ticks, blind_longest = 0, 0.0
+        t_last_tick = None
         # the ROS 2 context and the keyboard are released however the loop ends
         with live, run.step(STEPS[3], total=n_ticks) as step:
             for k in range(n_ticks):
@@ -452,7 +453,11 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                     tension = np.array([s.force for s in newest])
                     fresh = tension
                 force_age = t - min(last_force_t)
-                blind = force_age > max_force_age
+                # a tick late itself (this process held) finds samples as old as the gap:
+                # they are the newest there are, not a stalled cell
+                gap = t - t_last_tick if t_last_tick is not None else 0.0
+                t_last_tick = t
+                blind = force_age > max(max_force_age, gap + 1.0 / cfg.loadcell["rate"])
                 if blind:
                     blind_ticks += 1
                     blind_longest = max(blind_longest, force_age)

@@ -77,6 +77,7 @@ class ForceLoop:
     contact: float = 0.5
     take_up_speed: float = 0.01
     take_up_gain: float = 10.0
+    take_up_force: float = 3.0   # N (at most 0.6 of the set-point): the arm takes a slack object up by this force
     x_f_limit: float = 0.03    # m: |x_f| ceiling (the object cannot need more)
     bandwidth_ratio: float = 3.0  # the loop stays this factor below the arm-object mode
     tick_gain: float = 0.1        # and its crossover at most this over one loop period
@@ -317,8 +318,7 @@ class CooperativeController:
         self.tension = self.initial_element_tension.copy()
         self.tension_rate = np.zeros(len(self.tension))
         # the set-point ramp starts once every slave holds its object taut
-        # (in the arm the set-point's force feedforward takes the slack up by itself)
-        self.slack = {s: (self.mode == "impedance" and self.slave_control == "effort" and self.force > self.loop.contact
+        self.slack = {s: (self.mode == "impedance" and self.force > self.loop.contact
                           and self._tracked_tension(s, tension) < self.loop.contact) for s in self.slaves}
         self.ramp_start = t if not any(self.slack.values()) else None
         self.k_i = {s: self._force_gain(s, q[s]) for s in self.slaves}
@@ -350,13 +350,19 @@ class CooperativeController:
 
     def _arm_impedance(self, s: str, q: np.ndarray, dq: np.ndarray, x_t: np.ndarray, v_d: np.ndarray, a_d: np.ndarray,
                        u: np.ndarray, tips: dict[str, np.ndarray], mine: list[int], tracked: list[int],
-                       hold: bool) -> ArmCommand:
+                       hold: bool, take_up: bool = False) -> ArmCommand:
         """The slave's goal for the impedance the arm runs (servo_ci; see rig.arm_impedance).
 
         The set-point tension is a force feedforward along the object (each element it holds
         pulls the tip toward its neighbour with the set-point: the arm pushes back with
         it), so x_f only has to correct what the plan does not know; the model's
-        feedforward of the planned motion (rigid body, friction, offsets) rides with it."""
+        feedforward of the planned motion (rigid body, friction, offsets) rides with it.
+
+        `take_up`: the object is slack; the arm pushes the slave outward with the take-up
+        force and no spring along the object (x_t is where it is along it), so it arrives
+        at the object at that tension, below the set-point, however late the loop sees it:
+        taken up by position, a stiff string overshot by K_obj x speed x the loop's delay
+        (20 kN/m x 10 mm/s x 20 ms = 4 N)."""
         from rig.arm_impedance import cartesian_inertia, force_frame
 
         R = self.R[s]
@@ -370,7 +376,7 @@ class CooperativeController:
         # of the set-point (K_obj / (Kp + K_obj) of it reaches the object) and x_f would
         # have to integrate the rest
         held = _mean_of(self.initial_element_tension, tracked)
-        target = x_t + u * ((self.force_setpoint - held) / self.object_stiffness)
+        target = x_t if take_up else x_t + u * ((self.force_setpoint - held) / self.object_stiffness)
         f_world = np.zeros(3)
         for k in mine:
             a, b = self.elements[k]
@@ -391,11 +397,13 @@ class CooperativeController:
                 target = target + w * (self.x_g.get((s, k), 0.0)
                                        + 0.5 * (self.force_setpoint - self.initial_element_tension[k])
                                        / self.object_stiffness)
+        if take_up:
+            f_world = u * max(self.loop.contact, min(self.loop.take_up_force, 0.6 * self.force))
         tau = tau + J.T @ (R.T @ f_world)
         Rf = force_frame(u_r)
         M = imp.model.mass_matrix(q)
         g = self.arm_gains
-        stiffness = np.array([g.kp_along, g.kp_across, g.kp_across])
+        stiffness = np.array([0.0 if take_up else g.kp_along, g.kp_across, g.kp_across])
         dirs = [R.T @ d for d in self._neighbour_directions(s, tips)]
         damping = np.empty(3)
         for i in range(3):
@@ -488,7 +496,12 @@ class CooperativeController:
     def force_target(self, t: float) -> float:
         if self.ramp_start is None:      # still taking up slack
             return self.initial_tension + self.applied_force_offset
-        s = (t - self.ramp_start) / self.loop.ramp_time if self.loop.ramp_time > 0 else 1.0
+        ramp = self.loop.ramp_time
+        if self.slave_control == "arm" and self.force > 0:
+            # taken up by force, the object starts the ramp part-way up: the rest of it
+            # takes its share of the ramp time (at least 0.3 s)
+            ramp *= max(0.3, min(1.0, (self.force - self.initial_tension) / self.force))
+        s = (t - self.ramp_start) / ramp if ramp > 0 else 1.0
         p, _, _ = min_jerk(s)
         return self.initial_tension + p * (self.force - self.initial_tension) + self.applied_force_offset
 
@@ -592,6 +605,21 @@ class CooperativeController:
                 commands[s] = self._position_slave(s, t, error, xd[s] + 0.0, vd[s], u)
                 continue
             if hold:
+                rate = 0.0
+            elif self.slack[s] and self.slave_control == "arm":
+                if h_e < self.loop.contact:
+                    # taken up by force (see _arm_impedance): no spring along the object
+                    commands[s] = self._arm_impedance(s, qf[s], dqf[s], xd[s] + u * float(u @ (tips[s] - xd[s])),
+                                                      vd[s], ad[s], u, tips, mine, tracked, hold, take_up=True)
+                    continue
+                # taut: the spring and the set-point's stretch start from here
+                self.slack[s] = False
+                self.x_f[s] = float(u @ (tips[s] - xd[s]))
+                self.initial_element_tension = self.tension.copy()
+                if not any(self.slack.values()):
+                    self.ramp_start = t
+                    self.initial_tension = float(np.mean([self._tracked_tension(a, self.tension)
+                                                          for a in self.slaves]))
                 rate = 0.0
             elif self.slack[s]:
                 if h_e >= self.loop.contact:

@@ -161,7 +161,10 @@ def test_cooperative_holds_5_newtons(cooperative_ready, kind):
                          "--settle", "1.5", "--hold-after", "0.5"), f"cooperative --object {kind}")
     assert doc["max_error_during_motion"] <= 0.25, doc["summary"]
     assert doc["overshoot"] <= 0.5, doc["summary"]
-    assert doc["loop_timing"]["rate_hz"] == 500.0
+    # the slaves' impedance in the arm (servo_ci); the loop at the rate the arms publish
+    # (rig sim serves at the rig's 500 Hz here), at most ARM_LOOP_MAX_RATE
+    assert doc["slave_control"].startswith("arm impedance (servo_ci"), doc["slave_control"]
+    assert doc["loop_timing"]["rate_hz"] == 200.0
     assert doc["registration"].startswith("registration "), doc["registration"]
     assert doc["model"].startswith("identified model "), doc["model"]
 
@@ -273,8 +276,8 @@ def test_load_cell_unplugged_mid_run(cooperative_ready):
 
 
 def test_rig_sim_killed_mid_run_is_seen_within_the_watchdog(served):
-    """It kills the module's rig sim (the next test gets a fresh one). The watchdog (0.25 s
-    on ROS arms) sees it."""
+    """It kills the module's rig sim (the next test gets a fresh one). The arms' watchdog
+    ([arms.PSM1] watchdog) sees it."""
     # the chain's identify options: killed once the excitation streams
     out = served.run(*IDENTIFY, when=("run the excitation trajectory [", served.kill))
     _one_clear_line(out, "aborted", "/PSM1/measured_js", "stale stream")
@@ -285,7 +288,8 @@ def test_rig_sim_killed_mid_run_is_seen_within_the_watchdog(served):
     import re
 
     age_ms = float(re.search(r"no message for (\d+) ms", out.doc["error"]).group(1))
-    assert 250 <= age_ms <= 300, out.doc["error"]
+    limit_ms = 1e3 * _cfg(served).arms["PSM1"]["watchdog"]
+    assert limit_ms <= age_ms <= limit_ms + 50, out.doc["error"]
 
 
 def test_rig_sim_killed_mid_cooperative_holds_both_arms(cooperative_ready):

@@ -1,0 +1,131 @@
+"""`rig cooperative` over the wire, per object x ROS period x load (issue 35's table).
+
+For each ROS period `rig sim` serves (0.01 s = the dVRK's default, 0.002, 0.001) one
+`rig sim` in its own folder (tests/hil/harness.py): the load cell calibrated, the arms
+registered, then `--runs` cooperative runs per object (spring, string; the three-arm
+triangle on a rig sim of its own) with a 3 cm move, each a separate `rig cooperative
+--json` process as a lab runs it. The model: `rig identify` on the built-in simulated rig
+(the same plant rig sim serves), passed with --force-model, so this bench measures the
+force loop, not the identification. `--burners N` starts N CPU-burning processes for the
+whole bench.
+
+    .venv/bin/python bench/bench_cooperative_wire.py [--runs 5] [--burners 2] [--periods 0.01,0.002,0.001]
+
+Prints per object x period: completed runs, false aborts, worst max |F - 5 N| during the
+move and worst overshoot against 0.25 N and 0.5 N, the loop's rate and period (median /
+p99 / max), and a refusal (with its line) where the procedure refuses the period.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent))
+from _table import print_table  # noqa: E402
+
+from tests.hil.harness import ServedRig, lab_toml  # noqa: E402
+
+MOVE = ["--force", "5", "--move", "0.03,0,0", "--duration", "2", "--settle", "2", "--hold-after", "0.5"]
+
+
+def _model(folder: Path) -> Path:
+    """An identified model of the simulated plant (the built-in rig, in-process)."""
+    env = dict(os.environ, RIG_LOGS=str(folder / "logs"))
+    env.pop("RIG_CONFIG", None)
+    folder.mkdir(parents=True, exist_ok=True)
+    subprocess.run([sys.executable, "-m", "rig.cli", "identify", "--arm", "PSM1", "--duration", "10", "--starts", "1",
+                    "--iterations", "5", "--no-plots", "--json"], cwd=folder, env=env, check=True,
+                   capture_output=True, text=True)
+    return sorted((folder / "logs").glob("*-identify/model.json"))[-1]
+
+
+def _prepare(rig: ServedRig, cells: int) -> str | None:
+    for k in range(cells):
+        out = rig.run("loadcell-calibrate", "--seconds", "0.5", *(["--element", str(k)] if cells > 1 else []))
+        if out.code:
+            return f"loadcell-calibrate: {out.last_line}"
+    out = rig.run("register", "--points", "6")
+    return None if out.code == 0 else f"register: {out.last_line}"
+
+
+def _runs(rig: ServedRig, label: str, args: list[str], n: int) -> dict:
+    docs, aborts, refused = [], [], None
+    for i in range(n):
+        out = rig.run("cooperative", *args)
+        doc = out.doc or {}
+        status = doc.get("status", f"exit {out.code}")
+        line = doc.get("error") or ("" if out.code == 0 else out.last_line)
+        print(f"  {label} run {i + 1}: {status}"
+              + (f", {doc['max_error_during_motion']:.3f} N moving, overshoot {doc['overshoot']:.3f} N"
+                 if doc.get("max_error_during_motion") is not None else "") + (f" ({line[:160]})" if line else ""),
+              flush=True)
+        if "heard at" in line and "needs" in line:
+            refused = line
+            break
+        if doc.get("max_error_during_motion") is not None:
+            docs.append(doc)
+        if status != "completed":
+            aborts.append(line or status)
+    return {"docs": docs, "aborts": aborts, "refused": refused}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=5, help="runs per object and period")
+    ap.add_argument("--burners", type=int, default=0, help="CPU-burning processes beside the rig")
+    ap.add_argument("--periods", default="0.01,0.002,0.001", help="rig sim --ros-period values, s")
+    ap.add_argument("--objects", default="spring,string,three", help="spring, string, three (the triangle)")
+    a = ap.parse_args()
+    burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(a.burners)]
+    rows = []
+    try:
+        with tempfile.TemporaryDirectory(prefix="bench-coop-wire-") as tmp:
+            tmp = Path(tmp)
+            model = _model(tmp / "model")
+            common = MOVE + ["--model", str(model), "--force-model"]
+            for period in a.periods.split(","):
+                for obj in a.objects.split(","):
+                    three = obj == "three"
+                    folder = tmp / f"{obj}-{period}"
+                    domain = 170 + (os.getpid() + len(rows)) % 30
+                    print(f"{obj} at --ros-period {period} ({a.burners} burners):", flush=True)
+                    with ServedRig(folder, domain, toml=lab_toml(folder, three_arms=three),
+                                   sim_args=("--ros-period", period)) as rig:
+                        problem = _prepare(rig, 3 if three else 1)
+                        if problem:
+                            rows.append((f"{obj} @ {period} s: set-up", problem[:80], "completes", False))
+                            continue
+                        args = common + (["--arms", "PSM1,PSM2,PSM3", "--object", "spring"] if three
+                                         else ["--object", obj])
+                        r = _runs(rig, obj, args, a.runs)
+                    if r["refused"]:
+                        rows.append((f"{obj} @ {period} s: refused", r["refused"][:100], "one line", True))
+                        continue
+                    docs = r["docs"]
+                    worst = max((d["max_error_during_motion"] for d in docs), default=float("nan"))
+                    over = max((d["overshoot"] for d in docs), default=float("nan"))
+                    rows.append((f"{obj} @ {period} s: completed / false aborts", f"{len(docs)} / {len(r['aborts'])}",
+                                 f"{a.runs} / 0", len(docs) == a.runs and not r["aborts"]))
+                    rows.append((f"{obj} @ {period} s: worst max |F - 5 N| moving / overshoot",
+                                 f"{worst:.3f} / {over:.3f} N", "<= 0.25 / 0.5", worst <= 0.25 and over <= 0.5))
+                    if docs:
+                        lt = docs[-1]["loop_timing"]
+                        rows.append((f"{obj} @ {period} s: loop rate, period median / p99 / max",
+                                     f"{lt['rate_hz']:g} Hz, {lt['period_ms_median']:.2f} / {lt['period_ms_p99']:.1f}"
+                                     f" / {lt['period_ms_max']:.0f} ms", "reported", True))
+    finally:
+        for b in burners:
+            b.kill()
+    ok = print_table(f"rig cooperative over the wire, {a.runs} runs each, {a.burners} CPU burners", rows)
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

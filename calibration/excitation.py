@@ -272,34 +272,57 @@ class ExcitationDesigner:
             out["ddq"] = (np.abs(DDQ).max(axis=0) / self.ddq_max).tolist()
         return out
 
+    def starting_points(self, n_starts: int, seed: int) -> list[np.ndarray]:
+        """The seeded starts of `optimise`, in order (the same whether run in turn or at once)."""
+        rng = np.random.default_rng(seed)
+        return [self._feasible_start(rng) for _ in range(n_starts)]
+
+    def run_start(self, x0: np.ndarray, maxiter: int) -> dict:
+        """One SLSQP descent from ``x0``, brought within the limits at every full-rate sample."""
+        cons = [{"type": "ineq", "fun": lambda x: self.A_con @ x + self.b_con, "jac": lambda x: self.A_con}]
+        f0 = self._objective(x0)
+        res = scipy.optimize.minimize(self._objective, x0, method="SLSQP", constraints=cons,
+                                      options={"maxiter": maxiter, "ftol": 1e-6, "eps": 1e-6})
+        # SLSQP may stop (iteration cap) at a slightly infeasible point: bring it inside
+        # the limits at every full-rate sample before comparing starts.
+        traj, scale = self._fit_full(self._trajectory(res.x))
+        return {"trajectory": traj.to_dict(), "scale": float(scale), "seed_condition": float(np.exp(f0)),
+                "condition": float(self.condition(traj, self.t_obj)), "iterations": int(res.nit),
+                "message": str(res.message)}
+
     def optimise(self, n_starts: int = 4, seed: int = 0, maxiter: int = 60,
-                 time_budget: float = 100.0, progress: Callable | None = None) -> ExcitationResult:
+                 time_budget: float = 100.0, progress: Callable | None = None,
+                 run_starts: Callable | None = None) -> ExcitationResult:
         """Minimise the condition number from ``n_starts`` seeded starts within ``time_budget`` s.
 
         ``progress(start_index, n_starts, best_condition)`` is called after each start.
+        ``run_starts(points, maxiter)``, if given, runs the starts itself (e.g. in worker
+        processes) and yields ``(k, run_start's dict)`` as each ends; the time budget is
+        then the caller's. The result does not depend on which runs them.
         """
         t0 = time.perf_counter()
-        rng = np.random.default_rng(seed)
-        cons = [{"type": "ineq", "fun": lambda x: self.A_con @ x + self.b_con, "jac": lambda x: self.A_con}]
-        best_traj, best_scale, best_f, starts = None, 1.0, np.inf, []
-        for k in range(n_starts):
-            if k > 0 and time.perf_counter() - t0 > time_budget * (k / (k + 1)):
-                break  # not enough time left for another start of similar length
-            x0 = self._feasible_start(rng)
-            f0 = self._objective(x0)
-            res = scipy.optimize.minimize(self._objective, x0, method="SLSQP", constraints=cons,
-                                          options={"maxiter": maxiter, "ftol": 1e-6, "eps": 1e-6})
-            # SLSQP may stop (iteration cap) at a slightly infeasible point: bring it inside
-            # the limits at every full-rate sample before comparing starts.
-            traj, scale = self._fit_full(self._trajectory(res.x))
-            f = np.log(self.condition(traj, self.t_obj))
-            starts.append({"start": k, "seed_condition": float(np.exp(f0)), "condition": float(np.exp(f)),
-                           "iterations": int(res.nit), "scale": float(scale), "message": str(res.message)})
-            if f < best_f:
-                best_traj, best_scale, best_f = traj, scale, f
+        points = self.starting_points(n_starts, seed)
+        if run_starts is None:
+            def run_starts(pts, it):
+                for k, x0 in enumerate(pts):
+                    if k > 0 and time.perf_counter() - t0 > time_budget * (k / (k + 1)):
+                        break  # not enough time left for another start of similar length
+                    yield k, self.run_start(x0, it)
+        done = {}
+        best = np.inf
+        for k, out in run_starts(points, maxiter):
+            done[k] = out
+            best = min(best, out["condition"])
             if progress is not None:
-                progress(k + 1, n_starts, float(np.exp(best_f)))
-        traj = best_traj
-        return ExcitationResult(traj, float(np.exp(best_f)), self.condition(traj, self.t_full),
-                                self.t_obj.size, self.t_full.size, starts, best_scale, self.limit_use(traj),
-                                time.perf_counter() - t0)
+                progress(len(done), n_starts, float(best))
+        starts, best_k = [], None
+        for k in sorted(done):
+            o = done[k]
+            starts.append({"start": k, "seed_condition": o["seed_condition"], "condition": o["condition"],
+                           "iterations": o["iterations"], "scale": o["scale"], "message": o["message"]})
+            if best_k is None or o["condition"] < done[best_k]["condition"]:
+                best_k = k
+        traj = FourierTrajectory.from_dict(done[best_k]["trajectory"])
+        return ExcitationResult(traj, done[best_k]["condition"], self.condition(traj, self.t_full),
+                                self.t_obj.size, self.t_full.size, starts, done[best_k]["scale"],
+                                self.limit_use(traj), time.perf_counter() - t0)

@@ -3,10 +3,20 @@
 Live (on the rig or its simulation):
 
 1. design the excitation: a 5-harmonic Fourier trajectory (eq. 5.28, 0.13 Hz, 30 s) that
-   minimises the condition number of the base regressor within Table 4.2's limits; a
-   design is cached by its settings, so a second run reuses it instead of spending a minute;
-2. move to its start (move_jp), stream it with servo_jp at the rig rate, recording q, dq,
-   tau of measured_js to the run's MCAP;
+   minimises the condition number of the base regressor within Table 4.2's limits, and a
+   validation trajectory; each is then kept clear of every position and velocity limit by
+   a margin measured on the arm's simulated plant at the rig rate (twice how far its PID
+   lets each joint pass the commanded range and peak speed, or what a 0.1 s stall of its
+   commands does, the larger, plus the sensors' noise; see calibration.excitation_design),
+   and checked before anything moves. The design is done
+   before the devices are opened and cached by its inputs in the user's cache folder
+   ($RIG_CACHE, else ~/.cache/dvrk-rig), so every later run reuses it;
+2. move to its start (move_jp), stream it with servo_jp (position and velocity
+   feed-forward) at the rig rate, recording q, dq, tau of measured_js to the run's MCAP;
+   its time waits while the set-point leads the arm by more than the margin's lag (an arm
+   whose commands stalled meets no jump when they resume); a measured joint that comes
+   within a quarter of its margin of a limit aborts the run (the arm held) before the
+   console would fault;
 3. the same with a validation trajectory (another frequency and seed, not optimised);
 4. process (block mean to the identification rate, zero-phase Butterworth, differentiation,
    trimming), base parameters, OLS, WLS, SDP (physically consistent, checked);
@@ -60,8 +70,7 @@ Units: SI (rad, m, rad/s, m/s, N m, N, s, Hz).
 
 from __future__ import annotations
 
-import hashlib
-import json
+import bisect
 import math
 import sys
 from pathlib import Path
@@ -113,10 +122,13 @@ PARAMETERS = [
               maximum=300.0),
     Parameter("validation_frequency", 0.16, "Hz", "Fundamental frequency of the validation trajectory",
               minimum=0.02, maximum=1.0),
-    Parameter("fill", 0.7, "", "Validation trajectory: fraction of the position and velocity limits used",
-              minimum=0.1, maximum=0.95),
-    Parameter("velocity_fraction", 0.85, "", "Fraction of Table 4.2's velocity limits the excitation may use "
-              "(the rest is headroom for tracking overshoot)", minimum=0.2, maximum=1.0),
+    Parameter("fill", 0.7, "", "Validation trajectory: fraction of the position and velocity limits used (then "
+              "kept a measured margin from every limit)", minimum=0.1, maximum=0.95),
+    Parameter("velocity_fraction", 0.6, "", "Fraction of Table 4.2's velocity limits (2, 2 rad/s, 0.4 m/s) the "
+              "excitation's optimiser may use; the trajectory is then kept a margin from every position and "
+              "velocity limit measured on the arm's simulated plant (2 x its tracking error, or the 0.1 s "
+              "stall test)", minimum=0.2,
+              maximum=1.0),
     Parameter("starts", 4, "", "Seeded starts of the excitation optimisation", minimum=1, maximum=20, type=int),
     Parameter("iterations", 60, "", "SLSQP iterations per start of the excitation optimisation", minimum=1,
               maximum=500, type=int),
@@ -326,76 +338,42 @@ def plot_trajectory(t, q, dq, path: Path, title: str) -> None:
 
 
 # ----------------------------------------------------------------------------- excitation
-def cache_dir() -> Path:
-    """Where designed trajectories are kept: $RIG_CACHE, else <logs>/.cache (not a run folder)."""
-    import os
-
-    from rig.paths import runs_root
-
-    env = os.environ.get("RIG_CACHE")
-    return Path(env) if env else runs_root() / ".cache"
+def design_settings(parameters: dict) -> dict:
+    """The options the trajectories depend on (calibration.excitation_design.design's settings)."""
+    return {"frequency_hz": parameters["frequency"], "harmonics": parameters["harmonics"],
+            "duration": parameters["duration"], "starts": parameters["starts"], "iterations": parameters["iterations"],
+            "seed": parameters["design_seed"], "velocity_fraction": parameters["velocity_fraction"],
+            "validation_frequency_hz": parameters["validation_frequency"], "fill": parameters["fill"]}
 
 
-def design_excitation(parameters: dict, gravity: np.ndarray, progress=None) -> dict:
-    """The optimised excitation for these settings, from the cache when designed before.
+def plant_of(cfg, arm_name: str):
+    """The simulated twin of `arm_name` at the rig rate (what the margins are measured on):
+    the configured parameters, effects, PID, effort limit and sensors, whatever its driver."""
+    from calibration.excitation_design import Plant
+    from rig.sim import world_from_config
 
-    Returns {"trajectory": FourierTrajectory, "cached": bool, "key": str, "figures": {...}}.
-    """
-    from calibration.base_params import base_parameters_of
-    from calibration.excitation import ExcitationDesigner, FourierTrajectory
+    world = world_from_config(cfg, [arm_name], with_object=False, seed=0)
+    return Plant(world.arms[arm_name].spec, float(cfg.rig["rate"]), np.asarray(cfg.rig["gravity"], float), 0)
+
+
+def design_excitation(parameters: dict, gravity: np.ndarray, plant, progress=None, processes: int | None = None) -> dict:
+    """The optimised excitation and the validation trajectory for these settings, each kept
+    clear of Table 4.2's limits by the margin measured on `plant` (calibration.
+    excitation_design), from the user's cache when designed before (see its docstring)."""
+    from calibration.excitation_design import design
     from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
-    dq_max = parameters["velocity_fraction"] * DQ_MAX
-    settings = {"frequency_hz": parameters["frequency"], "harmonics": parameters["harmonics"],
-                "duration": parameters["duration"], "design_rate": 200.0, "starts": parameters["starts"],
-                "iterations": parameters["iterations"], "seed": parameters["design_seed"],
-                "q_min": Q_MIN.tolist(), "q_max": Q_MAX.tolist(), "dq_max": dq_max.tolist(),
-                "gravity": np.round(np.asarray(gravity, float), 9).tolist(), "model": "PSMDynamics nominal, slope 400"}
-    key = hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
-    path = cache_dir() / f"excitation-{key}.json"
-    if path.exists():
-        try:
-            doc = json.loads(path.read_text())
-            if doc.get("settings") == settings:
-                return {"trajectory": FourierTrajectory.from_dict(doc["trajectory"]), "cached": True, "key": key,
-                        "path": str(path), "figures": doc["figures"]}
-        except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError):
-            pass  # a damaged cache entry is designed again and overwritten
-    model = make_model(gravity, 400.0)
-    base = base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)
-    designer = ExcitationDesigner(model.regressor_batch, base.independent, Q_MIN, Q_MAX, dq_max,
-                                  frequency_hz=parameters["frequency"], harmonics=parameters["harmonics"],
-                                  duration=parameters["duration"], rate=200.0)
-    res = designer.optimise(n_starts=parameters["starts"], seed=parameters["design_seed"],
-                            maxiter=parameters["iterations"], time_budget=110.0, progress=progress)
-    figures = {"condition_objective": res.condition_objective, "condition_full": res.condition_full,
-               "limit_use": res.limit_use, "scale_applied": res.scale_applied, "starts": res.starts,
-               "design_seconds": res.seconds}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps({"settings": settings, "trajectory": res.trajectory.to_dict(), "figures": figures}))
-    tmp.replace(path)
-    return {"trajectory": res.trajectory, "cached": False, "key": key, "path": str(path), "figures": figures}
+    return design(design_settings(parameters), gravity, plant, Q_MIN, Q_MAX, DQ_MAX, progress=progress,
+                  processes=processes)
 
 
 def validation_trajectory(frequency_hz: float, duration: float, harmonics: int, seed: int, fill: float):
-    """A random rest-to-rest Fourier trajectory (not optimised) using ``fill`` of the limits.
-
-    Different frequency and random coefficients from the excitation, so validating on it
-    tests the model on motion it was not fitted to (thesis Figure 5.3).
-    """
-    from calibration.excitation import FourierTrajectory, rest_basis
+    """The validation trajectory before its margin (calibration.excitation_design.validation_trajectory
+    at Table 4.2's limits)."""
+    from calibration.excitation_design import validation_trajectory as raw
     from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
-    rng = np.random.default_rng(10_000 + seed)
-    Z = rest_basis(frequency_hz, duration, harmonics)
-    c = rng.normal(size=(3, Z.shape[1])) @ Z.T
-    raw = FourierTrajectory(frequency_hz, c[:, :harmonics], c[:, harmonics:], np.zeros(3), duration)
-    q, dq, _ = raw.sample(raw.times(200.0))
-    half, mid = 0.5 * (Q_MAX - Q_MIN), 0.5 * (Q_MAX + Q_MIN)
-    dev = np.abs(q - q.mean(axis=0)).max(axis=0)
-    s = np.minimum(fill * half / dev, fill * DQ_MAX / np.abs(dq).max(axis=0))
-    return FourierTrajectory(frequency_hz, raw.a * s[:, None], raw.b * s[:, None], mid - s * q.mean(axis=0), duration)
+    return raw(frequency_hz, duration, harmonics, seed, fill, Q_MIN, Q_MAX, DQ_MAX)
 
 
 #: Close enough to a trajectory's start to begin streaming (rad, rad, m): the first
@@ -417,24 +395,37 @@ def reach_start(arm, goal, what: str, say) -> None:
                    f"(off by {np.round(off, 4).tolist()} rad, rad, m)")
 
 
-def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits) -> dict:
-    """servo_jp the trajectory at the clock rate, recording measured_js; returns arrays.
+def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits, margin) -> dict:
+    """servo_jp the trajectory (position and velocity feed-forward) at the clock rate,
+    recording measured_js; returns arrays and what the arm met.
 
-    Aborts the run (the engine holds the arm) if a measured joint leaves its limits by more
-    than a small margin or moves faster than its velocity limit.
+    Aborts the run (the engine holds the arm) as soon as a measured joint comes within
+    ABORT_FRACTION of its margin of a position limit, or faster than its velocity limit
+    less that fraction of its velocity margin (calibration.excitation_design): before the
+    limit, where the console would fault. The trajectory's time waits while its set-point
+    leads the arm by more than the margin's lag (calibration.excitation_design.lagging).
     """
+    from calibration.excitation_design import lagging
+
     rate = clock.rate
     n = int(round(traj.duration * rate)) + 1
-    q_cmd = traj.sample(np.arange(n) / rate)[0]
+    q_cmd, dq_cmd, _ = traj.sample(np.arange(n) / rate)
+    low, high, speed = margin.abort_limits(limits.q_min, limits.q_max, limits.dq_max)
     samples = []
+    sent, sent_t = [], []
     rec = run.recorder
-    margin = np.array([0.05, 0.05, 0.01])  # rad, rad, m beyond Table 4.2 before aborting
     every = max(1, n // 100)
     arm.drain_js()  # what arrived before the trajectory starts is not part of it
-    ticks_without = 0
-    for k in range(n):
-        arm.servo_jp(q_cmd[k])
-        rec.joint_state(f"/{arm.name}/servo_jp", clock.now(), q_cmd[k])
+    ticks_without = waited = 0
+    q_last = t_last = None
+    heard = clock.now()
+    silent_after = SILENT * max(1.0 / rate, _stream_period(arm))
+    k = 0
+    while k < n:
+        arm.servo_jp(q_cmd[k], dq_cmd[k])
+        sent.append((clock.now(), k))
+        sent_t.append(sent[-1][0])
+        rec.joint_state(f"/{arm.name}/servo_jp", sent[-1][0], q_cmd[k], dq_cmd[k])
         clock.tick()
         # every sample the arm sent since the last tick: a tick held up by the machine
         # finds several, and the fit still gets the stream whole
@@ -444,18 +435,34 @@ def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits) ->
             samples.append((js.t, js.position[:3], js.velocity[:3], js.effort[:3]))
             rec.joint_state(f"/{arm.name}/measured_js", js.t, js.position, js.velocity, js.effort)
         if new:
-            q, dq = np.asarray(new[-1].position[:3]), np.asarray(new[-1].velocity[:3])
-            if np.any(q < limits.q_min - margin) or np.any(q > limits.q_max + margin) \
-                    or np.any(np.abs(dq) > limits.dq_max):
-                problem = limits.violation(q, dq, margin=0.0) or "limit"
-                raise AbortRun(f"{arm.name} during the {topic_prefix} trajectory at t = {k / rate:.2f} s: {problem}")
-        if k % every == 0:
-            step.update(k + 1)
+            heard = clock.now()
+            t_last = new[-1].t
+            q_last, dq = np.asarray(new[-1].position[:3]), np.asarray(new[-1].velocity[:3])
+            if np.any(q_last < low) or np.any(q_last > high) or np.any(np.abs(dq) > speed):
+                raise AbortRun(f"{arm.name} during the {topic_prefix} trajectory at t = {k / rate:.2f} s: "
+                               f"{_abort_reason(q_last, dq, low, high, speed, limits, margin)}; the arm is held")
+        # The trajectory's time waits while the arm is silent, or while the set-point that
+        # was in force at its newest sample's stamp leads it by more than the margin's lag:
+        # an arm whose commands stopped arriving (its process held off the CPU, a stalled
+        # link) then meets, when they resume, a set-point a lag ahead, not one that ran on
+        # by the stall times the speed (calibration.excitation_design). Comparing with the
+        # set-point of the sample's own time leaves the transport delay out of the lag.
+        then = sent[max(0, bisect.bisect_right(sent_t, t_last) - 1)][1] if t_last is not None else k
+        if clock.now() - heard > silent_after or (
+                q_last is not None and lagging(q_last, q_cmd[then], dq_cmd[then], margin.lag)):
+            waited += 1
+        else:
+            k += 1
+            if k % every == 0:
+                step.update(k)
     step.update(n)
     if not samples:
         raise AbortRun(f"{arm.name}: no measured_js during the {topic_prefix} trajectory")
     T = np.array([s[0] for s in samples])
     Q, DQ, TAU = (np.array([s[i] for s in samples], float) for i in (1, 2, 3))
+    sent_k = np.array([x[1] for x in sent])
+    met = tracking_met(T, Q, DQ, np.array(sent_t), q_cmd[sent_k], dq_cmd[sent_k], limits)
+    met["periods_waited_for_the_arm"] = waited
     # Keep each sample once (time must increase), and put them on a uniform grid of their
     # own stamps (the arm's sample times), which the filtering and the decimation assume:
     # over the wire the samples jitter, and a gap (a publisher held up) is interpolated.
@@ -468,7 +475,58 @@ def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits) ->
             return np.column_stack([np.interp(grid, t, x[:, j]) for j in range(x.shape[1])])
 
         t, q, dq, tau = grid, on_grid(q), on_grid(dq), on_grid(tau)
-    return {"t": t, "q": q, "dq": dq, "tau": tau, "rate": rate, "ticks_without_sample": ticks_without}
+    return {"t": t, "q": q, "dq": dq, "tau": tau, "rate": rate, "ticks_without_sample": ticks_without, "met": met}
+
+
+#: Loop or arm periods (the longer) of measured_js silence after which the trajectory's
+#: time waits for the arm (stream_trajectory).
+SILENT = 5.0
+
+
+def _stream_period(arm) -> float:
+    """s between the arm's measured_js messages as it publishes them (0 when it does not say)."""
+    rate = getattr(arm, "published_rate", None)
+    r = rate() if callable(rate) else 0.0
+    return 1.0 / r if r > 0 else 0.0
+
+
+def _abort_reason(q, dq, low, high, speed, limits, margin) -> str:
+    for j in range(3):
+        u = "m" if j == 2 else "rad"
+        if q[j] < low[j] or q[j] > high[j]:
+            edge = limits.q_min[j] if q[j] < low[j] else limits.q_max[j]
+            return (f"joint {j + 1} at {q[j]:.4f} {u}, {abs(q[j] - edge) * (1e3 if j == 2 else 1):.4g} "
+                    f"{'mm' if j == 2 else u} from its limit {edge:g} {u} (the excitation keeps "
+                    f"{margin.position[j] * (1e3 if j == 2 else 1):.4g} {'mm' if j == 2 else u}: the arm tracks worse "
+                    f"than the {margin.tracking_position[j] * (1e3 if j == 2 else 1):.3g} measured on its simulated plant; "
+                    "check its PID gains and load, or lower --velocity-fraction)")
+    for j in range(3):
+        if abs(dq[j]) > speed[j]:
+            u = "m/s" if j == 2 else "rad/s"
+            where = ("above" if abs(dq[j]) > limits.dq_max[j] else
+                     f"within {limits.dq_max[j] - abs(dq[j]):.3g} {u} of")
+            return (f"joint {j + 1} velocity {dq[j]:.3f} {u}, {where} its limit {limits.dq_max[j]:g} {u} "
+                    f"(the excitation keeps {margin.velocity[j]:.3g} {u}: the arm tracks "
+                    f"worse than measured on its simulated plant; lower --velocity-fraction)")
+    return "limit"
+
+
+def tracking_met(T, Q, DQ, sent, q_cmd, dq_cmd, limits) -> dict:
+    """What the arm met during a streamed trajectory, per joint: ``position_tracking`` and
+    ``velocity_tracking``, max |q - q_cmd| and |dq - dq_cmd| against the newest set-point
+    sent before each sample's stamp (over the wire the two clocks are the same machine's
+    or NTP's: a few ms of offset read as dq x offset); ``overshoot`` how far q went beyond
+    the commanded range and ``velocity_excess`` max |dq| - max |dq_cmd| (neither depends on
+    timing); ``closest_to_position_limit`` (rad, rad, m) and ``peak_velocity_fraction`` of
+    Table 4.2's limit."""
+    k = np.clip(np.searchsorted(sent, T, side="right") - 1, 0, len(sent) - 1)
+    over = np.maximum(q_cmd.min(axis=0) - Q.min(axis=0), Q.max(axis=0) - q_cmd.max(axis=0))
+    return {"position_tracking": np.abs(Q - q_cmd[k]).max(axis=0).tolist(),
+            "velocity_tracking": np.abs(DQ - dq_cmd[k]).max(axis=0).tolist(),
+            "overshoot": over.tolist(),
+            "velocity_excess": (np.abs(DQ).max(axis=0) - np.abs(dq_cmd).max(axis=0)).tolist(),
+            "closest_to_position_limit": np.minimum(Q.min(axis=0) - limits.q_min, limits.q_max - Q.max(axis=0)).tolist(),
+            "peak_velocity_fraction": (np.abs(DQ).max(axis=0) / limits.dq_max).tolist()}
 
 
 def block_mean(rec: dict, target_rate: float, source: str):
@@ -676,6 +734,7 @@ def _enough_rows(data, parameters: dict, held_out: bool) -> None:
 
 def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
     """`rig identify --csv`: identification of recorded data. Returns the result."""
+    from calibration.blas_threads import blas_threads
     from calibration.datasets import load_csv, processed, split_blocks
     from calibration.signals import settling_samples
 
@@ -713,7 +772,7 @@ def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
                 train = train_all.rows(slice(0, train_all.n_samples - guard), f"minus a {guard}-sample guard")
                 val_source = (f"held-out last {parameters['heldout'] * 100:.0f} % of {parameters['csv']} "
                               f"({val.n_samples} samples, guard {guard})")
-        with run.step(STEPS_CSV[2]):
+        with run.step(STEPS_CSV[2]), blas_threads(1):  # small matrices: one BLAS thread
             outcome, more = _fit(train, gmode, smode, None, parameters, terms, say)
             left_out = left_out + more
         with run.step(STEPS_CSV[3]):
@@ -727,6 +786,8 @@ def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
 def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dict:
     """`rig identify` on the rig (or the simulated rig). Returns the result."""
     from calibration.datasets import processed
+    from calibration.blas_threads import blas_threads
+    from calibration.excitation_design import check
     from rig.devices import open_rig
     from rig.psm_kinematics import JointLimits
 
@@ -749,17 +810,27 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
             # The design is computed before the devices are opened: it takes seconds of CPU
             # that a connected driver would otherwise have to share.
             with run.step(STEPS_LIVE[0], total=parameters["starts"]) as st:
-                exc = design_excitation(parameters, g_config,
-                                        progress=lambda k, n, c: (st.update(k), say(f"start {k}/{n}: cond {c:.1f}")))
-                say(("reused the cached design " if exc["cached"] else "designed and cached ") + exc["path"])
+                design = design_excitation(parameters, g_config, plant_of(cfg, arm_name),
+                                           progress=lambda k, n, c: (st.update(k), say(f"start {k}/{n}: cond {c:.1f}")))
+                say((f"found the design in the cache ({design['lookup_seconds']:.3f} s): " if design["cached"] else
+                     f"designed in {design['figures']['design_seconds']:.1f} s and cached: ") + design["path"])
+                traj, vtraj = design["excitation"], design["validation"]
+                margin, vmargin = design["margin"], design["validation_margin"]
+                say("margins kept from the limits, measured on the arm's simulated plant at "
+                    f"{margin.rate:g} Hz ({margin.safety:g} x its tracking, the {margin.stall:g} s stall test, the "
+                    f"sensors): position {_fmt3(margin.position)} rad, rad, m; velocity {_fmt3(margin.velocity)} "
+                    "rad/s, rad/s, m/s")
                 st.update(parameters["starts"])
+                for tr, m, what in ((traj, margin, "excitation"), (vtraj, vmargin, "validation")):
+                    problem = check(tr, m, limits.q_min, limits.q_max, limits.dq_max, cfg.rig["rate"], what)
+                    if problem:
+                        raise AbortRun(problem)
             dev = open_rig(cfg, [arm_name], seed=seed, uses=())
             clock = dev.clock
             # one arm moves alone: nothing may tie it to another (the object is taken off)
             dev.operator.detach_object()
-            traj = exc["trajectory"]
-            vtraj = validation_trajectory(parameters["validation_frequency"], parameters["duration"],
-                                          parameters["harmonics"], parameters["design_seed"], parameters["fill"])
+            if abs(clock.rate - cfg.rig["rate"]) > 1e-6 * clock.rate:
+                raise AbortRun(f"the rig runs at {clock.rate:g} Hz, the margins were measured at {cfg.rig['rate']:g} Hz")
             arm = run.claim(dev.arms[arm_name])
             with run.step(STEPS_LIVE[1]):
                 power = getattr(arm, "power_on", None)
@@ -768,23 +839,27 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
                 reach_start(arm, traj.sample([0.0])[0][0], "excitation", say)
             n = int(round(parameters["duration"] * clock.rate)) + 1
             with run.step(STEPS_LIVE[2], total=n) as st:
-                rec_x = stream_trajectory(run, arm, clock, traj, "excitation", st, limits)
+                rec_x = stream_trajectory(run, arm, clock, traj, "excitation", st, limits, margin)
             with run.step(STEPS_LIVE[3], total=n) as st:
                 reach_start(arm, vtraj.sample([0.0])[0][0], "validation", say)
-                rec_v = stream_trajectory(run, arm, clock, vtraj, "validation", st, limits)
+                rec_v = stream_trajectory(run, arm, clock, vtraj, "validation", st, limits, vmargin)
             arm.hold()
             with run.step(STEPS_LIVE[4]):
                 train = processed(block_mean(rec_x, parameters["sample_rate"], f"{run.dir / 'run.mcap'} excitation"),
                                   parameters["cutoff"], parameters["filter_order"])
                 val = processed(block_mean(rec_v, parameters["sample_rate"], f"{run.dir / 'run.mcap'} validation"),
                                 parameters["cutoff"], parameters["filter_order"])
-            with run.step(STEPS_LIVE[5]):
+            with run.step(STEPS_LIVE[5]), blas_threads(1):  # small matrices: one BLAS thread
                 outcome, more = _fit(train, gmode, smode, g_config, parameters, terms, say)
                 left_out = left_out + more
             with run.step(STEPS_LIVE[6]):
-                extra = {**({"effects_left_out": left_out} if left_out else {}), "arm": arm_name, "excitation": {"cached": exc["cached"], "cache_file": exc["path"],
-                                                         "trajectory": traj.to_dict(), **{k: v for k, v in exc["figures"].items() if k != "starts"}},
-                         "validation_trajectory": vtraj.to_dict(), "rig_rate": clock.rate,
+                figures = {k: v for k, v in design["figures"].items() if k != "starts"}
+                extra = {**({"effects_left_out": left_out} if left_out else {}), "arm": arm_name,
+                         "excitation": {"cached": design["cached"], "cache_file": design["path"],
+                                        "lookup_seconds": design["lookup_seconds"], "trajectory": traj.to_dict(),
+                                        "margin": margin.to_dict(), "met": rec_x["met"], **figures},
+                         "validation_trajectory": vtraj.to_dict(), "validation_margin": vmargin.to_dict(),
+                         "validation_met": rec_v["met"], "rig_rate": clock.rate,
                          "ticks_without_sample": {"excitation": rec_x["ticks_without_sample"],
                                                   "validation": rec_v["ticks_without_sample"]}}
                 if parameters["plots"]:
@@ -797,7 +872,7 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
                     extra["stick_slip_from"] = ramp_note
                 result = _finish_fit(run, outcome, train, val, "validation trajectory "
                                      f"({parameters['validation_frequency']} Hz, not optimised)", "live",
-                                     f"{run.dir / 'run.mcap'} ({arm_name})", parameters, exc["figures"], g_config,
+                                     f"{run.dir / 'run.mcap'} ({arm_name})", parameters, design["figures"], g_config,
                                      provenance.live(cfg, [arm_name], run.dir), extra, stick_slip=stick)
                 if parameters["plots"]:
                     result["plots"]["figure_5_1_excitation.png"] = str(run.dir / "figure_5_1_excitation.png")
@@ -883,8 +958,9 @@ def _data_errors():
 def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
     """Dynamic identification of PSM joints 1-3 (thesis 5.1-5.5), live or from a CSV.
 
-    Live: designs (or reuses) the optimal excitation, streams it and a validation
-    trajectory with servo_jp, and fits OLS, WLS and a physically consistent SDP.
+    Live: designs (or reuses, from ~/.cache/dvrk-rig or $RIG_CACHE) the optimal
+    excitation, kept a measured margin from every joint limit, streams it and a
+    validation trajectory with servo_jp, and fits OLS, WLS and a physically consistent SDP.
     Offline: --csv FILE in the WPI format. Writes model.json (found by later runs),
     result.json and Figure 5.2/5.3-style PNGs to the run folder. SI units.
     """

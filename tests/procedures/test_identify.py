@@ -139,18 +139,88 @@ def test_timed_csv_is_resampled(tmp_path):
     assert np.allclose(data.q[:, 0], np.interp(data.t, t, rows[:, 0]))
 
 
-def test_excitation_design_is_cached(tmp_path):
-    from procedures.identify import PARAMETERS, design_excitation
+@pytest.fixture(autouse=True)
+def _cache(tmp_path, monkeypatch):
+    """The excitation design cache in the test's folder, not the user's."""
+    monkeypatch.setenv("RIG_CACHE", str(tmp_path / "cache"))
 
+
+def test_excitation_design_is_cached_where_every_later_run_finds_it(tmp_path, monkeypatch):
+    from procedures.identify import PARAMETERS, design_excitation, plant_of
+
+    cfg = _empty_config(tmp_path)
     p = resolve(PARAMETERS, {"duration": 6.0, "starts": 1, "iterations": 2})
     g = np.array([0.0, 0.0, -9.81])
-    first = design_excitation(p, g)
-    second = design_excitation(p, g)
+    plant = plant_of(cfg, "PSM1")
+    assert plant.rate == cfg.rig["rate"]
+    first = design_excitation(p, g, plant, processes=1)
+    assert first["path"].startswith(str(tmp_path / "cache")) and "logs" not in first["path"]
+    monkeypatch.setenv("RIG_LOGS", str(tmp_path / "another-logs-folder"))
+    second = design_excitation(p, g, plant, processes=1)
     assert not first["cached"] and second["cached"] and first["key"] == second["key"]
-    assert np.allclose(first["trajectory"].a, second["trajectory"].a)
-    other = design_excitation(resolve(PARAMETERS, {"duration": 6.0, "starts": 1, "iterations": 2,
-                                                   "frequency": 0.2}), g)
-    assert not other["cached"] and other["key"] != first["key"]
+    assert np.allclose(first["excitation"].a, second["excitation"].a)
+    # another setting is another design (every input's part in the key: tests/calibration/test_excitation_design.py)
+    from calibration.excitation_design import design_key
+    from procedures.identify import design_settings
+    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+
+    other = resolve(PARAMETERS, {"duration": 6.0, "starts": 1, "iterations": 2, "frequency": 0.2})
+    assert design_key(design_settings(other), g, plant, Q_MIN, Q_MAX, DQ_MAX)[1] != first["key"]
+
+
+def _empty_config(tmp_path):
+    (tmp_path / "rig.toml").write_text("")
+    return config.load(tmp_path / "rig.toml")
+
+
+def test_stream_aborts_before_the_limit_when_the_arm_tracks_worse_than_its_margin(tmp_path):
+    """A trajectory 2 mm above joint 3's lower limit with a margin that claims the arm
+    tracks within 0.5 mm: the simulated arm (whose true overshoot there is several mm, as
+    its plant says) is stopped and held before the limit, not at the console's fault."""
+    from calibration.excitation import FourierTrajectory, rest_basis
+    from calibration.excitation_design import Margin, Plant, tracking_error
+    from procedures.identify import reach_start, stream_trajectory
+    from rig.devices import open_rig
+    from rig.psm_kinematics import JointLimits
+    from rig.run import AbortRun, Run
+
+    cfg = _empty_config(tmp_path)
+    rng = np.random.default_rng(3)
+    Z = rest_basis(0.5, 4.0)
+    c = rng.normal(size=(3, Z.shape[1])) @ Z.T
+    raw = FourierTrajectory(0.5, c[:, :5], c[:, 5:], np.zeros(3), 4.0)
+    q, dq, _ = raw.sample(raw.times(cfg.rig["rate"]))
+    s = np.array([1.2, 1.2, 0.3]) / np.abs(dq).max(axis=0)
+    q = q * s
+    traj = FourierTrajectory(0.5, raw.a * s[:, None], raw.b * s[:, None],
+                             np.array([0.0, 0.0, 0.002 - q[:, 2].min()]), 4.0)
+    dev = open_rig(cfg, ["PSM1"], seed=0, uses=())
+    world = dev.world
+    truth = tracking_error(traj, Plant(world.arms["PSM1"].spec, cfg.rig["rate"], np.asarray(cfg.rig["gravity"])))
+    assert truth["position"][2] > 0.002  # unchecked, joint 3 would pass its limit 0
+    claimed = Margin(np.array([0.05, 0.05, 0.002]), np.array([0.1, 0.1, 0.05]), np.zeros(3), np.zeros(3),
+                     cfg.rig["rate"], np.array([0.05, 0.05, 0.05]))
+    lowest = []
+    world_q3 = []
+    dev.clock.add_listener(lambda t: world_q3.append(world.qm[2]))
+    try:
+        dev.operator.detach_object()
+        with pytest.raises(AbortRun) as err:
+            with Run("identify", parameters={}, config=None, steps=["stream"], progress=False) as run:
+                arm = run.claim(dev.arms["PSM1"])
+                reach_start(arm, traj.sample([0.0])[0][0], "excitation", lambda text: None)
+                with run.step("stream", total=1) as st:
+                    stream_trajectory(run, arm, dev.clock, traj, "excitation", st, JointLimits(), claimed)
+        line = err.value.reason
+        assert "joint 3 at" in line and "from its limit 0 m" in line and "\n" not in line
+        lowest.append(float(line.split("joint 3 at ")[1].split(" m")[0]))
+        assert 0.0 < lowest[0] <= 0.25 * 0.002  # within the last quarter of the margin, above the limit
+        dev.clock.sleep(0.5)  # the run held the arm: it stops short of the console's fault band
+        from drivers.sim_arm_state import LIMIT_MARGIN
+        assert min(world_q3) > -LIMIT_MARGIN[2]
+        assert dev.arms["PSM1"].measured_js().position[2] > -LIMIT_MARGIN[2]
+    finally:
+        dev.close()
 
 
 STICTION_RIG = "[effects.PSM1]\nstiction = [0.0, 0.0, 1.0]\n"

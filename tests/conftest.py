@@ -10,12 +10,12 @@ import pytest
 from tests.ros_domains import claim_domain, claim_ports, ros_environment
 
 #: the files whose tests take longest, longest first. pyproject.toml runs `-n 2 --dist
-#: loadgroup --no-loadscope-reorder`: each test goes to whichever worker is free, in this
-#: order, so the two workers end together instead of one starting a long test when the
-#: other is done. Only the order changes: a file missing here runs all the same, after these.
+#: loadfile --no-loadscope-reorder`: the files go to whichever worker is free in this order,
+#: so the two workers end together instead of one starting a long file when the other is
+#: done. Only the order changes: a file missing here runs all the same, after these.
 LONG_FIRST = (
-    "tests/hil/test_chain.py",
     "tests/calibration/test_discrepancy.py",
+    "tests/hil/test_chain.py",
     "tests/procedures/test_cooperative.py",
     "tests/procedures/test_identify.py",
     "tests/procedures/test_discrepancy.py",
@@ -33,19 +33,8 @@ def pytest_addoption(parser):
     parser.addoption("--test-order-seed", type=int, default=0, help="the seed of --test-order shuffle (default 0)")
 
 
-def _shares_a_module_fixture(item) -> bool:
-    """Does the test use a fixture set up once per module (or class, package): a rig sim
-    the module's tests share, say?"""
-    info = getattr(item, "_fixtureinfo", None)
-    defs = info.name2fixturedefs.values() if info is not None else ()
-    return any(d and d[-1].scope in ("module", "class", "package") for d in defs)
-
-
-@pytest.hookimpl(tryfirst=True)  # before xdist reads the xdist_group marks
 def pytest_collection_modifyitems(config, items):
-    """The long files first (LONG_FIRST); within each file the order --test-order asks for;
-    the tests of a file that shares a module fixture in one xdist group (one worker runs
-    them: its rig sim starts once), the others free to go to either worker."""
+    """The long files first (LONG_FIRST); within each file the order --test-order asks for."""
     import random
 
     root = str(config.rootpath)
@@ -53,11 +42,9 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         files.setdefault(item.path, []).append(item)
 
-    def rel(path) -> str:
-        return os.path.relpath(str(path), root).replace(os.sep, "/")
-
     def rank(path) -> int:
-        return LONG_FIRST.index(rel(path)) if rel(path) in LONG_FIRST else len(LONG_FIRST)
+        rel = os.path.relpath(str(path), root).replace(os.sep, "/")
+        return LONG_FIRST.index(rel) if rel in LONG_FIRST else len(LONG_FIRST)
 
     order = config.getoption("--test-order")
     rng = random.Random(config.getoption("--test-order-seed"))
@@ -68,9 +55,6 @@ def pytest_collection_modifyitems(config, items):
             group.reverse()
         elif order == "shuffle":
             rng.shuffle(group)
-        if any(_shares_a_module_fixture(item) for item in group):
-            for item in group:
-                item.add_marker(pytest.mark.xdist_group(rel(path)))
         ordered.extend(group)
     items[:] = ordered
 

@@ -250,7 +250,9 @@ def test_reference_excitation_of_another_design_is_refused(tmp_path):
         reference_excitation(path)
 
 
-@pytest.mark.parametrize("seed", [3, 1040])
+# seed 1040 (16 s) is left out of the default run (under 10 min on two workers): seed 3 keeps the
+# check there; -m slow runs it
+@pytest.mark.parametrize("seed", [3, pytest.param(1040, marks=pytest.mark.slow)])
 def test_reference_model_predicts_a_null_run_as_well_as_its_own_fit(sim, seed):
     # The "given_model" cases' model is identified beforehand on other runs (an optimised
     # excitation and a multi-sine). On a null run it must predict the held-out block about as
@@ -320,8 +322,12 @@ def test_null_case_finds_nothing(workflow):
     assert res["effects"] == []
 
 
+# viscous_nonlinear@3 (40 s) and time_delay@3 (25 s) are left out of the default run (under 10 min
+# on two workers): the time delay is named on joint 2 here and refit on joint 3 below, and the
+# slow sweep (every effect on every joint) has both; -m slow runs them
 @pytest.mark.parametrize("effect,joint", [("spring", 1), ("hysteresis", 3), ("time_delay", 2),
-                                          ("viscous_nonlinear", 3), ("stiction", 3), ("time_delay", 3)])
+                                          pytest.param("viscous_nonlinear", 3, marks=pytest.mark.slow),
+                                          ("stiction", 3), pytest.param("time_delay", 3, marks=pytest.mark.slow)])
 def test_hidden_effect_is_named_on_its_joint(workflow, effect, joint):
     res, _, truth = workflow([(effect, joint)], 0)
     assert res["effects"], f"nothing found for {effect}@{joint}: {res['iterations']}"
@@ -362,6 +368,9 @@ def test_payload_against_an_earlier_model(workflow):
     assert p["mass"] == pytest.approx(truth.params[0]["size"], rel=0.25)
 
 
+# 30 s: left out of the default run (under 10 min on two workers); the payload is found and its
+# mass recovered on joint 3 by the two tests around it. -m slow runs it
+@pytest.mark.slow
 def test_payload_on_the_yaw_link_mass_from_its_inertia(workflow):
     # A mass on the yaw link loads joint 1 through its gravity (first moments) and its inertia
     # about the yaw axis; together they give the mass. The centre's component along the axis

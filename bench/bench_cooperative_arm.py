@@ -10,7 +10,7 @@ next servo period. The procedure's own controller (`rig.cooperative`, slave_cont
 runs at the published rate; a held process is emulated by `--hold-every`/`--hold` (the
 loop misses its ticks, then acts on the newest sample).
 
-    .venv/bin/python bench/bench_cooperative_arm.py [--periods 0.01,0.002,0.001] [--kinds spring,string]
+    .venv/bin/python bench/bench_cooperative_arm.py [--periods 0.01,0.002,0.001] [--kinds spring,string,three]
 
 Prints per object x period: max |F - 5 N| during the 3 cm move, overshoot, RMS after
 settling, and pass/fail against 0.25 N and 0.5 N (the over-the-wire targets of issue 35).
@@ -33,7 +33,8 @@ from tests.procedures.wire_emulation import emulate  # noqa: E402
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--periods", default="0.01,0.002,0.001", help="ROS periods, s")
-    ap.add_argument("--kinds", default="spring,string")
+    ap.add_argument("--kinds", default="spring,string,three", help="spring, string, three (the triangle)")
+    ap.add_argument("--settle", type=float, default=2.0, help="s before the move (the procedure's default)")
     ap.add_argument("--delay", type=float, default=1.0, help="periods between publication and the loop acting")
     ap.add_argument("--hold-every", type=float, default=0.0, help="s between emulated holds of the loop")
     ap.add_argument("--hold", type=float, default=0.0, help="s each hold lasts")
@@ -41,7 +42,11 @@ def main() -> int:
     rows = []
     for kind in a.kinds.split(","):
         for period in (float(p) for p in a.periods.split(",")):
-            r = emulate(kind, period, a.delay, hold_every=a.hold_every, hold=a.hold)
+            if kind == "three":  # the triangle of examples/three-arms.toml, spring elements
+                r = emulate("spring", period, a.delay, hold_every=a.hold_every, hold=a.hold, settle=a.settle,
+                            arms=("PSM1", "PSM2", "PSM3"), config_path=HERE.parent / "examples" / "three-arms.toml")
+            else:
+                r = emulate(kind, period, a.delay, hold_every=a.hold_every, hold=a.hold, settle=a.settle)
             rows.append((f"{kind} @ {period:g} s: max |F - 5 N| moving (N)", f"{r['max_error_during_motion']:.3f}",
                          "<= 0.25", r["max_error_during_motion"] <= 0.25))
             rows.append((f"{kind} @ {period:g} s: overshoot (N)", f"{r['overshoot']:.3f}", "<= 0.5",

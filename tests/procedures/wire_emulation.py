@@ -20,7 +20,7 @@ import numpy as np
 def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, force: float = 5.0,
             move=(0.03, 0.0, 0.0), settle: float = 1.5, duration: float = 2.0, hold_after: float = 0.5,
             hold_every: float = 0.0, hold: float = 0.0, seed: int = 0, arms=("PSM1", "PSM2"),
-            rate: float = 500.0, tweak=None) -> dict:
+            rate: float = 500.0, tweak=None, config_path=None) -> dict:
     """One cooperative run in sim time (see the module docstring); returns its figures."""
     from crtk_msgs.msg import CartesianImpedance
 
@@ -34,7 +34,7 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
     from rig.psm_dynamics import PSMDynamics
     from rig.sim import world_from_config
 
-    cfg = config.load(None)
+    cfg = config.load(config_path)
     cfg.rig["rate"] = rate
     cfg.rig["pace"] = False
     cfg.object["kind"] = kind

@@ -418,8 +418,8 @@ def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits, ma
     arm.drain_js()  # what arrived before the trajectory starts is not part of it
     ticks_without = waited = 0
     q_last = t_last = None
-    heard = clock.now()
     silent_after = SILENT * max(1.0 / rate, _stream_period(arm))
+    delay = np.inf  # the least (now - stamp) seen: transport plus any offset of the two clocks
     k = 0
     while k < n:
         arm.servo_jp(q_cmd[k], dq_cmd[k])
@@ -435,20 +435,22 @@ def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits, ma
             samples.append((js.t, js.position[:3], js.velocity[:3], js.effort[:3]))
             rec.joint_state(f"/{arm.name}/measured_js", js.t, js.position, js.velocity, js.effort)
         if new:
-            heard = clock.now()
             t_last = new[-1].t
+            delay = min(delay, clock.now() - t_last)
             q_last, dq = np.asarray(new[-1].position[:3]), np.asarray(new[-1].velocity[:3])
             if np.any(q_last < low) or np.any(q_last > high) or np.any(np.abs(dq) > speed):
                 raise AbortRun(f"{arm.name} during the {topic_prefix} trajectory at t = {k / rate:.2f} s: "
                                f"{_abort_reason(q_last, dq, low, high, speed, limits, margin)}; the arm is held")
-        # The trajectory's time waits while the arm is silent, or while the set-point that
-        # was in force at its newest sample's stamp leads it by more than the margin's lag:
-        # an arm whose commands stopped arriving (its process held off the CPU, a stalled
-        # link) then meets, when they resume, a set-point a lag ahead, not one that ran on
-        # by the stall times the speed (calibration.excitation_design). Comparing with the
-        # set-point of the sample's own time leaves the transport delay out of the lag.
+        # The trajectory's time waits while the arm's newest sample is older than usual (it
+        # is silent, or its process fell behind and catches up: over the wire a served arm
+        # held off the CPU for 0.5 s applied the commands queued meanwhile at once), or
+        # while the set-point in force at that sample's stamp leads it by more than the
+        # margin's lag: an arm whose commands stopped arriving then meets, when they
+        # resume, a set-point a lag ahead, not one that ran on by the stall times the speed
+        # (calibration.excitation_design). The set-point of the sample's own time leaves
+        # the transport delay out of the lag.
         then = sent[max(0, bisect.bisect_right(sent_t, t_last) - 1)][1] if t_last is not None else k
-        if clock.now() - heard > silent_after or (
+        if (t_last is not None and clock.now() - t_last - delay > silent_after) or (
                 q_last is not None and lagging(q_last, q_cmd[then], dq_cmd[then], margin.lag)):
             waited += 1
         else:
@@ -478,8 +480,8 @@ def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits, ma
     return {"t": t, "q": q, "dq": dq, "tau": tau, "rate": rate, "ticks_without_sample": ticks_without, "met": met}
 
 
-#: Loop or arm periods (the longer) of measured_js silence after which the trajectory's
-#: time waits for the arm (stream_trajectory).
+#: Loop or arm periods (the longer) by which the arm's newest sample may be older than the
+#: least delay seen before the trajectory's time waits for the arm (stream_trajectory).
 SILENT = 5.0
 
 

@@ -89,6 +89,9 @@ class ServedRig:
         self.proc: subprocess.Popen | None = None
         self.sim_lines: list[str] = []
         self.runs_since_start = 0  # `run` calls since this rig sim started (its arms start DISABLED)
+        #: a procedure run on this rig sim said an arm is in FAULT: it stays so until a person
+        #: clears it (as on a dVRK), so a test that needs working arms starts a fresh rig sim
+        self.faulted = False
 
     @property
     def domain(self) -> int:
@@ -120,7 +123,7 @@ class ServedRig:
 
     def start(self, timeout: float = 60.0) -> "ServedRig":
         (self.folder / "rig.toml").write_text(self.toml)
-        self.sim_lines, self.runs_since_start = [], 0
+        self.sim_lines, self.runs_since_start, self.faulted = [], 0, False
         self.proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "sim", *self.sim_args],
                                      cwd=self.folder, env=self.env(RIG_LOGS=str(self.folder / "sim-logs")),
                                      stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -165,6 +168,9 @@ class ServedRig:
             proc.kill()
             out, err = proc.communicate()
             raise RuntimeError(f"rig {' '.join(args)} did not end in {timeout} s: {err[-3000:]}") from None
+        on_this_rig = (env or {}).get("ROS_DOMAIN_ID", str(self.domain)) == str(self.domain)
+        if on_this_rig and proc.returncode != 0 and "FAULT" in err:
+            self.faulted = True
         docs = [ln for ln in out.splitlines() if ln.startswith("{") and ln.rstrip().endswith("}")]
         doc = json.loads(docs[-1]) if docs else None
         return Outcome(proc.returncode, doc, err, time.monotonic() - t0)

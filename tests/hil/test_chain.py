@@ -44,8 +44,10 @@ def lab(tmp_path_factory):
 
 
 def _running(lab: ServedRig) -> ServedRig:
-    """`lab` with its rig sim up: a fresh one on the same folder and domain if a test killed it."""
-    if not lab.running:
+    """`lab` with its rig sim up and its arms out of FAULT: a fresh one on the same folder
+    and domain if a test killed it, or a procedure that failed left an arm in FAULT (which,
+    as on a dVRK, only a person clears: the next test would fail on it, not on its own)."""
+    if not lab.running or lab.faulted:
         lab.restart()
     return lab
 

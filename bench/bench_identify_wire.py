@@ -103,7 +103,7 @@ def main() -> int:
             vex = np.max([x["velocity_excess"] for x in mets], axis=0)
             closest = np.min([x["closest_to_position_limit"] for x in mets], axis=0)
             peak = np.max([x["peak_velocity_fraction"] for x in mets], axis=0)
-            held = max(x.get("ticks_held_for_a_silent_arm", 0) for x in mets)
+            held = max(x.get("periods_waited_for_the_arm", 0) for x in mets)
             rows += [
                 (f"{label}: margin position j1/j2/j3 [rad, rad, mm]", fmt(np.array(m["position"]) * [1, 1, 1e3], 4),
                  f"{m['safety']:g} x plant + sensor", True),
@@ -115,7 +115,7 @@ def main() -> int:
                 (f"{label}: closest to a position limit [rad, rad, mm]", fmt(closest * [1, 1, 1e3], 4), "> 0",
                  bool(np.all(closest > 0))),
                 (f"{label}: peak speed / Table 4.2 limit", fmt(peak, 3), "< 1", bool(np.all(peak < 1))),
-                (f"{label}: ticks held for a silent arm (worst run)", str(held), "report", True),
+                (f"{label}: periods the trajectory waited for the arm (worst run)", str(held), "report", True),
             ]
         first = docs[0][1].get("excitation", {})
         hits = [d["excitation"]["lookup_seconds"] for d in done if d["excitation"].get("cached")]

@@ -604,9 +604,14 @@ class CooperativeController:
             if self.mode == "position":
                 commands[s] = self._position_slave(s, t, error, xd[s] + 0.0, vd[s], u)
                 continue
+            if hold and self.slack[s] and self.slave_control == "arm":
+                # no new tension: keep taking up by force (it cannot exceed the take-up force)
+                commands[s] = self._arm_impedance(s, qf[s], dqf[s], xd[s] + u * float(u @ (tips[s] - xd[s])),
+                                                  vd[s], ad[s], u, tips, mine, tracked, hold, take_up=True)
+                continue
             if hold:
                 rate = 0.0
-            elif self.slack[s] and self.slave_control == "arm":
+            elif self.slack[s] and self.slave_control == "arm" and not hold:
                 if h_e < self.loop.contact:
                     # taken up by force (see _arm_impedance): no spring along the object
                     commands[s] = self._arm_impedance(s, qf[s], dqf[s], xd[s] + u * float(u @ (tips[s] - xd[s])),

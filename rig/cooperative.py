@@ -322,6 +322,7 @@ class CooperativeController:
                           and self._tracked_tension(s, tension) < self.loop.contact) for s in self.slaves}
         self.ramp_start = t if not any(self.slack.values()) else None
         self.k_i = {s: self._force_gain(s, q[s]) for s in self.slaves}
+        self._k_damp = self.loop.k_damp
         # x_f must be able to reach the ceiling tension through the impedance spring
         self.x_f_limit = max(self.loop.x_f_limit, 2.0 * self.force / self.kp_along + 0.01)
         if self.mode == "impedance" and self.slave_control == "effort":
@@ -370,7 +371,10 @@ class CooperativeController:
         v_r, a_r, u_r = R.T @ v_d, R.T @ a_d, R.T @ u
         dq_plan = np.linalg.solve(J, v_r)
         imp = self.impedance[s]
-        tau = imp.model(q, dq_plan, np.linalg.solve(J, a_r)) + imp.friction(dq, 0.0, dq_plan)
+        # friction of the planned motion only: compensated on the measured velocity, late by
+        # the loop's delay over the wire, it pushed a slave that had just broken away further
+        # and let it stick again (a stick-slip limit cycle of +-3 N at 100 Hz)
+        tau = imp.model(q, dq_plan, np.linalg.solve(J, a_r)) + imp.friction(dq_plan, 0.0, dq_plan)
         # the object's stretch for the set-point is fed forward too (its configured
         # stiffness): with the force alone, the spring would take up part of every change
         # of the set-point (K_obj / (Kp + K_obj) of it reaches the object) and x_f would
@@ -639,7 +643,7 @@ class CooperativeController:
                 # in the arm the set-point's own rise is fed forward: the damping acts on
                 # the error's rate, not on the tension's (it would fight every ramp)
                 damped = h_rate - (self._setpoint_rate if self.slave_control == "arm" else 0.0)
-                rate = -self.loop.k_damp * damped
+                rate = -self._k_damp * damped
                 if abs(error) > self.loop.deadband:
                     rate += self.k_i[s] * (error - np.sign(error) * self.loop.deadband)
             self.x_f[s] = min(max(float(self.x_f[s] + self.dt * rate), -self.x_f_limit), self.x_f_limit)

@@ -236,13 +236,14 @@ def build_controller(cfg, names, master, params, translation, rotation, mode, dy
 # ----------------------------------------------------------------------------- the run
 #: Hz, per object: the lowest rate of the arms' streams the arm-impedance path holds at
 #: (its loop runs at the rate the arms publish; the dVRK's default `-p 0.01` is 100 Hz).
-#: On bench_cooperative_arm the spring held 0.175 N at 100 Hz; the string 0.265 N at 100 Hz
-#: (over the 0.25 N target) and 0.18 N at 200 Hz: a slower console is refused for it
+#: On bench_cooperative_arm (the wire emulated in sim time) the spring held 0.16 N at 100 Hz;
+#: the string 0.46 N at 100 Hz, at the thesis' 0.5 N bound, and 0.29 N at 200 Hz: a slower
+#: console is refused for it
 ARM_LOOP_MIN_RATE = {"spring": 100.0, "string": 200.0}
 #: Hz: the arm-impedance loop runs at the rate the arms publish, up to this: it moves set-
-#: points, and 200 Hz held the string to 0.18 N on bench_cooperative_arm (500 Hz: 0.18,
-#: 100 Hz: 0.27) while leaving a loaded machine 5 ms per tick (a tick with two slaves takes
-#: 2-5 ms of Python here, 10+ ms with the CPU taken)
+#: points, and on bench_cooperative_arm 200 Hz held the string as well as 500 Hz (0.29 N
+#: both; 100 Hz: 0.46 N) while leaving 5 ms per tick (a tick with two slaves takes 2-5 ms
+#: of Python here, 10+ ms with the CPU taken)
 ARM_LOOP_MAX_RATE = 200.0
 
 

@@ -349,7 +349,7 @@ class CooperativeController:
         dq = np.linalg.solve(K.tip_jacobian_rcm(q), self.R[s].T @ v_d)
         return ArmCommand("position", q=q, dq=dq)
 
-    def _arm_impedance(self, s: str, q: np.ndarray, dq: np.ndarray, x_t: np.ndarray, v_d: np.ndarray, a_d: np.ndarray,
+    def _arm_impedance(self, s: str, q: np.ndarray, x_t: np.ndarray, v_d: np.ndarray, a_d: np.ndarray,
                        u: np.ndarray, tips: dict[str, np.ndarray], mine: list[int], tracked: list[int],
                        hold: bool, take_up: bool = False) -> ArmCommand:
         """The slave's goal for the impedance the arm runs (servo_ci; see rig.arm_impedance).
@@ -371,9 +371,10 @@ class CooperativeController:
         v_r, a_r, u_r = R.T @ v_d, R.T @ a_d, R.T @ u
         dq_plan = np.linalg.solve(J, v_r)
         imp = self.impedance[s]
-        # friction of the planned motion only: compensated on the measured velocity, late by
-        # the loop's delay over the wire, it pushed a slave that had just broken away further
-        # and let it stick again (a stick-slip limit cycle of +-3 N at 100 Hz)
+        # friction of the planned motion only: the measured velocity reaches this loop a tick
+        # or two late over the wire, and compensation on it acts after the slave has already
+        # broken away or stuck (the 0.7 Hz ringing seen at 100 Hz over the wire persisted
+        # either way: it is not this; see issue 35's note)
         tau = imp.model(q, dq_plan, np.linalg.solve(J, a_r)) + imp.friction(dq_plan, 0.0, dq_plan)
         # the object's stretch for the set-point is fed forward too (its configured
         # stiffness): with the force alone, the spring would take up part of every change
@@ -610,7 +611,7 @@ class CooperativeController:
                 continue
             if hold and self.slack[s] and self.slave_control == "arm":
                 # no new tension: keep taking up by force (it cannot exceed the take-up force)
-                commands[s] = self._arm_impedance(s, qf[s], dqf[s], xd[s] + u * float(u @ (tips[s] - xd[s])),
+                commands[s] = self._arm_impedance(s, qf[s], xd[s] + u * float(u @ (tips[s] - xd[s])),
                                                   vd[s], ad[s], u, tips, mine, tracked, hold, take_up=True)
                 continue
             if hold:
@@ -618,7 +619,7 @@ class CooperativeController:
             elif self.slack[s] and self.slave_control == "arm" and not hold:
                 if h_e < self.loop.contact:
                     # taken up by force (see _arm_impedance): no spring along the object
-                    commands[s] = self._arm_impedance(s, qf[s], dqf[s], xd[s] + u * float(u @ (tips[s] - xd[s])),
+                    commands[s] = self._arm_impedance(s, qf[s], xd[s] + u * float(u @ (tips[s] - xd[s])),
                                                       vd[s], ad[s], u, tips, mine, tracked, hold, take_up=True)
                     continue
                 # taut: the spring and the set-point's stretch start from here
@@ -653,7 +654,7 @@ class CooperativeController:
                 # are fed forward with the plan's (x_f's rate is not: fed back through the
                 # damping, the loop's own correction limit-cycled)
                 v_t = vd[s] + u * (self._setpoint_rate / self.object_stiffness)
-                commands[s] = self._arm_impedance(s, qf[s], dqf[s], x_t, v_t, ad[s], u, tips, mine, tracked, hold)
+                commands[s] = self._arm_impedance(s, qf[s], x_t, v_t, ad[s], u, tips, mine, tracked, hold)
                 continue
             if self.kp_across is not None:
                 u_r = self.R[s].T @ u

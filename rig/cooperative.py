@@ -392,13 +392,7 @@ class CooperativeController:
             if k not in tracked:
                 # the slave-slave element: its tension error integrated into an offset along
                 # it, half by each of its slaves (as the effort path)
-                if not any(self.slack.values()) and not hold:
-                    e_k = self.force_setpoint - float(self.tension[k])
-                    g = 0.5 * self.k_i[s] * (e_k - np.sign(e_k) * self.loop.deadband) \
-                        if abs(e_k) > self.loop.deadband else 0.0
-                    r_k = g - 0.5 * self.loop.k_damp * float(self.tension_rate[k])
-                    self.x_g[(s, k)] = min(max(float(self.x_g.get((s, k), 0.0) + self.dt * r_k),
-                                               -self.x_f_limit), self.x_f_limit)
+                self._integrate_pair(s, k, hold)
                 target = target + w * (self.x_g.get((s, k), 0.0)
                                        + 0.5 * (self.force_setpoint - self.initial_element_tension[k])
                                        / self.object_stiffness)
@@ -417,6 +411,18 @@ class CooperativeController:
             damping[i] = 2.0 * g.damping_ratio * np.sqrt((stiffness[i] + k_obj) * cartesian_inertia(M, J, axis))
         return ArmCommand("impedance", target=R.T @ (target - self.p[s]), velocity=v_r, u=u_r,
                           stiffness=stiffness, damping=damping, feedforward=tau)
+
+    def _integrate_pair(self, s: str, k: int, hold: bool) -> None:
+        """Integrate the tension error of the slave-slave element k into slave s's offset
+        along it (half of it: each of its two slaves takes half); none while any slave is
+        slack or the force loop holds."""
+        if any(self.slack.values()) or hold:
+            return
+        e_k = self.force_setpoint - float(self.tension[k])
+        g = 0.5 * self.k_i[s] * (e_k - np.sign(e_k) * self.loop.deadband) if abs(e_k) > self.loop.deadband else 0.0
+        r_k = g - 0.5 * self.loop.k_damp * float(self.tension_rate[k])
+        self.x_g[(s, k)] = min(max(float(self.x_g.get((s, k), 0.0) + self.dt * r_k), -self.x_f_limit),
+                               self.x_f_limit)
 
     def _neighbour_directions(self, slave: str, tips: dict[str, np.ndarray]) -> list[np.ndarray]:
         """Unit vectors from each arm the slave shares an element with, to the slave."""
@@ -670,13 +676,7 @@ class CooperativeController:
                     other = b if a == s else a
                     d = tips[s] - tips[other]
                     w = d / max(np.linalg.norm(d), 1e-9)
-                    if not any(self.slack.values()) and not hold:
-                        e_k = self.force_setpoint - float(self.tension[k])
-                        g = 0.5 * self.k_i[s] * (e_k - np.sign(e_k) * self.loop.deadband) \
-                            if abs(e_k) > self.loop.deadband else 0.0
-                        r_k = g - 0.5 * self.loop.k_damp * float(self.tension_rate[k])
-                        self.x_g[(s, k)] = min(max(float(self.x_g.get((s, k), 0.0) + self.dt * r_k),
-                                                   -self.x_f_limit), self.x_f_limit)
+                    self._integrate_pair(s, k, hold)
                     x_t = x_t + w * (self.tension[k] / kp_mean + self.x_g.get((s, k), 0.0))
             # The force the tip exerts on the object: each element's tension, pointing from
             # the neighbour to this tip (outward).

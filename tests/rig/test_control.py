@@ -33,6 +33,24 @@ def test_kalman_differentiator_recovers_a_ramp_and_reports_its_lag():
     assert abs(lag_value) < 1e-3 and 0.0 < lag_rate < 0.05   # the rate lags, the value hardly
 
 
+@pytest.mark.parametrize("dt, value_noise, process_noise, rate_noise", [
+    (1e-3, 1e-4, 5.0, None), (1 / 200, 0.02, 200.0, None), (1 / 500, 6e-6, 20.0, 2e-3)])
+def test_kalman_gain_is_the_one_filterpy_converges_to(dt, value_noise, process_noise, rate_noise):
+    from filterpy.common import Q_discrete_white_noise
+    from filterpy.kalman import KalmanFilter
+
+    f = KalmanDifferentiator(1, dt, value_noise, process_noise, rate_noise=rate_noise)
+    m = 1 if rate_noise is None else 2
+    kf = KalmanFilter(dim_x=3, dim_z=m)
+    kf.F, kf.H = f.F.copy(), np.eye(3)[:m]
+    kf.R = np.diag([value_noise ** 2] + ([] if rate_noise is None else [rate_noise ** 2]))
+    kf.Q = Q_discrete_white_noise(dim=3, dt=dt, var=process_noise ** 2)
+    for _ in range(20000):
+        kf.predict()
+        kf.update(np.zeros(m))
+    np.testing.assert_allclose(f.gains[0], kf.K, rtol=1e-6, atol=1e-12)
+
+
 def test_kalman_step_matches_filterpy_and_coasts_on_a_view_of_its_own_state():
     from filterpy.kalman import KalmanFilter
 

@@ -124,15 +124,16 @@ def impedance_message(m, position, orientation=None, stiffness=(0.0, 0.0, 0.0), 
     t = m.torque_orientation
     t.x, t.y, t.z, t.w = (float(v) for v in matrix_to_quat_xyzw(R))
 
-    def fill(gains, p_, d_, b_, dead_):
-        for field_, values, sign in (("p", p_, -1.0), ("d", d_, -1.0), ("bias", b_, 1.0),
-                                     ("deadband", dead_, 1.0)):
-            v = getattr(gains, field_)
-            v.x, v.y, v.z = (sign * float(x) for x in np.broadcast_to(np.asarray(values, float), (3,)))
+    def three(values, sign):
+        a = np.broadcast_to(np.asarray(values, float), (3,))
+        return sign * float(a[0]), sign * float(a[1]), sign * float(a[2])
 
+    force = [three(stiffness, -1.0), three(damping, -1.0), three(bias, 1.0), three(deadband, 1.0)]
+    torque = [three(torque_stiffness, -1.0), three(torque_damping, -1.0), three(torque_bias, 1.0), (0.0, 0.0, 0.0)]
     for half in ("positive", "negative"):
-        fill(getattr(m, f"position_{half}"), stiffness, damping, bias, deadband)
-        fill(getattr(m, f"orientation_{half}"), torque_stiffness, torque_damping, torque_bias, (0.0, 0.0, 0.0))
+        for gains, values in ((getattr(m, f"position_{half}"), force), (getattr(m, f"orientation_{half}"), torque)):
+            for v, (x, y, z) in zip((gains.p, gains.d, gains.bias, gains.deadband), values):
+                v.x, v.y, v.z = x, y, z
     return m
 
 

@@ -235,16 +235,18 @@ def build_controller(cfg, names, master, params, translation, rotation, mode, dy
 
 # ----------------------------------------------------------------------------- the run
 #: Hz, per object: the lowest rate of the arms' streams the arm-impedance path holds at
-#: (its loop runs at the rate the arms publish; the dVRK's default `-p 0.01` is 100 Hz).
-#: On bench_cooperative_arm (the wire emulated in sim time) the spring held 0.16 N at 100 Hz;
-#: the string 0.46 N at 100 Hz, at the thesis' 0.5 N bound, and 0.29 N at 200 Hz: a slower
-#: console is refused for it
-ARM_LOOP_MIN_RATE = {"spring": 100.0, "string": 200.0}
-#: Hz: the arm-impedance loop runs at the rate the arms publish, up to this: it moves set-
-#: points, and on bench_cooperative_arm 200 Hz held the string as well as 500 Hz (0.29 N
-#: both; 100 Hz: 0.46 N) while leaving 5 ms per tick (a tick with two slaves takes 2-5 ms
-#: of Python here, 10+ ms with the CPU taken)
-ARM_LOOP_MAX_RATE = 200.0
+#: (its loop runs at the rate the arms publish, at most ARM_LOOP_MAX_RATE; the dVRK's
+#: default `-p 0.01` is 100 Hz). On bench_cooperative_arm (the wire emulated in sim time)
+#: at 100 Hz the spring held 0.15-0.19 N, the string 0.41-0.45 N (the thesis' 0.5 N, not
+#: the issue's 0.25 N); a slower console is refused
+ARM_LOOP_MIN_RATE = {"spring": 100.0, "string": 100.0}
+#: Hz: the arm-impedance loop runs at the rate the arms publish, up to this. It moves set-
+#: points; a tick with one slave costs 3-5 ms of Python (controller 1.5-2 ms, the servo_ci
+#: goal and message 0.4 ms, publishing and recording the rest). Against rig sim on this
+#: 2-core machine (both processes at 80-90 % of a core) 200 Hz starved the loop (periods
+#: to 30-70 ms at p99/max, the tension older than 10 ms on 8-18 % of ticks): 0.34-2.2 N
+#: while moving and aborts; 100 Hz: 0.25-0.68 N, no aborts in those runs.
+ARM_LOOP_MAX_RATE = 100.0
 
 
 def _pace_at_published_rate(rig, names, master) -> None:
@@ -377,7 +379,8 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         sensors = [rig.forces[k] for k in sorted(rig.forces)]
         first = [s.read() for s in sensors]
         tension = np.array([s.force for s in first])
-        controller.start(clock.now(), q0, {n: js[n].velocity[:3] for n in names}, tension)
+        controller.start(clock.now(), q0, {n: js[n].velocity[:3] for n in names}, tension,
+                         stamps={n: js[n].t for n in names}, tension_t=np.array([s.t for s in first]))
         total = params["settle"] + params["duration"] + params["hold_after"]
         with run.step(STEPS[2]):
             plan = _check_plan(controller, names, q0, total, limits)
@@ -400,7 +403,8 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             js = {n: rig.arms[n].measured_js() for n in names}
             newest = [s.read() for s in sensors]
             controller.start(clock.now(), {n: js[n].position[:3] for n in names},
-                             {n: js[n].velocity[:3] for n in names}, np.array([s.force for s in newest]))
+                             {n: js[n].velocity[:3] for n in names}, np.array([s.force for s in newest]),
+                             stamps={n: js[n].t for n in names}, tension_t=np.array([s.t for s in newest]))
         t_start = clock.now()
         overruns0, skipped0 = getattr(clock, "overruns", 0), getattr(clock, "skipped", 0)
         last_js_t = {n: None for n in names}
@@ -450,9 +454,10 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                     newest.append(new[-1] if new else None)
                     if new:
                         last_force_t[k_el] = max(last_force_t[k_el], new[-1].t)
+                fresh_t = None
                 if all(s is not None for s in newest):
                     tension = np.array([s.force for s in newest])
-                    fresh = tension
+                    fresh, fresh_t = tension, np.array([s.t for s in newest])
                 force_age = t - min(last_force_t)
                 # a tick late itself (this process held) finds samples as old as the gap:
                 # they are the newest there are, not a stalled cell
@@ -469,7 +474,9 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                 c0 = time.perf_counter()
                 q = {n: js[n].position[:3] for n in names}
                 dq = {n: js[n].velocity[:3] for n in names}
-                commands = controller.step(t, q, dq, fresh, blind=blind)
+                # the samples' own times: the loop's ticks are not `dt` apart over the wire
+                commands = controller.step(t, q, dq, fresh, blind=blind, stamps={n: js[n].t for n in names},
+                                           tension_t=fresh_t)
                 loop_us = (time.perf_counter() - c0) * 1e6
                 limits.check_tension(float(tension.max()))
                 xd, _, _ = controller.desired(t)

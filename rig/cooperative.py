@@ -280,6 +280,8 @@ class CooperativeController:
         self.force_setpoint = 0.0
         self.blind = False  # the last step held the force loop (see step)
         self._t_previous: float | None = None
+        self._dt_tick = dt  # s since the last step (see step)
+        self._intervals_ready = False
         self._setpoint_rate = 0.0  # N/s
         # User increments (/psm/cmd_vel, /psm/cmd_force, keyboard): these are the targets;
         # the controller moves its applied offsets toward them at the slew rates, so that an
@@ -304,11 +306,27 @@ class CooperativeController:
         return self.R[arm].T @ (x_world - self.p[arm])
 
     # -- life cycle ---------------------------------------------------------------------
-    def start(self, t: float, q: dict[str, np.ndarray], dq: dict[str, np.ndarray], tension: np.ndarray) -> None:
+    def start(self, t: float, q: dict[str, np.ndarray], dq: dict[str, np.ndarray], tension: np.ndarray,
+              stamps: dict[str, float] | None = None, tension_t: np.ndarray | None = None) -> None:
+        """Start the plan at `t` from the arms at `q`, `dq` and the object at `tension`;
+        `stamps`, `tension_t`: the times those samples were taken (see `step`)."""
         self.t0 = t
+        self._t_previous = None
+        self._dt_tick = self.dt
         for a in self.arms:
             self.joint_filter[a].reset(q[a], dq[a])
+        self._filtered = {a: (np.asarray(q[a], float).copy(), np.asarray(dq[a], float).copy()) for a in self.arms}
+        self._js_stamp = dict(stamps) if stamps is not None else {}
+        # per arm, the smallest (this loop's time - the sample's stamp) seen: the offset of
+        # the stamps' clock plus the shortest way here (see step)
+        self._stamp_offset = {a: t - float(stamps[a]) for a in self.arms} if stamps is not None else {}
+        if stamps is not None and not self._intervals_ready:
+            # samples will come at their own intervals: their filter gains, solved before the loop
+            for f in (*self.joint_filter.values(), self.force_filter):
+                f.prepare_intervals()
+            self._intervals_ready = True
         self.force_filter.reset(np.asarray(tension, float))
+        self._force_t = None if tension_t is None else float(np.mean(tension_t))
         self.x0 = {a: self.tip_world(a, q[a]) for a in self.arms}
         self.centroid0 = np.mean([self.x0[a] for a in self.arms], axis=0)
         self.initial_tension = float(np.mean(tension)) if len(tension) else 0.0
@@ -421,7 +439,7 @@ class CooperativeController:
         e_k = self.force_setpoint - float(self.tension[k])
         g = 0.5 * self.k_i[s] * (e_k - np.sign(e_k) * self.loop.deadband) if abs(e_k) > self.loop.deadband else 0.0
         r_k = g - 0.5 * self.loop.k_damp * float(self.tension_rate[k])
-        self.x_g[(s, k)] = min(max(float(self.x_g.get((s, k), 0.0) + self.dt * r_k), -self.x_f_limit),
+        self.x_g[(s, k)] = min(max(float(self.x_g.get((s, k), 0.0) + self._dt_tick * r_k), -self.x_f_limit),
                                self.x_f_limit)
 
     def _neighbour_directions(self, slave: str, tips: dict[str, np.ndarray]) -> list[np.ndarray]:
@@ -528,19 +546,20 @@ class CooperativeController:
         def toward(applied, target, rate):
             d = np.asarray(target, float) - applied
             n = float(np.linalg.norm(d))
-            limit = rate * self.dt
+            limit = rate * self._dt_tick
             return target if n <= limit else applied + d * (limit / n)
 
         before = self.applied_translation.copy()
         self.applied_translation = np.array(toward(self.applied_translation, self.offset_translation,
                                                    self.slew_translation), float)
-        self._offset_velocity = (self.applied_translation - before) / self.dt
+        self._offset_velocity = (self.applied_translation - before) / self._dt_tick
         self.applied_rotation = np.array(toward(self.applied_rotation, self.offset_rotation, self.slew_rotation), float)
         self.applied_force_offset = float(toward(np.array([self.applied_force_offset]),
                                                  np.array([self.force_offset]), self.slew_force)[0])
 
     def step(self, t: float, q: dict[str, np.ndarray], dq: dict[str, np.ndarray],
-             tension: np.ndarray | None, blind: bool = False) -> dict[str, ArmCommand]:
+             tension: np.ndarray | None, blind: bool = False, stamps: dict[str, float] | None = None,
+             tension_t: np.ndarray | None = None) -> dict[str, ArmCommand]:
         """One control cycle. `tension`: newest sample per object element, or None if no new one.
 
         `blind`: the newest tension sample is too old to act on (the caller judges its age
@@ -552,12 +571,36 @@ class CooperativeController:
         is no longer measured: samples that stopped reaching the loop for 0.3 s during the
         take-up let the spring be stretched to 9 N while the controller read 0 N, and the
         effort jumped past the ceiling when they resumed.
+
+        `stamps` (s, per arm) and `tension_t` (s, per element): when the joint and tension
+        samples were taken. Given, the filters step by the samples' own intervals (a sample
+        seen again is not fed twice), and the loop's integrators by the time since the last
+        step: over the wire a loop asked for 200 Hz ran at 120-160 Hz, and taken as `dt`
+        apart its filters read rates 25-65 % too fast (0.36-0.91 N of error on the emulated
+        wire instead of 0.18). Without them every step is `dt` after the last (a loop in
+        sim time).
         """
         if self.t0 is None:
             raise RuntimeError("start() the controller first")
+        t_last = self._t_previous
+        elapsed = self.dt if (stamps is None or t_last is None or t <= t_last) else t - t_last
+        # the integrators' step: the time since the last step, within a quarter and four
+        # loop periods (a longer gap is a held process: its tension is judged by `blind`)
+        self._dt_tick = self.dt if abs(elapsed - self.dt) <= 1e-6 * self.dt else min(max(elapsed, 0.25 * self.dt),
+                                                                                      4.0 * self.dt)
         qf, dqf = {}, {}
         for a in self.arms:
-            qf[a], dqf[a] = self.joint_filter[a].update(q[a], dq[a])
+            if stamps is None:
+                qf[a], dqf[a] = self.joint_filter[a].update(q[a], dq[a])
+                continue
+            self._stamp_offset[a] = min(self._stamp_offset.get(a, np.inf), t - float(stamps[a]))
+            last = self._js_stamp.get(a)
+            if last is not None and stamps[a] <= last:
+                qf[a], dqf[a] = self._filtered[a]  # the sample the last step had
+                continue
+            qf[a], dqf[a] = self.joint_filter[a].update(q[a], dq[a], dt=None if last is None else stamps[a] - last)
+            self._js_stamp[a] = float(stamps[a])
+            self._filtered[a] = (qf[a], dqf[a])
         # a hold lasts until a new sample arrives (with three cells: from every one)
         hold = bool(blind) or (self.blind and tension is None)
         if hold:
@@ -570,9 +613,17 @@ class CooperativeController:
                 self.force_filter.reset(self.raw_tension)
                 self.tension, self.tension_rate = self.raw_tension.copy(), np.zeros_like(self.raw_tension)
             else:
-                self.tension, self.tension_rate = self.force_filter.update(np.asarray(tension, float))
+                dt_f = None
+                if tension_t is not None and self._force_t is not None:
+                    dt_f = max(float(np.mean(tension_t)) - self._force_t, 0.1 * self.dt)
+                self.tension, self.tension_rate = self.force_filter.update(np.asarray(tension, float), dt=dt_f)
+            if tension_t is not None:
+                self._force_t = float(np.mean(tension_t))
         else:
-            self.tension, self.tension_rate = self.force_filter.update(self.force_filter.x[:, 0])
+            self.tension, self.tension_rate = self.force_filter.update(
+                self.force_filter.x[:, 0], dt=None if tension_t is None and stamps is None else self._dt_tick)
+            if self._force_t is not None:
+                self._force_t += self._dt_tick
         self.blind = hold
         self._slew_offsets()
         xd, vd, ad = self.desired(t)
@@ -599,8 +650,17 @@ class CooperativeController:
             # resist the motion the object imposes (the damping along the object is hundreds
             # of N s/m: a lag changing by a millimetre per second is a newton). The lag's
             # acceleration is left out: differentiated twice, the measurement is noise.
+            # The lag is taken at the time of the master's sample: against the plan of now,
+            # a sample `age` s old read the plan's own motion over that age as lag, and the
+            # slaves trailed the master by v x age (over the wire, rig sim's samples were
+            # 7 ms old at the median and 50-100 ms at the worst, rig sim itself behind the
+            # clock on a loaded machine: 20 mm/s x 50 ms is 1 mm, 0.7 N on the spring).
             Jm = K.tip_jacobian_rcm(qf[m])
-            shift, v_shift = tips[m] - xd[m], self.R[m] @ (Jm @ dqf[m]) - vd[m]
+            # The sample's time on this loop's clock: its stamp plus the smallest offset seen
+            # (the stamps may come from another computer's clock: the console's).
+            t_m = t if stamps is None else min(t, self._js_stamp[m] + self._stamp_offset[m])
+            xm, vm = (xd, vd) if t_m == t else self.desired(t_m)[:2]
+            shift, v_shift = tips[m] - xm[m], self.R[m] @ (Jm @ dqf[m]) - vm[m]
         for s in self.slaves:
             if self.follow_measured_master:
                 xd[s] = xd[s] + shift
@@ -653,7 +713,7 @@ class CooperativeController:
                 rate = -self._k_damp * damped
                 if abs(error) > self.loop.deadband:
                     rate += self.k_i[s] * (error - np.sign(error) * self.loop.deadband)
-            self.x_f[s] = min(max(float(self.x_f[s] + self.dt * rate), -self.x_f_limit), self.x_f_limit)
+            self.x_f[s] = min(max(float(self.x_f[s] + self._dt_tick * rate), -self.x_f_limit), self.x_f_limit)
             x_t = xd[s] + u * self.x_f[s]
             if self.slave_control == "arm":
                 # the set-point's stretch is motion the arm must make: its damping and friction

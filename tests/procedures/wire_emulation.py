@@ -20,8 +20,15 @@ import numpy as np
 def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, force: float = 5.0,
             move=(0.03, 0.0, 0.0), settle: float = 1.5, duration: float = 2.0, hold_after: float = 0.5,
             hold_every: float = 0.0, hold: float = 0.0, seed: int = 0, arms=("PSM1", "PSM2"),
-            rate: float = 500.0, tweak=None, config_path=None) -> dict:
-    """One cooperative run in sim time (see the module docstring); returns its figures."""
+            rate: float = 500.0, tweak=None, config_path=None, loop_rate: float | None = None,
+            controller_rate: float | None = None, stamps: bool = True) -> dict:
+    """One cooperative run in sim time (see the module docstring); returns its figures.
+
+    `loop_rate`: the loop's own rate (default: the published rate); `controller_rate`: the
+    rate the controller is built for (default: the loop's; the procedure builds it for the
+    rate it asks of its clock, which a starved process does not keep); `stamps`: the loop
+    hands the controller the samples' times, as the procedure does (False: as before it
+    did, every step taken as one period after the last)."""
     from crtk_msgs.msg import CartesianImpedance
 
     from drivers.dvrk_arm import impedance_message
@@ -52,9 +59,12 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
     params = {"force": force, "duration": duration, "settle": settle, "hold_after": hold_after, "deadband": 0.4}
     dyn = PSMDynamics(gravity=np.asarray(cfg.rig["gravity"], float))
     every = max(1, int(round(period * rate)))
-    loop_dt = every / rate
+    # the loop ticks at the published rate, or at its own `loop_rate` (the procedure's
+    # ARM_LOOP_MAX_RATE): a 200 Hz loop on a 500 Hz stream finds samples 4 and 6 ms apart
+    loop_dt = every / rate if loop_rate is None else 1.0 / loop_rate
     controller = build_controller(cfg, names, master, params, np.asarray(move, float), np.zeros(3), "impedance",
-                                  dyn, None, rcm, kind, cfg.object["stiffness"], elements, loop_dt,
+                                  dyn, None, rcm, kind, cfg.object["stiffness"], elements,
+                                  loop_dt if controller_rate is None else 1.0 / controller_rate,
                                   slave_control="arm")
     if tweak is not None:
         tweak(controller)
@@ -79,7 +89,9 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
         return world.t, js, ten
 
     t0, js, ten = sample()
-    controller.start(t0, {n: js[n][0][:3] for n in names}, {n: js[n][1][:3] for n in names}, ten)
+    controller.start(t0, {n: js[n][0][:3] for n in names}, {n: js[n][1][:3] for n in names}, ten,
+                     stamps={n: t0 for n in names} if stamps else None,
+                     tension_t=np.full(len(elements), t0) if stamps else None)
     hold_R = {n: kin.forward(js[n][0][:6])[:3, :3] for n in controller.slaves}
     total = settle + duration + hold_after
     n_ticks = int(round(total * rate))
@@ -88,6 +100,7 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
     log_t, log_f, log_sp = [], [], []
     next_hold = hold_every if hold_every > 0 else float("inf")
     held_until = -1.0
+    next_tick = world.t
     for k in range(n_ticks):
         for p in psms.values():
             p.control(world.t)
@@ -103,13 +116,16 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
         if t_now < held_until:
             continue
         ready = [s for due, s in queue if due <= k]
-        if not ready:
+        if not ready or t_now < next_tick - 1e-9:
             continue
+        next_tick = max(next_tick + loop_dt, t_now) if loop_rate is not None else t_now
         queue = [(due, s) for due, s in queue if due > k]
         t, js, ten = ready[-1]
         q = {n: js[n][0][:3] for n in names}
         dq = {n: js[n][1][:3] for n in names}
-        commands = controller.step(t, q, dq, ten)
+        # the loop's clock is now; the samples carry the time they were taken
+        commands = controller.step(t_now, q, dq, ten, stamps={n: t for n in names} if stamps else None,
+                                   tension_t=np.full(len(elements), t) if stamps else None)
         for n in names:
             c = commands[n]
             if c.kind == "position":
@@ -121,7 +137,7 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
                                       g.bias, torque_stiffness=g.torque_stiffness, torque_damping=g.torque_damping, torque_bias=g.torque_bias,
                                       force_orientation=g.force_orientation)
                 psms[n].servo_ci(impedance_from_msg(m))
-        log_t.append(t - t0)
+        log_t.append(t_now - t0)
         log_f.append(float(np.mean(ten)))
         log_sp.append(controller.force_setpoint)
     t = np.array(log_t)

@@ -26,6 +26,37 @@ LONG_FIRST = (
 )
 
 
+#: s a test may take, its fixtures' setup included, before it fails with every thread's
+#: stack on stderr: a hang guard (a test that waits on something that never comes would
+#: hold CI until CI's own timeout, with no word of where), not a performance bound. The
+#: longest test here takes about 3 minutes on a busy 2-core machine.
+HANG_GUARD_S = 900.0
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """The hang guard: SIGALRM raises in the test (it fails, the run goes on); a test stuck
+    where no signal reaches Python is ended two minutes later with its worker (faulthandler)."""
+    import faulthandler
+    import sys
+
+    guard = float(os.environ.get("RIG_TEST_HANG_GUARD", HANG_GUARD_S))
+
+    def expire(signum, frame):
+        faulthandler.dump_traceback(file=sys.__stderr__, all_threads=True)
+        raise TimeoutError(f"hang guard: {item.nodeid} still running after {guard:.0f} s (stacks on stderr)")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.setitimer(signal.ITIMER_REAL, guard)
+    faulthandler.dump_traceback_later(guard + 120.0, exit=True, file=sys.__stderr__)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        signal.signal(signal.SIGALRM, previous)
+        faulthandler.cancel_dump_traceback_later()
+
+
 def pytest_addoption(parser):
     parser.addoption("--test-order", default="declared", choices=("declared", "reverse", "shuffle"),
                      help="order of the tests within each file: reverse or shuffle them to check that no test "

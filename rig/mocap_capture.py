@@ -41,6 +41,9 @@ ARRIVED = np.array([6e-3, 6e-3, 3e-3])     # rad, rad, m
 AT_REST = np.array([0.03, 0.03, 0.005])     # rad/s, rad/s, m/s
 # Virtual points of a pose-only body: a 60 mm right triangle in the body frame (m).
 VIRTUAL_POINTS = np.array([[0.06, 0.0, 0.0], [0.0, 0.06, 0.0], [0.0, 0.0, 0.06]])
+#: s a motion waits, once the arm is at its goal, for the tracker's frames of the motion
+#: (a stream held up by a loaded machine delivers them later, in a burst)
+CATCH_UP_S = 3.0
 
 
 # ------------------------------------------------------------------------------ capture
@@ -202,8 +205,55 @@ def _tick(rig, run, collector: Collector, arms: list) -> dict[str, np.ndarray]:
         run.recorder.joint_state_sample(f"/{arm.name}/measured_js", js)
         collector.add_js(arm.name, js.t, js.position)
         q[arm.name] = (np.asarray(js.position, float)[:3], np.asarray(js.velocity, float)[:3])
-    _record_frames(run, collector, rig.tracker.frames())
+    frames = rig.tracker.frames()
+    if frames:
+        now = rig.clock.now()
+        lag = _TrackerLag.of(rig.tracker)
+        lag.smallest = min(lag.smallest, now - frames[-1].t)
+        lag.newest = max(lag.newest, frames[-1].t)
+    _record_frames(run, collector, frames)
     return q
+
+
+class _TrackerLag:
+    """Per tracker: its newest frame's stamp, and the smallest (clock time - stamp) seen
+    when frames were taken (the offset of the tracker's clock, which may be another
+    computer's, plus the quickest way here)."""
+
+    _of: "weakref.WeakKeyDictionary" = None
+
+    def __init__(self) -> None:
+        self.smallest = math.inf
+        self.newest = -math.inf
+
+    @classmethod
+    def of(cls, tracker) -> "_TrackerLag":
+        import weakref
+
+        if cls._of is None:
+            cls._of = weakref.WeakKeyDictionary()
+        try:
+            lag = cls._of.get(tracker)
+            if lag is None:
+                lag = cls._of[tracker] = cls()
+        except TypeError:  # a tracker that cannot be weakly referenced: no memory across calls
+            lag = cls()
+        return lag
+
+
+def _catch_up(rig, run, collector: Collector, arms: list) -> None:
+    """Keep ticking (the arms at rest) until the tracker has delivered its frames up to
+    now, at most CATCH_UP_S: a phase's motion then lies in its own capture. On a loaded
+    machine the mocap's frames reached the procedure up to seconds late, in bursts: the
+    q2 sweep's frames fell into the next phase, and its capture held 4 deg of a 46 deg
+    sweep (the axis fit refused it)."""
+    t_end = rig.clock.now()
+    lag = _TrackerLag.of(rig.tracker)
+    if not math.isfinite(lag.smallest):
+        return
+    deadline = t_end + CATCH_UP_S
+    while lag.newest + lag.smallest < t_end and rig.clock.now() < deadline:
+        _tick(rig, run, collector, arms)
 
 
 def move_capture(rig, run, arm, goals: list[np.ndarray], collector: Collector,
@@ -227,6 +277,8 @@ def move_capture(rig, run, arm, goals: list[np.ndarray], collector: Collector,
                 err = q - goal
                 raise AbortRun(f"{arm.name} did not reach {np.round(goal, 4).tolist()} within "
                                f"{timeout:.0f} s (error {np.round(err, 4).tolist()} rad, rad, m)")
+        if i == len(goals) - 1:
+            _catch_up(rig, run, collector, arms)
         if step is not None:
             step.advance()
 

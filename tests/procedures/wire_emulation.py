@@ -21,14 +21,17 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
             move=(0.03, 0.0, 0.0), settle: float = 1.5, duration: float = 2.0, hold_after: float = 0.5,
             hold_every: float = 0.0, hold: float = 0.0, seed: int = 0, arms=("PSM1", "PSM2"),
             rate: float = 500.0, tweak=None, config_path=None, loop_rate: float | None = None,
-            controller_rate: float | None = None, stamps: bool = True) -> dict:
+            controller_rate: float | None = None, stamps: bool = True, gap_every: float = 0.0,
+            gap: float = 0.0) -> dict:
     """One cooperative run in sim time (see the module docstring); returns its figures.
 
     `loop_rate`: the loop's own rate (default: the published rate); `controller_rate`: the
     rate the controller is built for (default: the loop's; the procedure builds it for the
     rate it asks of its clock, which a starved process does not keep); `stamps`: the loop
     hands the controller the samples' times, as the procedure does (False: as before it
-    did, every step taken as one period after the last)."""
+    did, every step taken as one period after the last); `gap_every`, `gap`: every
+    `gap_every` s the arms' state is not published for `gap` s while the load cell streams
+    on (rig sim catching up on a loaded machine; the loop meanwhile sees the last state)."""
     from crtk_msgs.msg import CartesianImpedance
 
     from drivers.dvrk_arm import impedance_message
@@ -84,11 +87,13 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
             p.step_wrist()
 
     def sample():
+        """(the arms' stamp, their state, the cell's stamp, its tension)"""
         js = {n: psms[n].measured_js() for n in names}
         ten = np.array([world.tension(k) + rng.normal(0.0, 0.02) for k in range(len(elements))])
-        return world.t, js, ten
+        return world.t, js, world.t, ten
 
-    t0, js, ten = sample()
+    t0, js, _, ten = sample()
+    published = (t0, js, t0, ten)
     controller.start(t0, {n: js[n][0][:3] for n in names}, {n: js[n][1][:3] for n in names}, ten,
                      stamps={n: t0 for n in names} if stamps else None,
                      tension_t=np.full(len(elements), t0) if stamps else None)
@@ -108,7 +113,11 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
         for p in psms.values():
             p.step_wrist()
         if k % every == 0:
-            queue.append((k + delay_steps, sample()))
+            fresh = sample()
+            if gap_every > 0 and (fresh[0] - t0) % gap_every > gap_every - gap:
+                fresh = (published[0], published[1], fresh[2], fresh[3])  # the arms' state unpublished
+            published = fresh
+            queue.append((k + delay_steps, fresh))
         t_now = world.t
         if t_now >= next_hold:
             held_until = t_now + hold
@@ -120,12 +129,12 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
             continue
         next_tick = max(next_tick + loop_dt, t_now) if loop_rate is not None else t_now
         queue = [(due, s) for due, s in queue if due > k]
-        t, js, ten = ready[-1]
+        t, js, t_ten, ten = ready[-1]
         q = {n: js[n][0][:3] for n in names}
         dq = {n: js[n][1][:3] for n in names}
         # the loop's clock is now; the samples carry the time they were taken
         commands = controller.step(t_now, q, dq, ten, stamps={n: t for n in names} if stamps else None,
-                                   tension_t=np.full(len(elements), t) if stamps else None)
+                                   tension_t=np.full(len(elements), t_ten) if stamps else None)
         for n in names:
             c = commands[n]
             if c.kind == "position":

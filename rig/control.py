@@ -43,7 +43,7 @@ class KalmanDifferentiator:
     after the last (over the wire a 200 Hz loop reads a 500 Hz stream 4 or 6 ms apart, and
     a held process later still): the prediction spans that interval and the gain is the
     steady-state one of samples that far apart (solved once per interval, to a tenth of
-    `dt`, from half to four times it). Taken as `dt` apart, samples 6.4 ms apart read 28 % too fast a rate, and the
+    `dt`); a sample more than LONGEST intervals after the last restarts the filter. Taken as `dt` apart, samples 6.4 ms apart read 28 % too fast a rate, and the
     cooperative loop that damps on it went from 0.18 to 0.36 N of error on the emulated wire.
     """
 
@@ -71,13 +71,18 @@ class KalmanDifferentiator:
         return np.stack([self._converged_gain(r[i], qn[i], None if rv is None else rv[i], dt)
                          for i in range(self.n)])
 
-    #: the intervals (in tenths of the nominal one) whose gains are solved for: an interval
-    #: outside takes the nearest one's gain (its prediction spans the interval exactly)
+    #: intervals (in tenths of the nominal one) whose gains `prepare_intervals` solves ahead;
+    #: others are solved when first met (2-3 ms), up to LONGEST
     INTERVALS = (5, 40)
+    #: nominal intervals beyond which a sample restarts the filter (`reset`): the state is
+    #: too old to predict from. A gain solved for a shorter interval is no substitute: with
+    #: the prediction over 5-20 intervals it made the filter unstable (spectral radius
+    #: 1.5-21), and a 60 ms gap in rig sim's stream grew the slaves' bias to 115 N in 0.3 s
+    LONGEST = 20.0
 
     def prepare_intervals(self) -> None:
         """Solve the gains of every interval in INTERVALS now (2-3 ms each), so that a
-        loop meeting a new interval does not stall on it."""
+        loop meeting a usual interval does not stall on it."""
         for k in range(self.INTERVALS[0], self.INTERVALS[1] + 1):
             self._gain_form(k)
 
@@ -92,8 +97,8 @@ class KalmanDifferentiator:
     def _form(self, dt: float) -> tuple:
         """(F^T, value gains, rate gains) for samples `dt` apart: the prediction over `dt`
         exactly, the steady-state gain of the interval nearest it in tenths of the nominal
-        one, within INTERVALS."""
-        k = int(min(max(round(10.0 * dt / self.dt), self.INTERVALS[0]), self.INTERVALS[1]))
+        one (at least a tenth)."""
+        k = max(int(round(10.0 * dt / self.dt)), 1)
         g0, g1 = self._gain_form(k)
         return _transition(dt).T, g0, g1
 
@@ -125,8 +130,9 @@ class KalmanDifferentiator:
                dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Feed one sample per channel, `dt` s after the last (default: the nominal
         interval); returns (filtered value, rate)."""
-        if not self.initialised:
+        if not self.initialised or (dt is not None and dt > self.LONGEST * self.dt):
             self.reset(value, rate)
+            return self.x[:, 0].copy(), self.x[:, 1].copy()
         if dt is None or abs(dt - self.dt) <= 1e-6 * self.dt:
             Ft, g0, g1 = self._Ft, self._g0, self._g1
         else:

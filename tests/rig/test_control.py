@@ -150,3 +150,34 @@ def test_impedance_stiction_acts_on_the_rest_position_not_the_target():
     tau = imp(q, np.zeros(3), target, np.zeros(3), np.zeros(3), h)
     spring_only = dyn.inverse_dynamics(q, np.zeros(3), np.zeros(3), friction=False) + J.T @ (Kp * (target - x))
     assert tau[2] - spring_only[2] == pytest.approx(FO[2], abs=1e-9)
+
+
+@pytest.mark.parametrize("value_noise, process_noise, rate_noise", [
+    ([6e-6, 6e-6, 1e-6], [20.0, 20.0, 5.0], [2e-3, 2e-3, 3e-4]),   # the cooperative's joint filter
+    (0.02, 200.0, None)])                                          # and its tension filter
+def test_samples_at_any_interval_keep_the_filter_stable(value_noise, process_noise, rate_noise):
+    """From a tenth of the nominal interval to LONGEST of them, the filter's step is a
+    contraction (the prediction over the interval, the gain of that interval); a gain of a
+    shorter interval with the longer prediction diverged (spectral radius 1.5-21)."""
+    n = 3 if rate_noise is not None else 1
+    f = KalmanDifferentiator(n, 0.01, value_noise, process_noise, rate_noise=rate_noise)
+    for k in range(1, int(10 * f.LONGEST) + 1):
+        Ft, g0, g1 = f._form(k * f.dt / 10.0)
+        for i in range(n):
+            K = g0[i][:, None] if g1 is None else np.stack([g0[i], g1[i]], axis=1)
+            A = (np.eye(3) - K @ f.H) @ Ft.T
+            assert np.max(np.abs(np.linalg.eigvals(A))) < 1.0, (k, i)
+
+
+def test_a_ramp_sampled_at_irregular_intervals_and_a_long_gap():
+    f = KalmanDifferentiator(1, 0.01, 1e-5, 20.0, rate_noise=2e-3)
+    rng = np.random.default_rng(4)
+    t = 0.0
+    for _ in range(400):
+        dt = 0.01 * rng.choice([0.4, 0.6, 1.0, 1.4, 2.0, 6.0])
+        t += dt
+        value, rate = f.update(np.array([0.3 * t + rng.normal(0, 1e-5)]), np.array([0.3 + rng.normal(0, 2e-3)]), dt=dt)
+        assert abs(rate[0] - 0.3) < 0.02, (t, rate)
+    # a gap longer than LONGEST intervals restarts the filter on the sample
+    value, rate = f.update(np.array([5.0]), np.array([-1.0]), dt=0.01 * (f.LONGEST + 1))
+    assert value[0] == 5.0 and rate[0] == -1.0

@@ -35,12 +35,14 @@ from collections import deque
 
 #: s behind the wall clock beyond which the served rig re-anchors its time instead of catching up
 REANCHOR = 0.5
-#: While the world is more than this many ROS periods behind the wall clock (the process
-#: held, the CPU taken), the streams are published only every STALE_STREAM_GAP s and the
-#: mocap only its newest frame: the world catches up on the physics alone, instead of
-#: spending half its time publishing states that are already late (publishing is about half
-#: of rig sim's CPU at 500 Hz; behind by 0.5 s, it re-anchored and the arms jumped)
-CATCH_UP_PERIODS = 2.0
+#: s: while the world is more than this (or two ROS periods) behind the wall clock (the
+#: process held, the CPU taken), the streams are published only every STALE_STREAM_GAP s
+#: and the mocap only its newest frame: the world catches up on the physics alone instead
+#: of spending half its time publishing states that are already late (publishing is about
+#: half of rig sim's CPU at 500 Hz; 0.5 s behind, it re-anchored and the arms jumped). Not
+#: sooner: at 4 ms (two periods at 500 Hz) a third of identify's samples went unpublished
+#: and its joint 1 validation error went from 0.02-0.18 to 0.42.
+CATCH_UP_LAG = 0.05
 #: s, the longest the streams go unpublished while catching up (the watchdogs see life)
 STALE_STREAM_GAP = 0.05
 #: s, the dVRK console's default ROS publishing period (`dvrk_system -p 0.01`)
@@ -144,7 +146,7 @@ class SimServer:
         self._last_command: dict[str, int] = {}
         self.late_ticks = 0
         self.slips = 0
-        self.unpublished = 0  # stream publications skipped while catching up (CATCH_UP_PERIODS)
+        self.unpublished = 0  # stream publications skipped while catching up (CATCH_UP_LAG)
         self.stop = threading.Event()
         self._epoch0 = time.time() - world.t
         from rig.ros_session import make_executor
@@ -330,7 +332,7 @@ class SimServer:
             for b in self.bridges.values():
                 b.publish_events()
             now = time.perf_counter()
-            catching_up = now - (perf0 + t) > CATCH_UP_PERIODS * max(self.ros_period, period)
+            catching_up = now - (perf0 + t) > max(CATCH_UP_LAG, 2.0 * self.ros_period)
             if k % self.ros_every == 0 and (not catching_up or now - last_streams >= STALE_STREAM_GAP):
                 for b in self.bridges.values():
                     b.publish_streams(t)

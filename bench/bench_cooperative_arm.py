@@ -7,8 +7,9 @@ and the load cell are "published" every ROS period, reach the procedure's loop `
 periods later, and the loop's commands (master servo_jp, slaves' servo_ci built as the
 crtk_msgs message RosArm sends and read back as rig sim's bridge reads it) act from the
 next servo period. The procedure's own controller (`rig.cooperative`, slave_control="arm")
-runs at the published rate; a held process is emulated by `--hold-every`/`--hold` (the
-loop misses its ticks, then acts on the newest sample).
+runs at the published rate up to the procedure's ARM_LOOP_MAX_RATE; a held process is
+emulated by `--hold-every`/`--hold` (the loop misses its ticks, then acts on the newest
+sample), rig sim catching up by `--gap-every`/`--gap` (the arms' state unpublished).
 
     .venv/bin/python bench/bench_cooperative_arm.py [--periods 0.01,0.002,0.001] [--kinds spring,string,three]
 
@@ -38,15 +39,21 @@ def main() -> int:
     ap.add_argument("--delay", type=float, default=1.0, help="periods between publication and the loop acting")
     ap.add_argument("--hold-every", type=float, default=0.0, help="s between emulated holds of the loop")
     ap.add_argument("--hold", type=float, default=0.0, help="s each hold lasts")
+    ap.add_argument("--gap-every", type=float, default=0.0, help="s between gaps in the arms' stream")
+    ap.add_argument("--gap", type=float, default=0.0, help="s each gap lasts")
     a = ap.parse_args()
+    from procedures.cooperative import ARM_LOOP_MAX_RATE
     rows = []
     for kind in a.kinds.split(","):
         for period in (float(p) for p in a.periods.split(",")):
+            timing = dict(hold_every=a.hold_every, hold=a.hold, settle=a.settle, gap_every=a.gap_every, gap=a.gap,
+                          rate=max(500.0, 1.0 / period),
+                          loop_rate=ARM_LOOP_MAX_RATE if 1.0 / period > ARM_LOOP_MAX_RATE else None)
             if kind == "three":  # the triangle of examples/three-arms.toml, spring elements
-                r = emulate("spring", period, a.delay, hold_every=a.hold_every, hold=a.hold, settle=a.settle,
-                            arms=("PSM1", "PSM2", "PSM3"), config_path=HERE.parent / "examples" / "three-arms.toml")
+                r = emulate("spring", period, a.delay, arms=("PSM1", "PSM2", "PSM3"),
+                            config_path=HERE.parent / "examples" / "three-arms.toml", **timing)
             else:
-                r = emulate(kind, period, a.delay, hold_every=a.hold_every, hold=a.hold, settle=a.settle)
+                r = emulate(kind, period, a.delay, **timing)
             rows.append((f"{kind} @ {period:g} s: max |F - 5 N| moving (N)", f"{r['max_error_during_motion']:.3f}",
                          "<= 0.25", r["max_error_during_motion"] <= 0.25))
             rows.append((f"{kind} @ {period:g} s: overshoot (N)", f"{r['overshoot']:.3f}", "<= 0.5",

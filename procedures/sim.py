@@ -273,6 +273,6 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
     _say(f"measured_js achieved: {rates} (target {target:g} Hz{'' if held else ', NOT held'}); "
          f"{stats['sim_s']:.3f} s simulated in {stats['wall_s']:.3f} s wall; late ticks {stats['late_ticks']} (longest "
          f"{stats['max_lag_s'] * 1e3:.1f} ms behind), "
-         f"re-anchored {stats['slips']}, streams skipped catching up {stats['unpublished']}, refused commands {stats['command_errors']}, superseded "
+         f"re-anchored {stats['slips']}, refused commands {stats['command_errors']}, superseded "
          f"{stats['superseded']}, dropped (arm not ready) {sum(stats['dropped'].values())}, "
          f"operator requests {sum(server.operator.served.values())}")

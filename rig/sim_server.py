@@ -35,16 +35,6 @@ from collections import deque
 
 #: s behind the wall clock beyond which the served rig re-anchors its time instead of catching up
 REANCHOR = 0.5
-#: s: while the world is more than this (or two ROS periods) behind the wall clock (the
-#: process held, the CPU taken), the streams are published only every STALE_STREAM_GAP s
-#: and the mocap only its newest frame: the world catches up on the physics alone instead
-#: of spending half its time publishing states that are already late (publishing is about
-#: half of rig sim's CPU at 500 Hz; 0.5 s behind, it re-anchored and the arms jumped). Not
-#: sooner: at 4 ms (two periods at 500 Hz) a third of identify's samples went unpublished
-#: and its joint 1 validation error went from 0.02-0.18 to 0.42.
-CATCH_UP_LAG = 0.05
-#: s, the longest the streams go unpublished while catching up (the watchdogs see life)
-STALE_STREAM_GAP = 0.05
 #: s, the dVRK console's default ROS publishing period (`dvrk_system -p 0.01`)
 DVRK_ROS_PERIOD = 0.01
 #: s, the ROS period from which every arm stream is published whether watched or not
@@ -146,7 +136,6 @@ class SimServer:
         self._last_command: dict[str, int] = {}
         self.late_ticks = 0
         self.slips = 0
-        self.unpublished = 0  # stream publications skipped while catching up (CATCH_UP_LAG)
         self.stop = threading.Event()
         self._epoch0 = time.time() - world.t
         from rig.ros_session import make_executor
@@ -266,9 +255,8 @@ class SimServer:
             self.tracker.close()
             self.tracker = None
 
-    def _publish_mocap(self, newest_only: bool = False) -> None:
-        frames = self.tracker.frames()
-        for frame in frames[-1:] if newest_only else frames:
+    def _publish_mocap(self) -> None:
+        for frame in self.tracker.frames():
             for body, pose in frame.bodies.items():
                 if pose is None:
                     continue  # occluded: bridges publish nothing for a lost body
@@ -320,7 +308,6 @@ class SimServer:
             on_ready()
         period = world.dt
         k = 0
-        last_streams = time.perf_counter()
         while not self.stop.is_set():
             if duration is not None and world.t - t_start >= duration - 1e-9:
                 break
@@ -331,18 +318,13 @@ class SimServer:
             k += 1
             for b in self.bridges.values():
                 b.publish_events()
-            now = time.perf_counter()
-            catching_up = now - (perf0 + t) > max(CATCH_UP_LAG, 2.0 * self.ros_period)
-            if k % self.ros_every == 0 and (not catching_up or now - last_streams >= STALE_STREAM_GAP):
+            if k % self.ros_every == 0:
                 for b in self.bridges.values():
                     b.publish_streams(t)
-                last_streams = now
-            elif k % self.ros_every == 0:
-                self.unpublished += 1
             if k % self._refresh_every == 0:
                 self._refresh_watched()
             if self.tracker is not None:
-                self._publish_mocap(newest_only=catching_up)
+                self._publish_mocap()
             if self.natnet is not None:
                 self.natnet.pump(self._epoch0)  # Motive's clock is the stamps' timeline
             lag = time.perf_counter() - (perf0 + t)
@@ -367,7 +349,7 @@ class SimServer:
         return {"wall_s": wall, "sim_s": sim, "ticks": k,
                 "measured_js_hz": {n: c / wall if wall > 0 else 0.0 for n, c in self.published.items()},
                 "late_ticks": self.late_ticks, "slips": self.slips, "command_errors": self.command_errors,
-                "superseded": self.superseded, "max_lag_s": self.max_lag, "unpublished": self.unpublished,
+                "superseded": self.superseded, "max_lag_s": self.max_lag,
                 "dropped": {n: st.dropped for n, st in self.states.items()}}
 
     def close(self) -> None:

@@ -113,10 +113,10 @@ def test_old_master_samples_do_not_drag_the_slaves():
 
 
 def test_gaps_in_the_arms_stream_are_ridden_through():
-    """rig sim behind the clock publishes the arms' state only every 50 ms while it
-    catches up (rig.sim_server.CATCH_UP_LAG); the load cell streams on. Gaps of 140 ms
-    twice a second: the loop acts on the fresh tension and the last state it has (holding
-    the force loop through them instead was worse here, 0.25 N against 0.18 N)."""
+    """Gaps of 140 ms twice a second in the arms' state while the load cell streams on (as
+    rig sim's stream came in bursts on a loaded machine): the loop acts on the fresh
+    tension and the last state it has (holding the force loop through them instead was
+    worse here, 0.25 N against 0.18 N)."""
     from tests.procedures.wire_emulation import emulate
 
     r = emulate("spring", period=0.002, loop_rate=100.0, gap_every=0.5, gap=0.14)

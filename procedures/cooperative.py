@@ -237,8 +237,8 @@ def build_controller(cfg, names, master, params, translation, rotation, mode, dy
 #: Hz, per object: the lowest rate of the arms' streams the arm-impedance path holds at
 #: (its loop runs at the rate the arms publish, at most ARM_LOOP_MAX_RATE; the dVRK's
 #: default `-p 0.01` is 100 Hz). On bench_cooperative_arm (the wire emulated in sim time)
-#: at 100 Hz the spring held 0.15-0.19 N, the string 0.41-0.45 N (the thesis' 0.5 N, not
-#: the issue's 0.25 N); a slower console is refused
+#: with the loop at 100 Hz the spring held 0.14-0.16 N, the triangle 0.14-0.16 N, the
+#: string 0.27-0.35 N (the thesis' 0.5 N, not the issue's 0.25 N); a slower console is refused
 ARM_LOOP_MIN_RATE = {"spring": 100.0, "string": 100.0}
 #: Hz: the arm-impedance loop runs at the rate the arms publish, up to this. It moves set-
 #: points; a tick with one slave costs 3-5 ms of Python (controller 1.5-2 ms, the servo_ci

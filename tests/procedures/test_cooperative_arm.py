@@ -82,7 +82,7 @@ def test_the_tension_holds_over_an_emulated_wire(kind, period, ceiling):
     during a 3 cm move (the simulated object's tension): the spring at the dVRK's default
     100 Hz within issue 35's 0.25 N; the string, taken up from slack by force, at 100 Hz
     (the loop's most, procedures.cooperative.ARM_LOOP_MAX_RATE) within the thesis' 0.5 N
-    (0.45 N here, short of 0.25: bench/bench_cooperative_arm.py)."""
+    (0.35 N here, short of 0.25: bench/bench_cooperative_arm.py)."""
     from tests.procedures.wire_emulation import emulate
 
     r = emulate(kind, period, settle=2.0)

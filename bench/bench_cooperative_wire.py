@@ -98,8 +98,12 @@ def main() -> int:
                     folder = tmp / f"{obj}-{period}"
                     domain = 170 + (os.getpid() + len(rows)) % 30
                     print(f"{obj} at --ros-period {period} ({a.burners} burners):", flush=True)
-                    with ServedRig(folder, domain, toml=lab_toml(folder, three_arms=three),
-                                   sim_args=("--ros-period", period)) as rig:
+                    # [rig] rate no faster than the arms publish (every procedure refuses a
+                    # slower stream than its loop needs: rig.devices.check_stream_rates); rig
+                    # sim's arms keep their 500 Hz servo (--rate), as a console's do at any -p
+                    rate = min(500.0, round(1.0 / float(period)))
+                    with ServedRig(folder, domain, toml=lab_toml(folder, three_arms=three, rate=rate),
+                                   sim_args=("--rate", "500", "--ros-period", period)) as rig:
                         problem = _prepare(rig, 3 if three else 1)
                         if problem:
                             rows.append((f"{obj} @ {period} s: set-up", problem[:80], "completes", False))

@@ -234,12 +234,23 @@ def build_controller(cfg, names, master, params, translation, rotation, mode, dy
 
 
 # ----------------------------------------------------------------------------- the run
-#: Hz, per object: the lowest rate of the arms' streams the arm-impedance path holds at
-#: (its loop runs at the rate the arms publish, at most ARM_LOOP_MAX_RATE; the dVRK's
-#: default `-p 0.01` is 100 Hz). On bench_cooperative_arm (the wire emulated in sim time)
-#: with the loop at 100 Hz the spring held 0.14-0.16 N, the triangle 0.14-0.16 N, the
-#: string 0.27-0.35 N (the thesis' 0.5 N, not the issue's 0.25 N); a slower console is refused
-ARM_LOOP_MIN_RATE = {"spring": 100.0, "string": 100.0}
+#: Hz: the lowest rate of the arms' streams the arm-impedance path runs at, per object
+#: ("three": the triangle of three arms); a slower console is refused in one line naming
+#: its `-p`. The loop itself runs at most ARM_LOOP_MAX_RATE. In sim time
+#: (bench_cooperative_arm, loop at 100 Hz) every object holds from 100 Hz streams: the
+#: spring and the triangle 0.14-0.16 N, the string 0.27-0.35 N. Against rig sim on this
+#: 2-core machine (bench_cooperative_wire, quiet, 3 runs each) at 100 Hz streams the spring
+#: held 0.18-0.43 N, but the string aborted 1 of 3 on the tension ceiling (2.6-5.3 N in the
+#: others) and the triangle 3 of 3; at 500 Hz streams neither aborted (string 0.85-1.9 N,
+#: triangle 0.47-1.8 N): they need the faster console.
+ARM_LOOP_MIN_RATE = {"spring": 100.0, "string": 500.0, "three": 500.0}
+
+
+def arm_loop_min_rate(kind: str, arms: int) -> float:
+    """ARM_LOOP_MIN_RATE for an object of `kind` held by `arms` arms."""
+    return ARM_LOOP_MIN_RATE["three"] if arms > 2 else ARM_LOOP_MIN_RATE[kind]
+
+
 #: Hz: the arm-impedance loop runs at the rate the arms publish, up to this. It moves set-
 #: points; a tick with one slave costs 3-5 ms of Python (controller 1.5-2 ms, the servo_ci
 #: goal and message 0.4 ms, publishing and recording the rest). Against rig sim on this
@@ -294,7 +305,7 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
         raise click.BadParameter("'arm' is the impedance mode's; --mode position keeps the slaves on servo_jp",
                                  param_hint="--slave-control")
     rig = open_rig(cfg, names, seed=seed, uses=("loadcell",),
-                   loop_rate=ARM_LOOP_MIN_RATE[cfg.object["kind"]] if slave_control == "arm" else None)
+                   loop_rate=arm_loop_min_rate(cfg.object["kind"], len(names)) if slave_control == "arm" else None)
     try:
         return _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
                     model_note, registration_note, limits, dry_run, ros_commands, interactive,

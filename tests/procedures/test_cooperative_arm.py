@@ -121,3 +121,13 @@ def test_gaps_in_the_arms_stream_are_ridden_through():
 
     r = emulate("spring", period=0.002, loop_rate=100.0, gap_every=0.5, gap=0.14)
     assert r["max_error_during_motion"] <= 0.25, r
+
+
+def test_the_consoles_each_object_needs():
+    """The spring runs from the dVRK's default 100 Hz streams; the string and the triangle
+    aborted on the tension ceiling at 100 Hz over the wire and need 500 Hz (`-p 0.002`)."""
+    from procedures.cooperative import arm_loop_min_rate
+
+    assert arm_loop_min_rate("spring", 2) == 100.0
+    assert arm_loop_min_rate("string", 2) == 500.0
+    assert arm_loop_min_rate("spring", 3) == 500.0

@@ -23,6 +23,7 @@ Units: m, rad (joint 3 in m), s.
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
@@ -220,25 +221,20 @@ class _TrackerLag:
     when frames were taken (the offset of the tracker's clock, which may be another
     computer's, plus the quickest way here)."""
 
-    _of: "weakref.WeakKeyDictionary" = None
-
     def __init__(self) -> None:
         self.smallest = math.inf
         self.newest = -math.inf
 
-    @classmethod
-    def of(cls, tracker) -> "_TrackerLag":
-        import weakref
-
-        if cls._of is None:
-            cls._of = weakref.WeakKeyDictionary()
+    @staticmethod
+    def of(tracker) -> "_TrackerLag":
         try:
-            lag = cls._of.get(tracker)
-            if lag is None:
-                lag = cls._of[tracker] = cls()
+            return _LAGS.setdefault(tracker, _TrackerLag())
         except TypeError:  # a tracker that cannot be weakly referenced: no memory across calls
-            lag = cls()
-        return lag
+            return _TrackerLag()
+
+
+#: each tracker's _TrackerLag, for as long as the tracker lives
+_LAGS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 def _catch_up(rig, run, collector: Collector, arms: list) -> None:

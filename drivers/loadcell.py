@@ -44,6 +44,10 @@ from rig.faults import DeviceFault, rate_of, silence_text, starved_text
 # --------------------------------------------------------------------------- protocol
 
 PROTOCOL_VERSION = 1
+#: baud of the serial link: the firmware's LOADCELL_BAUD (firmware/loadcell/loadcell.ino), the one
+#: place the host side takes it from (rig.toml's [loadcell] baudrate default). 250000 is exact on a
+#: 16 MHz AVR (115200 is 2 % off there) and carries a 500 Hz stream at 38 % of the line.
+BAUDRATE = 250000
 FIRMWARE_VERSION = (1, 0, 0)
 SYNC = b"\xa5\x5a"
 MAX_PAYLOAD = 16  # bytes; a larger LEN byte can only be corruption
@@ -977,6 +981,15 @@ class _StreamingLoadCell(abc.ABC):
         finally:
             self._tare_pending = False
 
+    def _no_reply(self, exc: Exception) -> str:
+        """What a device that never answers IDENTIFY asks the user to check, first the
+        baud rate (a firmware at another rate answers nothing the parser can frame)."""
+        baud = getattr(getattr(self, "port", None), "baudrate", None)
+        at = f" at {baud} baud" if baud else ""
+        return (f"load cell on {self.name}: no reply to IDENTIFY within {self.connect_timeout:g} s{at}; check "
+                f"the baud rate ([loadcell] baudrate; the rig's firmware talks at {BAUDRATE}), that the board "
+                "runs the rig's firmware (drivers/firmware/loadcell), the port and the cable")
+
     def _setup(self, rate_hz: int, start: bool) -> None:
         try:
             # an Uno/Nano resets when the port opens and its bootloader listens for ~1.5 s,
@@ -986,9 +999,11 @@ class _StreamingLoadCell(abc.ABC):
                 try:
                     self.identify(timeout=0.25)
                     break
-                except LoadCellCommandError:
-                    if time.monotonic() > deadline or self._error is not None:
+                except LoadCellCommandError as exc:
+                    if self._error is not None:
                         raise
+                    if time.monotonic() > deadline:
+                        raise LoadCellCommandError(self._no_reply(exc)) from None
             if self.identity is not None and rate_hz > self.identity.max_rate_hz:
                 raise LoadCellError(
                     f"load cell on {self.name}: {rate_hz} Hz asked, the "

@@ -12,12 +12,12 @@ simulated operator.
 
 from __future__ import annotations
 
-import json
 import math
 import statistics
 import sys
 import time
 from datetime import datetime, timezone
+from pathlib import Path
 
 import click
 
@@ -31,10 +31,8 @@ from drivers.loadcell import (
     usb_serial_number,
 )
 from drivers.operator import OperatorError
-from rig import provenance
-from rig.paths import run_dir_name, runs_root
 from rig.records import package_version
-from rig.run import EXIT_MISSED, config_from_context, result_json, yes_option
+from rig.run import EXIT_MISSED, Run, config_from_context, emit_result, exit_on_abort, result_json, yes_option
 
 #: The check reads mass 2 through the new calibration: it must agree with m g within
 #: 20 mN (the calibration's accuracy target, bench_loadcell) or 1 % of the load, whichever
@@ -49,7 +47,6 @@ STEPS = (
     "average counts with mass 2",
     "fit the two-point calibration",
     "check the force with mass 2",
-    "save result.json",
 )
 
 
@@ -83,7 +80,7 @@ def _point(mass_kg: float, counts: list[int]) -> dict:
               help="On a rig with a load cell per object element (rig.toml [loadcell] ports): which element's cell "
                    "to calibrate (0 = PSM1-PSM2, 1 = PSM1-PSM3, 2 = PSM2-PSM3).")
 @click.option("--sim", is_flag=True, help="Use the in-process simulated load cell, whatever rig.toml says.")
-@click.option("--baud", type=int, default=None, help="Serial speed (baud). Default: rig.toml's [loadcell] baudrate (115200).")
+@click.option("--baud", type=int, default=None, help="Serial speed (baud). Default: rig.toml's [loadcell] baudrate (that of the rig's firmware).")
 @click.option("--seconds", type=click.FloatRange(0.1, 60), default=2.0, show_default=True,
               help="Averaging time at each mass (s).")
 @click.option("--rate", "rate_hz", type=click.IntRange(1, 1000), default=500, show_default=True,
@@ -93,6 +90,7 @@ def _point(mass_kg: float, counts: list[int]) -> dict:
               help="Print the result (result.json) on stdout and the report on stderr.")
 @yes_option
 @click.pass_context
+@exit_on_abort
 def command(ctx, mass1: float, mass2: float, port: str | None, element: int | None, sim: bool, baud: int | None,
             seconds: float, rate_hz: int, list_steps: bool, as_json: bool) -> None:
     """Two-point load-cell calibration with known masses (kg), stored for later runs.
@@ -108,7 +106,6 @@ def command(ctx, mass1: float, mass2: float, port: str | None, element: int | No
         raise click.UsageError("give either --port or --sim, not both")
     if mass1 < 0 or mass2 < 0 or mass1 == mass2:
         raise click.UsageError("--mass1 and --mass2 must be non-negative and different (kg)")
-    report = (lambda m: click.echo(m, err=True)) if as_json else click.echo
     cfg = config_from_context(ctx)
     ports = cfg.loadcell["ports"] if cfg.loadcell["driver"] == "serial" else []
     if element is not None:
@@ -131,14 +128,28 @@ def command(ctx, mass1: float, mass2: float, port: str | None, element: int | No
     simulated = port is None
     params = {"mass1_kg": mass1, "mass2_kg": mass2, "port": port, "element": element, "sim": simulated, "baud": baud,
               "seconds": seconds, "rate_hz": rate_hz}
-    run = runs_root() / run_dir_name(CALIBRATION_PROCEDURE)
-    result: dict = {"procedure": CALIBRATION_PROCEDURE, "status": "failed", "parameters": params,
-                    "started": datetime.now(timezone.utc).isoformat()}
-    step_no = iter(range(1, len(STEPS) + 1))
+    # Progress and the end line on stderr and result.json with its timings, as every
+    # procedure: the run engine (rig.run) writes them. No arm moves, none is claimed.
+    with Run(CALIBRATION_PROCEDURE, parameters=params, config=cfg.snapshot(), steps=list(STEPS)) as run:
+        result = _calibrate(run, cfg, params, element)
+        run.finish(result, result.pop("status"), result.get("error"))
+    result = run.result
+    if result["status"] != "completed":
+        if as_json:  # the document first, as every procedure's --json
+            click.echo(result_json(result, indent=None))
+        if "calibration" in result:  # it ran, and missed its bound: the run's own exit code
+            click.echo(f"rig {CALIBRATION_PROCEDURE}: failed: {result['error']} (run folder {run.dir})", err=True)
+            sys.exit(EXIT_MISSED)
+        raise click.ClickException(f"load-cell calibration failed: {result['error']} (recorded in {run.dir})")
+    emit_result(result, as_json, format_report(result))
 
-    def step(name: str) -> None:
-        report(f"[{next(step_no)}/{len(STEPS)}] {name}")
 
+def _calibrate(run: Run, cfg, params: dict, element: int | None) -> dict:
+    """The steps; the result document with its "status" ("completed" or "failed", with
+    "error"). A device or operator error ends it failed, recorded; Ctrl-C ends the run."""
+    port, simulated, baud = params["port"], params["sim"], params["baud"]
+    mass1, mass2, seconds, rate_hz = params["mass1_kg"], params["mass2_kg"], params["seconds"], params["rate_hz"]
+    result: dict = {"status": "failed", "parameters": params}
     weights = HangingMass()
     fake = ser = lc = session = None
     operator = None
@@ -153,65 +164,72 @@ def command(ctx, mass1: float, mass2: float, port: str | None, element: int | No
     try:
         import serial
 
-        step(STEPS[0])
-        if simulated:
-            fake = FakeLoadCellFirmware(weights, noise=0.005).start()  # 5 mN rms, like a good bridge
-            ser = serial.Serial(fake.port_path, baudrate=baud)
-        else:
-            from drivers.loadcell import open_serial_port
-            from rig.devices import open_operator
+        with run.step(STEPS[0]):
+            if simulated:
+                fake = FakeLoadCellFirmware(weights, noise=0.005).start()  # 5 mN rms, like a good bridge
+                ser = serial.Serial(fake.port_path, baudrate=baud)
+            else:
+                from drivers.loadcell import open_serial_port
+                from rig.devices import open_operator
 
-            if cfg.operator["driver"] == "ros":
-                from rig.ros_session import RosSession
+                if cfg.operator["driver"] == "ros":
+                    from rig.ros_session import RosSession
 
-                session = RosSession("rig_loadcell_calibrate", executor=cfg.ros["executor"])
-            operator = open_operator(cfg, session)
-            if session is not None:
-                session.start()
-            ser = open_serial_port(port, baud)
-        # static loads: a scheduling hiccup is harmless here (a pty on a loaded machine
-        # delivers up to ~0.35 s late), and a pulled cable still stops us at once
-        lc = LoadCell(ser, None, rate_hz=rate_hz, stale_timeout=max(0.5, cfg.loadcell["stale_timeout"]))
-        ident = lc.identity
-        result["device"] = {"port": port or fake.port_path, "protocol": ident.protocol,
-                            "firmware": ".".join(map(str, ident.firmware)), "adc": ident.adc,
-                            "max_rate_hz": ident.max_rate_hz, "simulated": simulated}
+                    session = RosSession("rig_loadcell_calibrate", executor=cfg.ros["executor"])
+                operator = open_operator(cfg, session)
+                if session is not None:
+                    session.start()
+                ser = open_serial_port(port, baud)
+            # static loads: a scheduling hiccup is harmless here (a pty on a loaded machine
+            # delivers up to ~0.35 s late), and a pulled cable still stops us at once
+            lc = LoadCell(ser, None, rate_hz=rate_hz, stale_timeout=max(0.5, cfg.loadcell["stale_timeout"]))
+            ident = lc.identity
+            result["device"] = {"port": port or fake.port_path, "protocol": ident.protocol,
+                                "firmware": ".".join(map(str, ident.firmware)), "adc": ident.adc,
+                                "max_rate_hz": ident.max_rate_hz, "simulated": simulated}
 
-        step(STEPS[1])
-        hang(mass1)
-        tare = lc.tare_counts(min(255, max(1, int(rate_hz * min(seconds, 0.5)))))
-        step(STEPS[2])
-        p1 = _point(mass1, lc.collect_counts(seconds))
-        step(STEPS[3])
-        hang(mass2)
-        p2 = _point(mass2, lc.collect_counts(seconds))
+        with run.step(STEPS[1]):
+            hang(mass1)
+            tare = lc.tare_counts(min(255, max(1, int(rate_hz * min(seconds, 0.5)))))
+        with run.step(STEPS[2]):
+            p1 = _point(mass1, lc.collect_counts(seconds))
+        with run.step(STEPS[3]):
+            hang(mass2)
+            p2 = _point(mass2, lc.collect_counts(seconds))
 
-        step(STEPS[4])
-        cal = LoadCellCalibration.from_two_points(
-            mass1, p1["mean_counts"], mass2, p2["mean_counts"], p1["sem_counts"], p2["sem_counts"],
-            device=result["device"]["port"])
-        lc.calibration = cal
+        with run.step(STEPS[4]):
+            cal = LoadCellCalibration.from_two_points(
+                mass1, p1["mean_counts"], mass2, p2["mean_counts"], p1["sem_counts"], p2["sem_counts"],
+                device=result["device"]["port"])
+            lc.calibration = cal
 
-        step(STEPS[5])
-        # through the new calibration from the raw counts: samples queued before it was
-        # set carry no force
-        lc.raw_samples()
-        forces: list[float] = []
-        end = time.monotonic() + min(seconds, 0.5)
-        while time.monotonic() < end:
-            time.sleep(0.01)
-            forces.extend(cal.newtons(s.raw) for s in lc.raw_samples())
-        measured = statistics.fmean(forces)
+        with run.step(STEPS[5]):
+            # through the new calibration from the raw counts: samples queued before it was
+            # set carry no force
+            lc.raw_samples()
+            forces: list[float] = []
+            end = time.monotonic() + min(seconds, 0.5)
+            while time.monotonic() < end:
+                time.sleep(0.01)
+                for sample in lc.raw_samples():
+                    forces.append(cal.newtons(sample.raw))
+                    run.recorder.tension("/loadcell/force", sample.t, forces[-1])
+            if len(forces) < 2:
+                raise LoadCellError(f"only {len(forces)} samples in the check with {mass2} kg; is the cell streaming?")
+            measured = statistics.fmean(forces)
         result.update(
             status="completed", calibration=cal.to_dict(), points=[p1, p2],
             tare_counts_mass1=tare, tare_minus_mean_counts=tare - p1["mean_counts"],
             check={"expected_n": p2["force_n"], "measured_n": measured, "error_n": measured - p2["force_n"],
                    "std_n": statistics.stdev(forces), "n": len(forces)},
             stats=vars(lc.stats()))
+        result["summary"] = {"check_error": result["check"]["error_n"], "check_noise": result["check"]["std_n"],
+                             "newtons_per_count": cal.newtons_per_count, "zero_counts": cal.zero_counts,
+                             "cell": "simulated" if simulated else result["device"]["port"]}
         result["provenance"] = {
             "cell": {"port": result["device"]["port"], "usb_serial": "" if simulated else usb_serial_number(port),
                      "adc": ident.adc, "firmware": result["device"]["firmware"], "simulated": simulated},
-            "source": {"run": run.name}, "package_version": package_version(),
+            "source": {"run": run.dir.name}, "package_version": package_version(),
             "time": datetime.now(timezone.utc).isoformat(timespec="seconds")}
         bound = max(CHECK_BOUND_N, CHECK_BOUND_REL * p2["force_n"])
         if not abs(result["check"]["error_n"]) <= bound:
@@ -225,8 +243,10 @@ def command(ctx, mass1: float, mass2: float, port: str | None, element: int | No
                                "gain_error_rel": cal.newtons_per_count / true_k - 1.0,
                                "zero_error_counts": cal.zero_counts - fake.model.offset}
     except (LoadCellError, OperatorError, ValueError, OSError) as exc:
+        result["status"] = "failed"
         result["error"] = str(exc)
     except Exception as exc:  # noqa: BLE001 - serial.SerialException and the like: record, then fail
+        result["status"] = "failed"
         result["error"] = f"{type(exc).__name__}: {exc}"
     finally:
         if lc is not None:
@@ -237,29 +257,21 @@ def command(ctx, mass1: float, mass2: float, port: str | None, element: int | No
             fake.unplug()
         if session is not None:
             session.close()
+    return result
 
-    report(f"[{len(STEPS)}/{len(STEPS)}] {STEPS[-1]}")
-    result["finished"] = datetime.now(timezone.utc).isoformat()
-    run.mkdir(parents=True, exist_ok=True)
-    if "provenance" in result:
-        result = provenance.seal(json.loads(result_json(result)))
-    (run / "result.json").write_text(json.dumps(result, indent=2) + "\n")
-    if as_json:  # one document on one line, as every procedure's --json
-        json.dump(result, sys.stdout)
-        sys.stdout.write("\n")
-    if result["status"] != "completed":
-        if "calibration" in result:  # it ran, and missed its bound: the run's own exit code
-            click.echo(f"rig {CALIBRATION_PROCEDURE}: failed: {result['error']} (run folder {run})", err=True)
-            sys.exit(EXIT_MISSED)
-        raise click.ClickException(f"load-cell calibration failed: {result['error']} (recorded in {run})")
-    cal = result["calibration"]
-    report(f"calibration: {cal['newtons_per_count'] * 1e3:.5f} mN/count "
-           f"(+- {cal['newtons_per_count_std'] * 1e3:.5f}), zero at {cal['zero_counts']:.1f} counts")
-    chk = result["check"]
-    report(f"check with {mass2} kg: {chk['measured_n']:.4f} N measured, {chk['expected_n']:.4f} N expected "
-           f"(error {chk['error_n'] * 1e3:+.2f} mN, noise {chk['std_n'] * 1e3:.1f} mN rms)")
+
+def format_report(result: dict) -> str:
+    """The calibration, its check and the link, one line each (stdout; stderr with --json)."""
+    cal, chk, st = result["calibration"], result["check"], result["stats"]
+    mass2 = result["parameters"]["mass2_kg"]
+    lines = [f"calibration: {cal['newtons_per_count'] * 1e3:.5f} mN/count "
+             f"(+- {cal['newtons_per_count_std'] * 1e3:.5f}), zero at {cal['zero_counts']:.1f} counts",
+             f"check with {mass2} kg: {chk['measured_n']:.4f} N measured, {chk['expected_n']:.4f} N expected "
+             f"(error {chk['error_n'] * 1e3:+.2f} mN, noise {chk['std_n'] * 1e3:.1f} mN rms)"]
     if "truth" in result:
-        report(f"simulated cell: gain error {result['truth']['gain_error_rel'] * 100:+.3f} % against the fake's truth")
-    st = result["stats"]
-    report(f"link: {st['samples']} samples, {st['lost']} lost, {st['crc_errors']} CRC errors, {st['resyncs']} resyncs")
-    report(f"saved {run / 'result.json'}")
+        lines.append(f"simulated cell: gain error {result['truth']['gain_error_rel'] * 100:+.3f} % "
+                     "against the fake's truth")
+    lines.append(f"link: {st['samples']} samples, {st['lost']} lost, {st['crc_errors']} CRC errors, "
+                 f"{st['resyncs']} resyncs")
+    lines.append(f"saved {Path(result['run_dir']) / 'result.json'}")
+    return "\n".join(lines)

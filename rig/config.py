@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import difflib
 import math
 import tomllib
 from dataclasses import dataclass
@@ -50,6 +51,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
+
+from drivers.loadcell import BAUDRATE as LOADCELL_BAUDRATE
 
 
 class ConfigError(ValueError):
@@ -185,7 +188,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "port": Key("str", "", "serial port of the Arduino (driver = serial)"),
         "ports": Key("strlist", [], "serial ports of one load cell per object element, in the elements' order "
                      "(PSM1-PSM2, PSM1-PSM3, PSM2-PSM3 for three arms; driver = serial); replaces port"),
-        "baudrate": Key("int", 115200, "serial baud rate", _positive, "a baud rate > 0"),
+        "baudrate": Key("int", LOADCELL_BAUDRATE, "serial baud rate (the rig's firmware's)", _positive,
+                        "a baud rate > 0"),
         "interface": Key("str", "socketcan", "python-can interface (driver = can)"),
         "channel": Key("str", "can0", "python-can channel (driver = can)"),
         "rate": Key("float", 500.0, "sample rate, Hz", lambda x: 1 <= x <= 2000, "a rate in [1, 2000] Hz"),
@@ -363,13 +367,46 @@ def _coerce(where: str, key: str, spec: Key, value: Any) -> Any:
     return value
 
 
+#: how the tables of each SCHEMA entry are named in rig.toml (for a key given in the wrong table)
+_TABLE_OF = {"rig": "rig", "arm": "arms.<NAME>", "loadcell": "loadcell", "mocap": "mocap", "ros": "ros",
+             "operator": "operator", "object": "object", "effects": "effects.<ARM>"}
+
+
+def _close(word: str, choices) -> str | None:
+    """The choice closest to a mistyped `word` (case ignored), or None (difflib's 0.6 cutoff)."""
+    by_lower = {str(c).lower(): str(c) for c in choices}
+    best = difflib.get_close_matches(str(word).lower(), list(by_lower), n=1)
+    return by_lower[best[0]] if best else None
+
+
+def did_you_mean(word: str, choices, prefix: str = "") -> str:
+    """"; did you mean <prefix><choice>?" for the choice closest to `word`, or ""."""
+    best = _close(word, choices)
+    return f"; did you mean {prefix}{best}?" if best is not None else ""
+
+
+def _unknown_key_hint(prefix: str, key: str, schema: dict[str, Key]) -> str:
+    """Did you mean a key of this table, or this very key in another table?"""
+    hint = did_you_mean(key, schema, f"{prefix}.")
+    if hint:
+        return hint
+    tables = [_TABLE_OF[name] for name, other in SCHEMA.items() if other is not schema and key in other]
+    if not tables:
+        return ""
+    hint = f"; {key} is a key of [{'], ['.join(tables)}]"
+    if len(tables) == 1 and "<" not in tables[0]:
+        hint += f": did you mean {tables[0]}.{key}?"
+    return hint
+
+
 def _section(where: str, prefix: str, schema: dict[str, Key], given: Any) -> dict[str, Any]:
     if not isinstance(given, dict):
         raise ConfigError(f"{where}: {prefix}: expected a table, got {given!r}")
     out = {}
     for key in given:
         if key not in schema:
-            raise ConfigError(f"{where}: {prefix}.{key}: unknown key; allowed: {', '.join(schema)}")
+            raise ConfigError(f"{where}: {prefix}.{key}: unknown key; allowed: {', '.join(schema)}"
+                              + _unknown_key_hint(prefix, key, schema))
     for key, spec in schema.items():
         out[key] = _coerce(where, f"{prefix}.{key}", spec, given[key]) if key in given else copy.deepcopy(spec.default)
     return out
@@ -379,7 +416,8 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
     """Validate a parsed TOML document (missing sections take the built-in rig's values)."""
     for key in document:
         if key not in SECTIONS:
-            raise ConfigError(f"{source}: {key}: unknown section; allowed: {', '.join(SECTIONS)}")
+            raise ConfigError(f"{source}: {key}: unknown section; allowed: {', '.join(SECTIONS)}"
+                              + did_you_mean(key, SECTIONS))
     rig = _section(source, "rig", SCHEMA["rig"], document.get("rig", {}))
     arms_doc = document.get("arms", builtin_document()["arms"])
     if not isinstance(arms_doc, dict) or not arms_doc:
@@ -420,7 +458,8 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
         obj["arms"] = list(arms)[:2] if len(arms) >= 2 else []
     for name in obj["arms"]:
         if name not in arms:
-            raise ConfigError(f"{source}: object.arms: {name!r} is not an arm; arms: {', '.join(arms)}")
+            raise ConfigError(f"{source}: object.arms: {name!r} is not an arm; arms: {', '.join(arms)}"
+                              + did_you_mean(name, arms))
     if len(obj["arms"]) not in (0, 2, 3) or len(set(obj["arms"])) != len(obj["arms"]):
         raise ConfigError(f"{source}: object.arms: must name two or three different arms, got {obj['arms']}")
     if loadcell["element"] >= max(1, len(obj["arms"]) * (len(obj["arms"]) - 1) // 2):
@@ -435,7 +474,8 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
     effects = {}
     for name, e in effects_doc.items():
         if name not in arms:
-            raise ConfigError(f"{source}: effects.{name}: not an arm; arms: {', '.join(arms)}")
+            raise ConfigError(f"{source}: effects.{name}: not an arm; arms: {', '.join(arms)}"
+                              + did_you_mean(name, arms, "effects."))
         if arms[name]["driver"] != "sim":
             raise ConfigError(f"{source}: effects.{name}: hidden effects apply only to simulated arms (driver = 'sim')")
         if arms[name]["plant_model"]:

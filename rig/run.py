@@ -152,6 +152,7 @@ class Run:
         self._old_handlers: dict[int, Any] = {}
         self._finalising = False
         self._deferred_signals: list[str] = []
+        self._compile_listener = None
 
     # ------------------------------------------------------------------ the run
     def __enter__(self) -> "Run":
@@ -176,6 +177,7 @@ class Run:
         self._stream_is_tty = bool(getattr(self._out(), "isatty", lambda: False)())
         self._install_signal_handlers()
         self._write(f"rig {self.procedure}: recording to {self.dir}\n")
+        self._watch_compiles()
         return self
 
     def __exit__(self, exc_type, exc, tb) -> bool:
@@ -185,6 +187,7 @@ class Run:
             self._finalise(exc)
         finally:
             self._restore_signal_handlers()
+            self._unwatch_compiles()
         return False  # never swallow: the caller (or exit_on_abort) decides what to show
 
     def claim(self, arm):
@@ -207,6 +210,7 @@ class Run:
         step = Step(self, name, self._step_count, total)
         self._current_step = step
         self._write(f"{self._label(step)} ...\n")
+        self._watch_compiles()  # numba may have been imported since the run began
         ok = False
         try:
             yield step
@@ -248,7 +252,10 @@ class Run:
         stopped_in = self._current_step.name if (exc is not None and self._current_step) else None
         held, hold_errors = self._hold_all()
         for err in hold_errors:
-            self._write(f"rig {self.procedure}: could not hold {err['arm']}: {err['error']}\n")
+            if err.get("state"):
+                self._write(f"rig {self.procedure}: {err['arm']} not held: {err['error']}\n")
+            else:
+                self._write(f"rig {self.procedure}: could not hold {err['arm']}: {err['error']}\n")
         stop_extra = {"held": held, "hold_errors": hold_errors, "steps": self._step_times}
         if stopped_in:
             stop_extra["step"] = stopped_in
@@ -298,14 +305,26 @@ class Run:
             self._write(f"rig {self.procedure}: completed in {self.elapsed():.1f} s ({self.dir})\n")
 
     def _hold_all(self) -> tuple[list[str], list[dict]]:
+        """Hold every claimed arm: (names held, [{"arm", "error"[, "state"]}] of the others).
+
+        An arm whose operating state says it obeys no command (a dVRK arm in FAULT,
+        DISABLED or PAUSED: its drives are off or its commands ignored) takes the hold
+        command without an error but is not held: it goes to the errors with its state."""
         held, errors = [], []
         for arm in self._claimed:
             name = str(getattr(arm, "name", type(arm).__name__))
             try:
                 arm.hold()
-                held.append(name)
             except BaseException as err:  # noqa: BLE001 - one arm failing must not spare the rest
                 errors.append({"arm": name, "error": f"{type(err).__name__}: {err}"})
+                continue
+            state = _disobeying_state(arm)
+            if state is None:
+                held.append(name)
+            else:
+                errors.append({"arm": name, "state": state,
+                               "error": f"{name} is {state}: it obeys no command, the hold included "
+                                        "(a person clears it at the dVRK console)"})
         return held, errors
 
     # ------------------------------------------------------------------ signals
@@ -354,6 +373,47 @@ class Run:
             signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
         self._old_handlers.clear()
 
+    # ------------------------------------------------------ first-use compilation
+    def _watch_compiles(self) -> None:
+        """Say in the progress lines when numba compiles a kernel during the run.
+
+        The simulated rig's step (rig.sim_kernel) is compiled at its first call, which
+        falls in a procedure's first step that moves the rig ("attach the object" for
+        cooperative): about 20 s on a 2-core machine, once after an install or upgrade
+        (numba caches it), with no progress of its own. numba's event API reports every
+        real compilation (not a load from its cache); without numba loaded there is
+        nothing to watch."""
+        if self._compile_listener is not None or "numba" not in sys.modules or not self.progress:
+            return
+        try:
+            from numba.core import event
+        except ImportError:
+            return
+        self._compile_listener = _compile_listener(event, self._compile_note)
+        event.register("numba:compile", self._compile_listener)
+
+    def _unwatch_compiles(self) -> None:
+        if self._compile_listener is None:
+            return
+        from numba.core import event
+
+        try:
+            event.unregister("numba:compile", self._compile_listener)
+        except ValueError:
+            pass
+        self._compile_listener = None
+
+    def _compile_note(self, name: str, seconds: float | None) -> None:
+        step = self._current_step
+        where = f"{self._label(step)}:" if step is not None else f"rig {self.procedure}:"
+        # a terminal's progress bar is redrawn in place: leave its line first
+        lead = "\n" if step is not None and step.total is not None and self._stream_is_tty else ""
+        if seconds is None:
+            self._write(f"{lead}{where} compiling {name} (numba, first use after an install or upgrade: "
+                        "tens of seconds with no progress; later runs load it from numba's cache) ...\n")
+        else:
+            self._write(f"{where} compiled {name} in {seconds:.1f} s\n")
+
     # ------------------------------------------------------------------ output
     def _out(self) -> TextIO:
         return self.stream if self.stream is not None else sys.stderr
@@ -371,6 +431,50 @@ class Run:
     def _label(self, step: Step) -> str:
         of = f"/{len(self.steps)}" if self.steps else ""
         return f"[{step.index}{of}] {step.name}"
+
+
+def _compile_listener(event, note: Callable[[str, float | None], None]):
+    """A numba event listener calling note(name, None) when the outermost compilation of a
+    kernel starts and note(name, seconds) when it ends (the kernels it calls are compiled
+    inside it and not reported apart)."""
+
+    class CompileListener(event.Listener):
+        def __init__(self):
+            self.depth = 0
+            self.started = 0.0
+            self.name = ""
+
+        def on_start(self, ev):
+            if self.depth == 0:
+                fn = getattr(ev.data.get("dispatcher"), "py_func", None)
+                self.name = (f"{getattr(fn, '__module__', '')}.{getattr(fn, '__qualname__', '')}"
+                             if fn is not None else "a numba kernel")
+                self.started = time.monotonic()
+                note(self.name, None)
+            self.depth += 1
+
+        def on_end(self, ev):
+            self.depth -= 1
+            if self.depth == 0:
+                note(self.name, time.monotonic() - self.started)
+
+    return CompileListener()
+
+
+def _disobeying_state(arm) -> str | None:
+    """The operating state of an arm that obeys no command (not ENABLED and homed), as
+    "FAULT, homed"; None when it obeys, or it reports no state (the in-process arms)."""
+    get = getattr(arm, "operating_state", None)
+    if not callable(get):
+        return None
+    try:
+        st = get()
+    except Exception:  # noqa: BLE001 - a state that cannot be read says nothing against the hold
+        return None
+    if st is None or getattr(st, "ready", True):
+        return None
+    describe = getattr(st, "describe", None)
+    return describe() if callable(describe) else str(getattr(st, "state", st))
 
 
 def classify(exc: BaseException | None) -> tuple[str, str | None]:
@@ -401,13 +505,13 @@ def _finite(value: Any) -> Any:
 
 
 def _seal_provenance(doc: dict) -> None:
-    """Seal a result that carries a rig provenance (rig.provenance) with its digest, as
-    result.json will read back: a later hand edit is then seen by the procedure that would
-    take the result."""
+    """Seal a result that carries a rig provenance (rig.provenance: its arms, or the load
+    cell it calibrated) with its digest, as result.json will read back: a later hand edit
+    is then seen by the procedure that would take the result."""
     from rig import provenance as P
 
     prov = doc.get(P.KEY)
-    if isinstance(prov, dict) and prov.get("arms"):
+    if isinstance(prov, dict) and (prov.get("arms") or prov.get("cell")):
         doc[P.KEY] = dict(prov)
         canonical = json.loads(result_json(doc))
         doc[P.KEY][P.DIGEST] = P.seal(canonical)[P.KEY][P.DIGEST]

@@ -9,7 +9,11 @@ q1..qn | dq1..dqn | tau1..taun for the n joints in the recorded JointState messa
 from __future__ import annotations
 
 import json
+import os
+import re
 import shutil
+import sys
+import textwrap
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -38,7 +42,13 @@ KEY_FIGURES: dict[str, tuple[tuple[str, str], ...]] = {
     "friction-ramp": (("Fs_symmetric", "N"), ("Fs_pos", "N"), ("Fs_neg", "N")),
     "identify": (("validation_sdp", ""), ("validation_ols", "")),
     "discrepancy": (("verdict", ""), ("effects", "")),
+    "loadcell-calibrate": (("check_error", "N"), ("check_noise", "N"), ("newtons_per_count", "N/count"),
+                           ("zero_counts", "counts")),
 }
+
+#: the list's lines are cut to the terminal's width, or to this many columns when the
+#: output is not a terminal (a pipe, a log); --wide keeps them whole
+LIST_WIDTH = 120
 
 
 def run_time(run_dir: Path) -> datetime | None:
@@ -87,13 +97,149 @@ def source_arms(provenance) -> list[str]:
     return names
 
 
+def _arms_of(result: dict, start: dict) -> list[str]:
+    """The arms a run used: those its result's provenance names (where the result comes
+    from), else those the result names ("arms", "arm"), else those it held or tried to
+    hold, else the arm its parameters name on a live rig; [] for none (a fit of a CSV file,
+    a load-cell calibration)."""
+    names = source_arms(result.get("provenance"))
+    if names:
+        return names
+    arms = result.get("arms")
+    if isinstance(arms, list) and arms and all(isinstance(a, str) for a in arms):
+        return list(arms)
+    if isinstance(result.get("arm"), str) and result["arm"]:
+        return [result["arm"]]
+    tried = list(result.get("held") or []) + [e.get("arm") for e in result.get("hold_errors") or []
+                                              if isinstance(e, dict) and e.get("arm")]
+    if tried:
+        return list(dict.fromkeys(map(str, tried)))
+    config = start.get("config") if isinstance(start.get("config"), dict) else {}
+    arm = (start.get("parameters") or {}).get("arm") if isinstance(start.get("parameters"), dict) else None
+    arm = arm.get("value") if isinstance(arm, dict) else arm
+    if config.get("arms") and isinstance(arm, str) and arm:  # a live run (a fit of a file records no rig)
+        return list(config["arms"]) if arm == "all" else [arm]
+    return []
+
+
+def _cooperative_command(start: dict) -> dict:
+    """The options of the `rig cooperative` command line a run was started with (its start
+    record's argv), defaults included, parsed by the command itself; {} for a run started
+    otherwise (a test or a bench calling the procedure) or when the command cannot load."""
+    argv = str(start.get("argv") or "").split()
+    if not argv or not (Path(argv[0]).name == "rig" or argv[0].endswith(("rig/cli.py", "rig.cli"))):
+        return {}
+    try:
+        args = argv[argv.index("cooperative", 1) + 1:]
+        from procedures.cooperative import command
+
+        with command.make_context("cooperative", args, resilient_parsing=True) as ctx:
+            return dict(ctx.params)
+    except Exception:  # noqa: BLE001 - an old or odd command line: the list shows what the result says
+        return {}
+
+
+def _vector(value) -> list[float] | None:
+    """[x, y, z] from a list or a "x,y,z" string; None if it is neither."""
+    try:
+        v = [float(x) for x in (value.split(",") if isinstance(value, str) else value)]
+    except (TypeError, ValueError):
+        return None
+    return v if len(v) == 3 else None
+
+
+def cooperative_setup(result: dict, start: dict) -> dict:
+    """What a cooperative run held and did: object, force_n, mode, arms, master, move_m,
+    rotate_rad, rate_hz (the loop's). From its result; what the result lacks (an aborted
+    run's, or the move, which the result does not record) from its start record: the
+    configuration snapshot (object, arms, rate), the parameters (force) and the command
+    line. A field nothing records is None."""
+    config = start.get("config") if isinstance(start.get("config"), dict) else {}
+    obj = config.get("object") if isinstance(config.get("object"), dict) else {}
+    params = start.get("parameters") if isinstance(start.get("parameters"), dict) else {}
+    cmd = _cooperative_command(start)
+    arms = result.get("arms") if isinstance(result.get("arms"), list) else None
+    if not arms:
+        arms = ([a.strip() for a in cmd["arms"].split(",")] if cmd.get("arms") else obj.get("arms")) or []
+    force = result.get("force", params.get("force"))
+    force = force.get("value") if isinstance(force, dict) else force
+    timing = result.get("loop_timing") if isinstance(result.get("loop_timing"), dict) else {}
+    rig = config.get("rig") if isinstance(config.get("rig"), dict) else {}
+    return {
+        "object": result.get("object") or obj.get("kind"),
+        "force_n": force if isinstance(force, (int, float)) else None,
+        "mode": result.get("mode") or cmd.get("mode"),
+        "arms": list(arms),
+        # the command takes the last arm as the master when --master is not given
+        "master": result.get("master") or cmd.get("master") or (arms[-1] if cmd and arms else None),
+        "move_m": _vector(result.get("move", cmd.get("move"))),
+        "rotate_rad": _vector(result.get("rotate", cmd.get("rotate"))),
+        "rate_hz": timing.get("rate_hz") or rig.get("rate"),
+    }
+
+
+def setup_text(setup: dict) -> str:
+    """A cooperative setup in a few words: "spring 5 N, impedance, PSM2 moves +50,0,0 mm, 1000 Hz"."""
+    if not setup:
+        return ""
+    parts = []
+    if setup.get("object"):
+        force = setup.get("force_n")
+        parts.append(setup["object"] + (f" {force:g} N" if force is not None else ""))
+    if setup.get("mode"):
+        parts.append(setup["mode"])
+    move = setup.get("move_m")
+    motion = ""
+    if move is not None:
+        motion = ",".join(f"{1000 * v:+.4g}" if v else "0" for v in move) + " mm"
+    turn = setup.get("rotate_rad")
+    if turn is not None and any(turn):
+        motion += (" and turns " if motion else "turns ") + ",".join(f"{v:+.3g}" if v else "0" for v in turn) + " rad"
+    if setup.get("master"):
+        parts.append(f"{setup['master']} moves {motion}" if motion else f"master {setup['master']}")
+    elif motion:
+        parts.append(f"the master moves {motion}")
+    if setup.get("rate_hz"):
+        parts.append(f"{setup['rate_hz']:g} Hz")
+    return ", ".join(parts)
+
+
+def _loadcell_calibrate_figures(result: dict, info: dict) -> None:
+    """Duration and key figures of a loadcell-calibrate result written before it ran as a
+    recorded run (no timings, no summary: "started" and "finished" times, "check" and
+    "calibration")."""
+    if info["duration_s"] is None and result.get("started") and result.get("finished"):
+        try:
+            info["duration_s"] = (datetime.fromisoformat(result["finished"])
+                                  - datetime.fromisoformat(result["started"])).total_seconds()
+        except (TypeError, ValueError):
+            pass
+    check = result.get("check") if isinstance(result.get("check"), dict) else {}
+    cal = result.get("calibration") if isinstance(result.get("calibration"), dict) else {}
+    if not info["summary"] and (check or cal):
+        info["summary"] = {k: v for k, v in (("check_error", check.get("error_n")), ("check_noise", check.get("std_n")),
+                                             ("newtons_per_count", cal.get("newtons_per_count")),
+                                             ("zero_counts", cal.get("zero_counts"))) if v is not None}
+
+
 def run_info(run_dir: Path, result: dict | None = None) -> dict:
-    """What `rig runs` shows for one run folder (`result`: its result.json, if read already)."""
+    """What `rig runs` shows for one run folder (`result`: its result.json, if read already).
+
+    "arms": the arms the run used (see _arms_of); "setup": what a cooperative run held and
+    did (cooperative_setup), {} for the other procedures."""
     when = run_time(run_dir)
     info = {"run": run_dir.name, "run_dir": str(run_dir),
             "utc_start": when.isoformat() if when else "",
             "procedure": procedure_of(run_dir), "status": "", "duration_s": None,
-            "summary": {}, "error": "", "arms": [], "provenance": None}
+            "summary": {}, "error": "", "arms": [], "setup": {}, "provenance": None}
+    start: dict | None = None
+
+    def start_record() -> dict:
+        nonlocal start
+        if start is None:
+            start = _metadata_from_mcap(run_dir / "run.mcap").get("run_start") or {}
+        return start
+
     result_file = run_dir / "result.json"
     if result is None and result_file.exists():
         try:
@@ -114,15 +260,26 @@ def run_info(run_dir: Path, result: dict | None = None) -> dict:
         provenance = result.get("provenance")
         if isinstance(provenance, dict):
             info["provenance"] = provenance
-            info["arms"] = source_arms(provenance)
-        return info
-    stop = _metadata_from_mcap(run_dir / "run.mcap").get("run_stop")
-    if stop is not None:
-        info["status"] = stop.get("status", "")
-        info["error"] = stop.get("error", "")
+        if info["procedure"] == "loadcell-calibrate":
+            _loadcell_calibrate_figures(result, info)
     else:
-        # no result and no stop record: still running, or killed without a chance to finish
-        info["status"] = "unfinished"
+        records = _metadata_from_mcap(run_dir / "run.mcap")
+        start, stop = records.get("run_start") or {}, records.get("run_stop")
+        if stop is not None:
+            info["status"] = stop.get("status", "")
+            info["error"] = stop.get("error", "")
+            result = {"held": stop.get("held"), "hold_errors": stop.get("hold_errors")}
+        else:
+            # no result and no stop record: still running, or killed without a chance to finish
+            info["status"] = "unfinished"
+            result = {}
+    if info["procedure"] == "cooperative":
+        info["setup"] = cooperative_setup(result, start_record())
+        info["arms"] = info["setup"]["arms"]
+    else:
+        info["arms"] = _arms_of(result, {})
+        if not info["arms"] and (run_dir / "run.mcap").exists():
+            info["arms"] = _arms_of(result, start_record())
     return info
 
 
@@ -164,10 +321,33 @@ def _ordered_summary(info: dict) -> list[tuple[str, str]]:
             + [(k, _figure(v)) for k, v in summary.items() if k not in leading])
 
 
-def _key_result(info: dict) -> str:
+def _key_parts(info: dict) -> tuple[str, str]:
+    """(a cooperative run's setup or "", the error of a run that did not complete or the
+    key figures of its summary)."""
     if info["status"] not in ("completed", "dry-run", "") and info["error"]:
-        return info["error"]
-    return ", ".join(f"{k}={v}" for k, v in _ordered_summary(info))
+        figures = info["error"]
+    else:
+        figures = ", ".join(f"{k}={v}" for k, v in _ordered_summary(info))
+    return setup_text(info.get("setup") or {}), figures
+
+
+def _key_result(info: dict) -> str:
+    """The list's result field: a cooperative run's setup, then the error of a run that did
+    not complete, or the key figures of its summary."""
+    setup, figures = _key_parts(info)
+    return f"{setup}: {figures}" if setup and figures else setup or figures
+
+
+def _result_lines(info: dict, room: int | None) -> list[str]:
+    """The result field in `room` columns (None: any): one line, cut to the room; a
+    cooperative run's (its setup, then its figures) wraps onto a second line first."""
+    text = _key_result(info)
+    if room is None or len(text) <= room:
+        return [text]
+    if not setup_text(info.get("setup") or {}):
+        return [_cut(text, room)]
+    lines = textwrap.wrap(text, room) or [""]
+    return lines if len(lines) <= 2 else [lines[0], _cut(" ".join(lines[1:]), room)]
 
 
 def _statuses(ctx, param, values: tuple[str, ...]) -> tuple[str, ...]:
@@ -250,12 +430,15 @@ def run_detail(run_dir: Path) -> dict:
     if not timings and stop:
         timings = {"utc_start": start.get("utc_start"), "utc_stop": stop.get("utc_stop"),
                    "steps": stop.get("steps") or {}}
+    held, hold_errors = _holds(result.get("held") or stop.get("held") or [],
+                               result.get("hold_errors") or stop.get("hold_errors") or [],
+                               result.get("error") or stop.get("error") or "")
     info.update({
         "result_file": str(result_file) if result_file.exists() else None,
         "timings": timings,
         "step": result.get("step") or stop.get("step"),
-        "held": result.get("held") or stop.get("held") or [],
-        "hold_errors": result.get("hold_errors") or stop.get("hold_errors") or [],
+        "held": held,
+        "hold_errors": hold_errors,
         "recording_error": result.get("recording_error"),
         "parameters": start.get("parameters") if isinstance(start.get("parameters"), dict) else None,
         "seed": start.get("seed"),
@@ -264,6 +447,29 @@ def run_detail(run_dir: Path) -> dict:
         "files": {p.name: p.stat().st_size for p in sorted(run_dir.iterdir()) if p.is_file()},
     })
     return info
+
+
+#: how an ArmFault names an arm that stopped obeying (drivers.dvrk_arm): "PSM1 went to FAULT"
+_DISOBEYED = re.compile(r"\b(?P<arm>[A-Za-z]\w*) (?P<what>went to FAULT|was disabled|was paused|is FAULT|is DISABLED"
+                        r"|is PAUSED)")
+
+
+def _holds(held: list, hold_errors: list, error: str) -> tuple[list[str], list[dict]]:
+    """(arms held, arms not held) of a run. The run engine records an arm that obeys no
+    command (FAULT, DISABLED, PAUSED) among the hold errors with its state; a run recorded
+    before it did lists such an arm as held: the run's error names it (an ArmFault line),
+    and it is moved to the errors here."""
+    held = [str(a) for a in held]
+    errors = [e if isinstance(e, dict) else {"arm": "", "error": str(e)} for e in hold_errors]
+    for m in _DISOBEYED.finditer(error or ""):
+        arm = m.group("arm")
+        if arm in held:
+            held.remove(arm)
+            what = m.group("what")
+            errors.append({"arm": arm, "state": what.split()[-1],
+                           "error": f"{arm} {what} (the run's error): it obeyed no command, the hold included "
+                                    "(recorded as held by an older rig)"})
+    return held, errors
 
 
 def _when(text) -> str:
@@ -292,12 +498,29 @@ def format_detail(d: dict) -> str:
     if d["held"]:
         head.append(("arms held", ", ".join(map(str, d["held"]))))
     for err in d["hold_errors"]:
-        head.append(("hold error", _figure(err)))
+        if err.get("state"):  # the arm obeyed no command: its error says what it was
+            head.append(("not held", str(err.get("error"))))
+        else:
+            head.append(("hold error", f"{err.get('arm') or '?'}: {err.get('error')}"))
     if d["recording_error"]:
         head.append(("recording", d["recording_error"]))
-    if d["arms"]:
-        head.append(("source arms", ", ".join(d["arms"])))
+    setup = d.get("setup") or {}
+    setup = setup if setup_text(setup) else {}  # a setup nothing recorded is no section
+    if d["arms"] and not setup:
+        # "source arms": where the result comes from (its provenance); else the arms it used
+        head.append(("source arms" if source_arms(d["provenance"]) else "arms", ", ".join(d["arms"])))
     lines = [f"run {d['run']}"] + section("", head)[1:]
+    if setup:
+        move, turn = setup.get("move_m"), setup.get("rotate_rad")
+        lines += section("setup", [
+            ("object", f"{setup.get('object') or '-'}"
+                       + (f", {setup['force_n']:g} N of tension" if setup.get("force_n") is not None else "")),
+            ("mode", setup.get("mode") or "-"),
+            ("arms", ", ".join(setup.get("arms") or []) or "-"),
+            ("master", setup.get("master") or "-"),
+            ("move", "-" if move is None else ", ".join(f"{1000 * v:g}" for v in move) + " mm (world frame)"),
+            ("rotate", "-" if turn is None else ", ".join(f"{v:g}" for v in turn) + " rad (x-y-z Euler)"),
+            ("loop rate", "-" if not setup.get("rate_hz") else f"{setup['rate_hz']:g} Hz")])
 
     t = d["timings"] or {}
     timing = [("started", _when(t.get("utc_start") or d["utc_start"])), ("stopped", _when(t.get("utc_stop")))]
@@ -320,34 +543,66 @@ def format_detail(d: dict) -> str:
     return "\n".join(lines)
 
 
-def _list_table(infos: list[dict]) -> list[str]:
+def _cut(text: str, room: int | None) -> str:
+    return text if room is None or len(text) <= room else text[: max(room - 3, 0)] + "..."
+
+
+def list_width() -> int:
+    """Columns a list line may take: $COLUMNS when set, else the terminal's width when
+    stdout is a terminal, else LIST_WIDTH."""
+    try:
+        columns = int(os.environ.get("COLUMNS", ""))
+    except ValueError:
+        columns = 0
+    if columns > 0:
+        return columns
+    if getattr(sys.stdout, "isatty", lambda: False)():
+        return shutil.get_terminal_size((LIST_WIDTH, 24)).columns
+    return LIST_WIDTH
+
+
+def _list_table(infos: list[dict], width: int | None = None) -> list[str]:
+    """The list's lines, each at most `width` columns (None: whole). The result field is
+    cut first (the whole of it is in `rig runs RUN`), then the arms, never the run's name."""
     rows = [("run", "status", "duration", "arms", "result")]
     for info in infos:
         duration = "" if info["duration_s"] is None else f"{info['duration_s']:.1f} s"
-        rows.append((info["run"], info["status"], duration, ",".join(info["arms"]), _key_result(info)))
+        rows.append((info["run"], info["status"], duration, ",".join(info["arms"]), info))
     widths = [max(len(r[i]) for r in rows) for i in range(4)]
-    # Fit the result column to a terminal; piped output keeps it whole for grep.
-    columns = shutil.get_terminal_size((0, 0)).columns
-    room = max(30, columns - sum(widths) - 2 * 4) if columns else None
+    if width is not None:
+        # arms past 14 columns (three arms) are cut when the result would get fewer than 30
+        fixed = sum(widths[:3]) + 2 * 4
+        widths[3] = min(widths[3], max(14, width - fixed - 30))
+    room = None if width is None else max(1, width - sum(widths) - 2 * 4)
     lines = []
     for r in rows:
-        text = r[4] if room is None or len(r[4]) <= room else r[4][: room - 3] + "..."
-        lines.append(("  ".join(r[i].ljust(widths[i]) for i in range(4)) + "  " + text).rstrip())
+        cells = [r[0], r[1], r[2], _cut(r[3], None if width is None else widths[3])]
+        results = [r[4]] if isinstance(r[4], str) else _result_lines(r[4], room)
+        lead = "  ".join(c.ljust(w) for c, w in zip(cells, widths)) + "  "
+        lines.append((lead + results[0]).rstrip())
+        lines += [(" " * len(lead) + more).rstrip() for more in results[1:]]
     return lines
 
 
 RUNS_HELP = """List recorded runs, oldest first, or show one run in detail.
 
 \b
-Without RUN, one line per run:
+Without RUN, a line per run (a cooperative run's result may take a second):
   run       the run folder's name, <UTC start>-<procedure>: what `rig runs RUN`,
             `rig export RUN`, `rig discrepancy RUN_DIR` and
             `--model logs/<run>/model.json` take
   status    completed, failed (ran but missed its purpose), aborted (a limit, a fault,
             Ctrl-C), dry-run, unfinished (running, or killed) or unreadable
   duration  wall time, s
-  arms      the arms the result comes from (its provenance), if it records them
-  result    the key figures of its summary (4 significant digits), or the error
+  arms      the arms the run used: those its result comes from (its provenance), else
+            those it names or held
+  result    a cooperative run's setup (object and tension set-point, mode, the master
+            and its move in the world frame, the loop rate), then the key figures of its
+            summary (4 significant digits) or the error
+
+Lines fit the terminal (120 columns when not a terminal): a cooperative run's figures go
+on a second line when they do not fit after its setup, and a field still too long ends in
+"..."; --wide keeps each run on one whole line, `rig runs RUN` and --json show all of it.
 
 With RUN (a run folder's name under ./logs or $RIG_LOGS, or its path): the status, the error
 and where it stopped, the timings of every step, the summary, the provenance (where the
@@ -364,10 +619,12 @@ its start and the folder's files.
               help=f"Only runs with this status: {', '.join(STATUSES)}. Repeat it or give a comma list.")
 @click.option("--last", "-n", "last", type=click.IntRange(min=1), default=None, metavar="N",
               help="Only the newest N runs (of those the other options select).")
+@click.option("--wide", "-w", is_flag=True,
+              help="Keep every line whole, however long (for grep), instead of cutting it to the terminal.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the list (or the run) as one JSON document on stdout, figures at full precision.")
 def runs_command(run: str | None, procedure: str | None, statuses: tuple[str, ...], last: int | None,
-                 as_json: bool) -> None:
+                 wide: bool, as_json: bool) -> None:
     if run is not None:
         if procedure or statuses or last:
             raise click.ClickException("RUN shows one run; --procedure, --status and --last select runs "
@@ -395,114 +652,13 @@ def runs_command(run: str | None, procedure: str | None, statuses: tuple[str, ..
             line += f" (procedures with runs: {', '.join(known) or 'none'})"
         click.echo(line, err=True)
         return
-    for line in _list_table(infos):
+    for line in _list_table(infos, None if wide else list_width()):
         click.echo(line)
 
 
 # ---------------------------------------------------------------------- rig export
-class ExportError(click.ClickException):
-    pass
-
-
-def resolve_run(run: str) -> Path:
-    """A run folder from a path or a folder name under runs_root()."""
-    candidates = [Path(run), runs_root() / run]
-    for c in candidates:
-        if c.is_dir():
-            if not (c / "run.mcap").exists():
-                raise ExportError(f"{c} has no run.mcap: is it a run folder?")
-            return c
-        if c.is_file() and c.suffix == ".mcap":
-            return c.parent
-    raise ExportError(f"no run '{run}': not a folder, and not a run under {runs_root()} "
-                      f"(list them with 'rig runs')")
-
-
-def joint_arrays(rec: Recording, topic: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """t (s, header stamps), q, dq, tau (samples x joints) of a JointState topic."""
-    messages = rec.messages.get(topic)
-    if not messages:
-        available = ", ".join(sorted(t for t, s in rec.schemas.items() if s.endswith("JointState")))
-        what = "holds no samples" if messages is not None else "is not in the recording"
-        raise ExportError(f"{topic} {what} ({rec.path}); JointState topics: {available or 'none'}")
-    n = len(messages[0][1].position)
-    t = np.empty(len(messages))
-    data = np.empty((len(messages), 3, n))
-    for i, (log_ns, msg) in enumerate(messages):
-        stamp = msg.header.stamp
-        stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
-        # the header stamp is when the joint was measured; log time is only a fallback
-        t[i] = (stamp_ns or log_ns) * 1e-9
-        for k, (label, values) in enumerate((("position", msg.position), ("velocity", msg.velocity),
-                                             ("effort", msg.effort))):
-            if len(values) != n:
-                raise ExportError(f"{topic} sample {i} (t = {t[i]:.6f} s) has {len(values)} {label} "
-                                  f"values, the first sample had {n} joints")
-            data[i, k] = values
-    order = np.argsort(t, kind="stable")
-    t, data = t[order], data[order]
-    keep = np.concatenate(([True], np.diff(t) > 0))  # a repeated stamp adds nothing to interpolate
-    t, data = t[keep], data[keep]
-    return t, data[:, 0], data[:, 1], data[:, 2]
-
-
-def resample(t: np.ndarray, columns: np.ndarray, rate: float) -> tuple[np.ndarray, np.ndarray]:
-    """Linear interpolation of `columns` (samples x m) at t[0] + k / rate, k = 0, 1, ..."""
-    count = int(np.floor((t[-1] - t[0]) * rate + 1e-9)) + 1
-    grid = t[0] + np.arange(count) / rate
-    out = np.empty((count, columns.shape[1]))
-    for j in range(columns.shape[1]):
-        out[:, j] = np.interp(grid, t, columns[:, j])
-    return grid, out
-
-
-def export_csv(run: str | Path, out: Path, arm: str = "PSM1", rate: float = 200.0,
-               topic: str | None = None) -> dict:
-    """Write the arm's q | dq | tau at `rate` Hz; returns what was written (and warnings)."""
-    run_dir = resolve_run(str(run))
-    topic = topic or f"/{arm}/measured_js"
-    rec = read_recording(run_dir / "run.mcap", topics=[topic])
-    warnings = []
-    if rec.problem or rec.stop is None:
-        why = rec.problem or "it has no run_stop record"
-        warnings.append(f"{run_dir / 'run.mcap'} is unfinalised ({why}); exporting the samples it holds")
-    t, q, dq, tau = joint_arrays(rec, topic)
-    n = q.shape[1]
-    if n == 0:
-        raise ExportError(f"{topic} carries no joint positions")
-    _, table = resample(t, np.hstack((q, dq, tau)), rate)
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    np.savetxt(out, table, fmt="%.17g", delimiter=",")
-    return {"csv": str(out), "topic": topic, "rows": table.shape[0], "joints": n,
-            "rate_hz": rate, "samples": len(t), "t_start": float(t[0]), "t_end": float(t[-1]),
-            "warnings": warnings}
-
-
-@click.command("export")
-@click.argument("run")
-@click.option("--csv", "csv_path", required=True, type=click.Path(dir_okay=False),
-              help="Output CSV (wpi-psm format: no header, q | dq | tau).")
-@click.option("--arm", default="PSM1", show_default=True, help="Arm whose /<arm>/measured_js to export.")
-@click.option("--rate", type=click.FloatRange(min=0.0, min_open=True), default=200.0,
-              help="Output sample rate [Hz; default: 200].")
-@click.option("--topic", default=None, help="JointState topic to export instead of /<arm>/measured_js.")
-@json_option
-def export_command(run: str, csv_path: str, arm: str, rate: float, topic: str | None,
-                   as_json: bool) -> None:
-    """Export an arm's joint positions, velocities and efforts from a run as CSV.
-
-    RUN is a run folder or its name under ./logs ($RIG_LOGS). Samples are linearly
-    interpolated onto a uniform grid at --rate from the first recorded sample.
-    """
-    summary = export_csv(run, Path(csv_path), arm=arm, rate=rate, topic=topic)
-    for w in summary["warnings"]:
-        click.echo(f"warning: {w}", err=True)
-    line = (f"wrote {summary['rows']} rows x {3 * summary['joints']} columns "
-            f"({summary['joints']} joints, q|dq|tau) at {rate:g} Hz from {summary['samples']} samples "
-            f"of {summary['topic']} to {summary['csv']}")
-    if as_json:
-        click.echo(line, err=True)
-        click.echo(result_json(summary, indent=None))
-    else:
-        click.echo(line)
+# `rig export` lives in rig/export_cli.py; these names stay importable from here for the
+# modules that take them from here (calibration.recorded_runs, procedures.validate,
+# procedures.discrepancy, tests/rig/test_runs_cli.py).
+from rig.export_cli import (ExportError, export_command, export_csv, joint_arrays,  # noqa: E402,F401
+                            resample, resolve_run)

@@ -181,13 +181,15 @@ class ServedRig:
         out: list[str] = []
         err: list[str] = []
         fired = threading.Event()
+        calls: list[threading.Thread] = []
 
         def read(stream, sink: list[str], watch: bool) -> None:
             for line in stream:
                 sink.append(line)
                 if watch and not fired.is_set() and text in line:
                     fired.set()
-                    threading.Thread(target=fn, daemon=True).start()
+                    calls.append(threading.Thread(target=fn, daemon=True))
+                    calls[-1].start()
 
         readers = [threading.Thread(target=read, args=(proc.stdout, out, False), daemon=True),
                    threading.Thread(target=read, args=(proc.stderr, err, True), daemon=True)]
@@ -199,6 +201,10 @@ class ServedRig:
         proc.wait(timeout=timeout)
         for r in readers:
             r.join(timeout=10.0)
+        # fn may still be at work when the procedure has ended (the fault it injected ended
+        # the run before the injecting call had its reply): its caller reads what fn did
+        for c in calls:
+            c.join(timeout=10.0)
         return "".join(out), "".join(err)
 
     def kill(self, sig: int = signal.SIGKILL) -> None:

@@ -270,7 +270,9 @@ def test_a_fault_mid_run_aborts_the_procedure_in_one_line(served):
     assert doc["step"] == "force ramp, positive direction", doc
     rec = read_recording(os.path.join(doc["run_dir"], "run.mcap"))
     assert rec.finalised and rec.stop["status"] == "aborted" and rec.stop["error"] == doc["error"]
-    assert rec.stop["held"] == ["PSM1"]
+    # an arm in FAULT obeys no command, the hold included: it is not counted as held
+    assert rec.stop["held"] == [], rec.stop
+    assert rec.stop["hold_errors"] and rec.stop["hold_errors"][0]["state"].startswith("FAULT"), rec.stop
 
 
 def test_a_procedure_on_a_faulted_arm_stops_when_connecting(served):

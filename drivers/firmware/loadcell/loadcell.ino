@@ -26,6 +26,10 @@
 #endif
 // #define LOADCELL_TRANSPORT_CAN
 
+// Serial baud: the host takes it from here (drivers/loadcell.py BAUDRATE, rig.toml's
+// [loadcell] baudrate default); a test fails when they differ. Exact on a 16 MHz AVR.
+#define LOADCELL_BAUD 250000
+
 #ifdef LOADCELL_TRANSPORT_CAN
 #include <SPI.h>
 #include <mcp_can.h>
@@ -430,7 +434,7 @@ void setup() {
   while (can0.begin(MCP_ANY, CAN_500KBPS, CAN_CRYSTAL) != CAN_OK) delay(100);
   can0.setMode(MCP_NORMAL);
 #else
-  Serial.begin(250000);
+  Serial.begin(LOADCELL_BAUD);
 #endif
   next_tick_us = micros() + period_us;
 }

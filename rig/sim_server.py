@@ -34,7 +34,7 @@ import time
 from collections import deque
 
 #: s behind the wall clock beyond which the served rig re-anchors its time instead of catching up
-REANCHOR = 0.5
+REANCHOR = 0.05
 #: s, the dVRK console's default ROS publishing period (`dvrk_system -p 0.01`)
 DVRK_ROS_PERIOD = 0.01
 #: s, the ROS period from which every arm stream is published whether watched or not

@@ -123,7 +123,7 @@ def fit_stribeck(v, f, fs_guess: float | None = None, vs_bounds=(1e-4, 1.0)) -> 
     # determine it (a Stribeck velocity below every swept speed leaves the excess and vs
     # without a trace in the data)
     sd_all = _sd(res.jac, r, max(v.size - 5, 1), np.vstack([as_curve, [0.0, 0, 0, 1.0, 0]]))
-    sd, sd_excess = sd_all[:5], float(sd_all[5])
+    sd_excess = float(sd_all[5])
     p = as_curve @ res.x
     if not np.isfinite(sd_excess):
         # the data carry no trace of the excess (its curve is 0 at every swept speed): any

@@ -15,7 +15,7 @@ import numpy as np
 def load_run_arrays(run_dir, arm: str, rate: float):
     """q, dq, tau (n, 3) of a run's measured_js at ``rate`` Hz."""
     from rig.records import read_recording
-    from rig.runs_cli import joint_arrays, resample, resolve_run
+    from rig.export_cli import joint_arrays, resample, resolve_run
 
     d = resolve_run(str(run_dir))
     topic = f"/{arm}/measured_js"
@@ -60,7 +60,7 @@ def load_run_pieces(run_dir, arm: str, rate: float, settings) -> RunRecord:
     from calibration.discrepancy import MIN_PIECE_TRIMS, DiscrepancyError
     from calibration.signals import settling_samples
     from rig.records import read_recording
-    from rig.runs_cli import joint_arrays, resample, resolve_run
+    from rig.export_cli import joint_arrays, resample, resolve_run
 
     d = resolve_run(str(run_dir))
     topic = f"/{arm}/measured_js"

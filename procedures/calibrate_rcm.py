@@ -34,6 +34,7 @@ from calibration.fit_error import FitError
 from calibration.pivot import PivotFit
 from calibration.rcm import DEFAULTS, METHODS, arm_bodies, calibrate_arm, pivot_all
 from calibration.registration import pose_error
+from rig.exit_codes import EXIT_INPUT, EXIT_MISSED, InputError
 from rig.mocap_capture import RCM_PHASES, lissajous, measure_rcm_phases, open_devices
 from rig import provenance
 from rig import psm_kinematics as K
@@ -145,10 +146,10 @@ def run_calibrate_rcm(cfg, parameters: dict, run_root=None, progress: bool = Tru
     arms = list(cfg.arms) if parameters["arm"] == "all" else [parameters["arm"]]
     for a in arms:
         if a not in cfg.arms:
-            raise click.ClickException(f"no arm {a!r} in {cfg.source}; arms: {', '.join(cfg.arms)}")
+            raise InputError(f"no arm {a!r} in {cfg.source}; arms: {', '.join(cfg.arms)}")
     _, vmax = lissajous(parameters["q1_range"], parameters["q2_range"], parameters["q3"], parameters["duration"])
     if vmax > 0.8 * K.DQ_MAX[0]:
-        raise click.ClickException(f"the Lissajous figure would reach {vmax:.2f} rad/s; lengthen --duration "
+        raise InputError(f"the Lissajous figure would reach {vmax:.2f} rad/s; lengthen --duration "
                                    f"or lower the ranges (limit {0.8 * K.DQ_MAX[0]:.1f} rad/s, 80% of Table 4.2)")
     seed = None if parameters["seed"] < 0 else parameters["seed"]
     dev = open_devices(cfg, seed=seed, arms=arms)
@@ -195,7 +196,7 @@ def run_from_csv(path: str, body: str, parameters: dict, run_root=None, progress
         take = read_motive_csv(path)
         track = take.body(body)
     except MotiveCsvError as exc:
-        raise click.ClickException(str(exc)) from None
+        raise InputError(str(exc)) from None
     R, p = track.rotation(), track.position
     params = dict(parameters, from_csv=str(path), body=body)
     with Run(PROCEDURE, parameters=params, config={"source": str(path)}, steps=list(STEPS[4:]),
@@ -251,6 +252,8 @@ def command(ctx, parameters, from_csv, body, list_steps: bool, as_json: bool) ->
     except FitError as exc:
         where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
         click.echo(f"rig {PROCEDURE}: refused: {exc}{where}", err=True)
-        sys.exit(1)
+        # a run of the rig that could not be fitted missed its purpose; a take given as a
+        # file that cannot carry the fit is the user's input
+        sys.exit(EXIT_INPUT if from_csv else EXIT_MISSED)
     emit_result(result, as_json, table_6_1(result["arms"]) + f"\nrun folder: {result['run_dir']}")
     exit_for_status(PROCEDURE, result)

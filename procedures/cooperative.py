@@ -19,11 +19,14 @@ from __future__ import annotations
 
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import click
 import numpy as np
 
+from procedures import cooperative_figures as figures
+from rig.exit_codes import InputError
 from rig.params import Parameter, with_parameters
 from rig import provenance
 from rig.run import (AbortRun, Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option,
@@ -113,7 +116,9 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
 
     Holds FORCE newtons of tension on the object between the tool tips while the master
     moves it by --move over --duration seconds. Figures: max |F - force| during the
-    motion, RMS error after settling, start-up overshoot, settling time (N, s).
+    motion, RMS error after settling, start-up overshoot, settling time (N, s), and
+    each tool tip's Cartesian tracking of its plan (mm). `rig plot RUN` draws the
+    figures again from the recording, an aborted run's too.
     """
     if list_steps:
         click.echo("\n".join(f"{i + 1}. {name}" for i, name in enumerate(STEPS)))
@@ -163,7 +168,7 @@ def _model_for(cfg, model_path, simulated: bool, force_model: bool = False, warn
         why = provenance.mismatch(m.document, cfg)
         if why is not None:
             if not force_model:
-                raise click.ClickException(
+                raise InputError(
                     f"{model_path}: not a model of this rig: {why}; run `rig identify` on this rig, or add "
                     "--force-model to use it anyway")
             warnings.append(f"--force-model: {model_path} used although {why}")
@@ -175,7 +180,7 @@ def _model_for(cfg, model_path, simulated: bool, force_model: bool = False, warn
             m = None
     if m is None:
         if not simulated:
-            raise click.ClickException("no identified model of this rig's arms: run `rig identify` (and "
+            raise InputError("no identified model of this rig's arms: run `rig identify` (and "
                                        "`rig friction-ramp`) first, or pass --model FILE"
                                        + (f" ({warnings[-1]})" if warnings else ""))
         return PSMDynamics(), None, "nominal model (no identified model of this rig yet)", []
@@ -201,7 +206,7 @@ def _registration_for(cfg, names, simulated: bool, warnings: list | None = None)
     if found.run_dir is not None:
         return frames_of(found.data), f"registration {found.run_dir}"
     if not simulated:
-        raise click.ClickException("no registration of these arms on this rig: run `rig register` first"
+        raise InputError("no registration of these arms on this rig: run `rig register` first"
                                    + (f" ({found.skipped[-1]})" if found.skipped else ""))
     return {n: cfg.base_matrix(n) @ K.RCM_FRAME for n in names}, "the configuration's arm bases (simulated rig)"
 
@@ -417,9 +422,20 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                              {n: js[n].velocity[:3] for n in names}, np.array([s.force for s in newest]),
                              stamps={n: js[n].t for n in names}, tension_t=np.array([s.t for s in newest]))
         t_start = clock.now()
+        # where the loop and the motion begin on the run clock: `rig plot` draws the figures
+        # from the recording on this time base (procedures/cooperative_figures.py)
+        motion = (controller.t0 + controller.motion.start - t_start,
+                  controller.t0 + controller.motion.start + controller.motion.duration - t_start)
+        rec.metadata(figures.LOOP_METADATA, figures.loop_metadata(t_start, names, master, t_start + motion[0],
+                                                                  t_start + motion[1], elements))
         overruns0, skipped0 = getattr(clock, "overruns", 0), getattr(clock, "skipped", 0)
         last_js_t = {n: None for n in names}
         repeated_js = 0  # ticks that found an arm's measured_js not renewed since the last one
+        # The arms' clock against the loop's: a sample stamped further on from the last one
+        # than the loop's own time moved is a jump of the console's clock (its servo loop
+        # fell behind and caught up, or rig sim re-anchored its time on a starved machine):
+        # the arm moved less than the stamps say. Their largest (ms) and count (> 20 ms).
+        stamp_jumps, stamp_jump_max, t_prev_tick = 0, 0.0, None
         # The force loop acts only on a tension at most two of the cell's frame periods old
         # (at a tick the newest sample is up to one period old, plus its way to the loop);
         # older, the controller holds its force loop (CooperativeController.step, blind).
@@ -447,14 +463,19 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         blind_ticks, blind_longest = 0, 0.0
         t_last_tick = None
         # the ROS 2 context and the keyboard are released however the loop ends
-        with live, run.step(STEPS[3], total=n_ticks) as step:
+        with live, _plot_hint(run), run.step(STEPS[3], total=n_ticks) as step:
             for k in range(n_ticks):
                 clock.tick()
                 t = clock.now()
                 js = {n: rig.arms[n].measured_js() for n in names}
                 for n in names:
                     repeated_js += js[n].t == last_js_t[n]
+                    if last_js_t[n] is not None and t_prev_tick is not None:
+                        jump = (js[n].t - last_js_t[n]) - (t - t_prev_tick)
+                        stamp_jump_max = max(stamp_jump_max, jump)
+                        stamp_jumps += jump > 0.02
                     last_js_t[n] = js[n].t
+                t_prev_tick = t
                 fresh = None
                 newest = []
                 for k_el, sensor in enumerate(sensors):
@@ -489,11 +510,19 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                 commands = controller.step(t, q, dq, fresh, blind=blind, stamps={n: js[n].t for n in names},
                                            tension_t=fresh_t)
                 loop_us = (time.perf_counter() - c0) * 1e6
-                limits.check_tension(float(tension.max()))
                 xd, _, _ = controller.desired(t)
+                # recorded before the checks: an aborted run's recording holds the tick that
+                # broke a limit
+                rec.scalar(figures.SETPOINT_TOPIC, t, controller.force_setpoint)
+                x = {}
                 for n in names:
-                    x = controller.tip_world(n, q[n])
-                    limits.check_arm(n, q[n], dq[n], js[n].effort[:3], x)
+                    x[n] = controller.tip_world(n, q[n])
+                    rec.joint_state(f"/{n}/measured_js", js[n].t, js[n].position, js[n].velocity, js[n].effort)
+                    rec.point(figures.measured_cp_topic(n), js[n].t, x[n], "world")
+                    rec.point(figures.setpoint_cp_topic(n), t, xd[n], "world")
+                limits.check_tension(float(tension.max()))
+                for n in names:
+                    limits.check_arm(n, q[n], dq[n], js[n].effort[:3], x[n])
                     cmd = commands[n]
                     if cmd.kind == "position":
                         rig.arms[n].servo_jp(cmd.q, cmd.dq)
@@ -505,10 +534,8 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                         limits.check_effort(n, cmd.effort)
                         rig.arms[n].servo_jf(cmd.effort)
                         rec.joint_state(f"/{n}/servo_jf", t, (), (), cmd.effort)
-                    rec.joint_state(f"/{n}/measured_js", js[n].t, js[n].position, js[n].velocity, js[n].effort)
-                    log[f"{n}.x"][k] = x
+                    log[f"{n}.x"][k] = x[n]
                     log[f"{n}.xd"][k] = xd[n]
-                rec.scalar("/cooperative/force_setpoint", t, controller.force_setpoint)
                 rec.scalar("/cooperative/loop_time_us", t, loop_us)
                 log["t"][k] = t - t_start
                 log["tension"][k] = tension
@@ -526,6 +553,8 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                               last_live=None if live.last_applied is None else live.last_applied - t_start)
             result["loop_timing"] = _loop_timing(log["t"], clock.rate, getattr(clock, "overruns", 0) - overruns0,
                                                  getattr(clock, "skipped", 0) - skipped0, repeated_js, len(names))
+            result["loop_timing"]["arm_clock_jumps"] = int(stamp_jumps)
+            result["loop_timing"]["arm_clock_jump_ms_max"] = 1e3 * stamp_jump_max
             result["loop_timing"].update(_force_hold_figures(blind_ticks, n_ticks, blind_longest, max_force_age))
             if ros_commands or interactive:
                 result["live_commands"] = live.summary(t_start)
@@ -533,12 +562,26 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             result.update({"model": model_note, "model_effects": model_effects, "registration": registration_note, "arms": names,
                            "master": master, "mode": mode, "object": kind,
                            "filter_delay": _filter_delays(controller), "warnings": list(warnings)})
-            plot = Path(run.dir) / "cooperative.png"
-            _plot(log, names, params, plot)
-            result["plot"] = str(plot)
             missed = _missed(result, params)
+            trace = figures.trace_from_log(log, names, master, motion,
+                                           f"{run.dir.name} ({'failed: ' + missed if missed else 'completed'})",
+                                           tolerance=params.get("tolerance"), ceiling=params.get("tension_ceiling"),
+                                           elements=elements)
+            result["cartesian_tracking"] = figures.cartesian_tracking(trace)
+            result["plot"] = str(figures.draw_force_figure(trace, Path(run.dir) / "cooperative.png"))
+            result["tracking_plot"] = str(figures.draw_tracking_figure(trace, Path(run.dir) / "cooperative-tracking.png"))
             run.finish(result, status="failed" if missed else "completed", reason=missed)
         return run.result
+
+
+@contextmanager
+def _plot_hint(run):
+    """A loop cut short (an abort, Ctrl-C, a fault) draws no figure: say how to see it."""
+    try:
+        yield
+    except BaseException:
+        run._write(f"the figures of this run up to where it stopped: rig plot {run.dir}\n")
+        raise
 
 
 class _ServoCI:
@@ -623,7 +666,6 @@ def _figures(log, params, names, master, mode, kind, controller, last_live: floa
     m0 = params["settle"]
     m1 = params["settle"] + params["duration"]
     during = (t >= m0) & (t <= m1)
-    after = t >= 1.0 + 0.0 * m0
     startup = t < m0
     band = max(0.1 * force, 0.25)
     outside = np.nonzero(np.abs(e) > band)[0]
@@ -729,35 +771,6 @@ def _filter_delays(controller) -> dict:
     return out
 
 
-def _plot(log, names, params, path: Path) -> None:
-    """Figure 7.11: positions (desired and actual) of every arm and the tension against time."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(4, 1, figsize=(9, 9), sharex=True)
-    t = log["t"]
-    for i, axis in enumerate("xyz"):
-        ax = axes[i]
-        for n in names:
-            line, = ax.plot(t, log[f"{n}.x"][:, i], label=f"{n} actual")
-            ax.plot(t, log[f"{n}.xd"][:, i], "--", color=line.get_color(), alpha=0.7, label=f"{n} desired")
-        ax.set_ylabel(f"{axis} [m]")
-    axes[0].legend(loc="upper left", fontsize=7, ncol=len(names))
-    for k in range(log["tension"].shape[1]):
-        axes[3].plot(t, log["tension"][:, k], label=f"tension, element {k + 1}" if log["tension"].shape[1] > 1 else "tension")
-    axes[3].plot(t, log["setpoint"], "--", label="set-point")
-    axes[3].axvspan(params["settle"], params["settle"] + params["duration"], color="0.9")
-    axes[3].set_ylabel("tension [N]")
-    axes[3].set_xlabel("time [s]")
-    axes[3].legend(loc="lower right", fontsize=7)
-    fig.suptitle("Cooperative force tracking (shaded: master moving)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 def format_report(result: dict) -> str:
     if result.get("status") == "dry-run":
         return "\n".join([f"plan checked for {', '.join(result['arms'])} (master {result['master']}): inside every "
@@ -779,8 +792,11 @@ def format_report(result: dict) -> str:
                   f"{result['loop_time_us']['median']:.0f} us, p99 {result['loop_time_us']['p99']:.0f} us "
                   f"(budget {1e6 / result['loop_timing']['rate_hz']:.0f} us at {result['loop_timing']['rate_hz']:g} Hz)"
                   if result.get("loop_timing") else "",
-                  _timing_line(result.get("loop_timing")),
-                  f"  plot: {result.get('plot')}"]
+                  _timing_line(result.get("loop_timing"))]
+        lines += figures.tracking_lines(result.get("cartesian_tracking") or {})
+        lines += [f"  plot: {result.get('plot')}"]
+        if result.get("tracking_plot"):
+            lines.append(f"  tracking plot: {result['tracking_plot']}")
     lines = [ln for ln in lines if ln]
     live = result.get("live_commands")
     if live:
@@ -990,7 +1006,7 @@ class _Keyboard:
         import tty
 
         if not sys.stdin.isatty():
-            raise click.ClickException("--interactive needs a terminal on stdin")
+            raise InputError("--interactive needs a terminal on stdin")
         self.fd = sys.stdin.fileno()
         self.saved = termios.tcgetattr(self.fd)
         tty.setcbreak(self.fd)

@@ -50,6 +50,7 @@ import click
 import numpy as np
 
 from calibration.recorded_runs import PAUSE_CUTOFF_PERIODS, load_run_pieces
+from rig.exit_codes import EXIT_INPUT
 from rig.params import Parameter, with_parameters
 from rig.run import Run, emit_result, exit_on_abort, json_option
 
@@ -238,17 +239,51 @@ def _pieces_lines(pieces: dict | None) -> list[str]:
     return [line]
 
 
+def verdict_words(result: dict) -> str:
+    """The verdict in plain words, first in the report: what the model misses, per joint,
+    what adding it did to the held-out error, and what the written model keeps (the
+    effects confirmed on another motion)."""
+    left = result["detection"]["structured_left"]
+    before, after = result["baseline"]["heldout_rms"], result["final"]["heldout_rms"]
+    if result["verdict"] == "none":
+        return "the model explains these measurements: no joint's residual is structured, nothing to add"
+    by_joint: dict[int, list[str]] = {}
+    for e in result["effects"]:
+        by_joint.setdefault(int(e["joint"]), []).append(str(e["name"]).replace("_", " "))
+    units = {1: "N m", 2: "N m", 3: "N"}
+    parts = []
+    if by_joint:
+        missed = "; ".join(f"joint {j}: {' and '.join(names)}" for j, names in sorted(by_joint.items()))
+        fell = ", ".join(f"joint {j} {before[j - 1]:.3g} -> {after[j - 1]:.3g} {units.get(j, 'N m')}"
+                         for j in sorted(by_joint) if j - 1 < len(before))
+        parts.append(f"the model missed {missed} (held-out RMS error with them: {fell})")
+    if left:
+        gap = (f"something on joint(s) {', '.join(str(j) for j in left)} that no effect of the catalogue explains "
+               "(the closest candidates are below)")
+        parts.append(f"it still misses {gap}" if parts else f"the model misses {gap}")
+    g = result.get("generalisation")
+    if g and by_joint:
+        kept = ", ".join(k.replace("_", " ").replace("@", " on joint ") for k in g.get("kept", []))
+        parts.append(f"confirmed on another motion and written: {kept}" if kept
+                     else "none confirmed on another motion: the model written is the plain one")
+    return "; ".join(parts)
+
+
 def report_text(result: dict) -> str:
     from calibration.generalisation import IDENTIFIED_CHOICE
 
     b = result["baseline"]
-    lines = [f"rig discrepancy: verdict {result['verdict']}  ({result['data']['source']})",
+    lines = [f"rig discrepancy: {verdict_words(result)}",
+             f"data: {result['data']['source']}",
+             "evidence:",
              f"baseline: {result['baseline_kind']}",
              *_pieces_lines(result["data"].get("pieces")),
              "inertial term per joint (the smaller training residual): " + ", ".join(result["inertia_source"]),
              "held-out RMS per joint (N m, N m, N):  baseline " + ", ".join(f"{v:.4g}" for v in b["heldout_rms"])
              + "  ->  final " + ", ".join(f"{v:.4g}" for v in result["final"]["heldout_rms"]),
-             "held-out relative error per joint:      baseline " + ", ".join(f"{v:.3f}" for v in b["heldout_rel_error"])
+             "held-out relative error per joint (samples of this recording left out of the fits; the "
+             "figure to quote for prediction is `rig validate` on a recording the model never saw):",
+             "                                        baseline " + ", ".join(f"{v:.3f}" for v in b["heldout_rel_error"])
              + "  ->  final " + ", ".join(f"{v:.3f}" for v in result["final"]["heldout_rel_error"])]
     for d in result["detection"]["initial"]:
         lines.append(f"  joint {d['joint']}: Ljung-Box {d['ljung_box']:.1f} (threshold {d['ljung_box_threshold']:.1f}), "
@@ -518,12 +553,12 @@ def command(run_dir, parameters, list_steps: bool, as_json: bool) -> None:
     from calibration.prediction import PredictionError
     from calibration.signals import SignalError
     from rig.model_file import ModelFileError
-    from rig.runs_cli import ExportError
+    from rig.export_cli import ExportError
 
     try:
         result = run(parameters, run_dir)
     except (DataError, SignalError, RankDeficientError, DiscrepancyError, ModelFileError, ExportError,
             PredictionError) as exc:
         click.echo(f"rig {PROCEDURE}: {exc}", err=True)
-        sys.exit(1)
+        sys.exit(EXIT_INPUT)  # the data or the model named cannot carry the analysis
     emit_result(result, as_json, report_text(result))

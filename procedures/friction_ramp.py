@@ -31,6 +31,7 @@ import click
 import numpy as np
 
 from rig import provenance
+from rig.exit_codes import InputError
 from rig.params import Parameter, with_parameters
 from rig.run import (AbortRun, Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option,
                      yes_option)
@@ -278,7 +279,7 @@ def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = Tru
 
     arm_name = parameters["arm"]
     if arm_name not in cfg.arms:
-        raise click.ClickException(f"no arm {arm_name!r} in {cfg.source}; arms: {', '.join(cfg.arms)}")
+        raise InputError(f"no arm {arm_name!r} in {cfg.source}; arms: {', '.join(cfg.arms)}")
     speeds = parse_speeds(parameters["speeds"])
     seed = None if parameters["seed"] < 0 else parameters["seed"]
     dyn, comp_info, prior = compensation_model(cfg, arm_name)
@@ -331,7 +332,10 @@ def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = Tru
                 comp0 = float(ramps["pos"]["compensation"][0])
                 stick = model_file.StickSlip(
                     joint=3, fs_pos=fs_pos, fs_neg=fs_neg,
-                    fits={k: v for k, v in fits.items() if k in ("viscous_coulomb", "stribeck") and v},
+                    # a Stribeck fit that did not converge is reported, never compensated with
+                    # (StickSlip takes the Stribeck curve over the viscous + Coulomb one)
+                    fits={k: v for k, v in fits.items()
+                          if k in ("viscous_coulomb", "stribeck") and v and (k != "stribeck" or v.get("success"))},
                     deadbands={"velocity": parameters["threshold"], "position": 0.0003},
                     provenance=model_file.provenance(f"{run.dir / 'run.mcap'} ({arm_name})", run.dir,
                                                      {"procedure": PROCEDURE, "compensation": comp_info}))
@@ -340,11 +344,12 @@ def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = Tru
                 own = run.dir / model_file.MODEL_FILENAME
                 if prior is not None:
                     written = model_file.with_stick_slip(own, prior, stick, {**stick.provenance, **origin}).path
-                    where = f"identified model {prior.path} with these stick-slip terms"
+                    where = f"the identified model {prior.path} plus this run's stick-slip terms"
                 else:
                     written = model_file.friction_only_model(own, stick, dyn.gravity, dyn.slope,
                                                              {**stick.provenance, **origin})
-                    where = "friction-only model (no identified model yet: a later `rig identify` takes these terms)"
+                    where = ("friction terms only: no identified model of this arm yet; a later `rig identify` "
+                             "takes these terms")
                 result = {
                     "arm": arm_name, "joint": 3, "q_ref": q_ref.tolist(),
                     "Fs_pos": fs_pos, "Fs_neg": fs_neg,
@@ -405,16 +410,22 @@ def report_text(r: dict) -> str:
     lines.append(f"viscous + Coulomb: Fo {vc['Fo']:+.3f} N, Fv {vc['Fv']:.3f} N s/m, Fc {vc['Fc']:.3f} N "
                  f"(rms {vc['rms']:.3f} N)")
     st = r["fits"].get("stribeck")
-    if st:
+    if st and st["success"]:
         vs = ("vs not determined by the swept speeds" if (st.get("std") or {}).get("vs", 0.0) is None
               else f"vs {st['vs'] * 1e3:.2f} mm/s")
         lines.append(f"Stribeck: Fo {st['Fo']:+.3f} N, Fv {st['Fv']:.3f} N s/m, Fc {st['Fc']:.3f} N, Fs {st['Fs']:.3f} N, "
-                     f"{vs} (rms {st['rms']:.3f} N){'' if st['success'] else ' - NOT resolved'}")
+                     f"{vs} (rms {st['rms']:.3f} N)")
+    elif st:
+        # the run did its job (the breakaway forces and the viscous + Coulomb fit); the
+        # swept speeds only did not pin the Stribeck curve down
+        lines.append(f"Stribeck curve: not determined by the swept speeds (its fit did not converge; rms "
+                     f"{st['rms']:.3f} N): the viscous + Coulomb fit above is the one the model uses; sweep "
+                     "slower speeds (--speeds) to resolve it")
     if r.get("truth"):
         t = r["truth"]
         lines.append(f"simulated rig truth: Fs = {t['Fs']:.3f} N; expected Fs+ {t['expected_Fs_pos']:+.3f} N, "
                      f"Fs- {t['expected_Fs_neg']:+.3f} N")
-    lines.append(f"written to the {r['model_kind']}: {r['model']}")
+    lines.append(f"model file written: {r['model']} ({r['model_kind']})")
     lines.append(f"run folder: {r.get('run_dir')}")
     return "\n".join(lines)
 

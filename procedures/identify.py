@@ -80,8 +80,9 @@ import numpy as np
 
 from calibration.datasets import load_timed_csv
 from calibration.identification import (CUTOFF_HZ, DEADBAND, FILTER_ORDER, FitOutcome, fit_identification,
-                                        fit_with_effects, make_model, predict,
+                                        fit_with_effects, predict,
                                         validation_table)
+from rig.exit_codes import InputError
 from rig.params import Parameter, with_parameters
 from rig import provenance
 from rig.run import (AbortRun, Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option,
@@ -561,7 +562,8 @@ def report_text(result: dict) -> str:
     v = result.get("validation", {})
     rms = result.get("validation_rms", {})
     if v:
-        lines.append(f"validation on {result.get('validation_source', '?')}")
+        lines.append(f"validation on {result.get('validation_source', '?')} (a trajectory of this run left out "
+                     "of the fit; for a motion the model never saw, `rig validate` another recording)")
         lines.append("  method  rel. error j1 / j2 / j3        RMS j1 [N m] / j2 [N m] / j3 [N]")
         for m in ("ols", "wls", "sdp"):
             lines.append(f"  {m.upper():6s}  {_fmt3(v[m]):28s}  {_fmt3(rms.get(m, [np.nan] * 3))}")
@@ -795,7 +797,7 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
 
     arm_name = parameters["arm"]
     if arm_name not in cfg.arms:
-        raise click.ClickException(f"no arm {arm_name!r} in {cfg.source}; arms: {', '.join(cfg.arms)}")
+        raise InputError(f"no arm {arm_name!r} in {cfg.source}; arms: {', '.join(cfg.arms)}")
     g_config = cfg.gravity_in_base(arm_name)
     gmode = parse_gravity(parameters["gravity"] or "config")
     terms, left_out = effects_from(parameters)

@@ -64,6 +64,7 @@ from calibration.axis_fit import (AxisFit, axis_angle, axis_distance, common_per
 from calibration.fit_error import FitError
 from calibration.joint_axis import JointAxisFit, fit_joint_axis_sara, joint_sign
 from calibration.registration import invert, mean_pose
+from rig.exit_codes import InputError
 from rig.mocap_capture import Capture, Collector, body_points, move_capture, open_devices, settle
 from rig import provenance
 from rig import psm_kinematics as K
@@ -457,7 +458,6 @@ def plot(result: dict, q1: Capture, q2: Capture, bodies: dict, path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    W = np.array(result["_W2"]) if "_W2" in result else np.eye(4)
     n = np.array(result["axes"]["z2_pitch"]["direction"])
     rcm = np.array(result["axes"]["rcm"])
     u = np.array(result["axes"]["insertion"]["direction"])
@@ -538,7 +538,7 @@ def run_link_lengths(cfg, parameters: dict, run_root=None, progress: bool = True
     arm_name = parameters["arm"]
     seed = None if parameters["seed"] < 0 else parameters["seed"]
     if arm_name not in cfg.arms:
-        raise click.ClickException(f"no arm {arm_name!r} in {cfg.source}; arms: {', '.join(cfg.arms)}")
+        raise InputError(f"no arm {arm_name!r} in {cfg.source}; arms: {', '.join(cfg.arms)}")
     dev = open_devices(cfg, seed=seed, arms=[arm_name])
     bodies = {k: f"{arm_name}_{v}" for k, v in BODY_SUFFIXES.items()}
     world_body = "world"

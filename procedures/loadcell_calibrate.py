@@ -31,8 +31,9 @@ from drivers.loadcell import (
     usb_serial_number,
 )
 from drivers.operator import OperatorError
+from rig.exit_codes import InputError
 from rig.records import package_version
-from rig.run import EXIT_MISSED, Run, config_from_context, emit_result, exit_on_abort, result_json, yes_option
+from rig.run import EXIT_MISSED, AbortRun, Run, config_from_context, emit_result, exit_on_abort, result_json, yes_option
 
 #: The check reads mass 2 through the new calibration: it must agree with m g within
 #: 20 mN (the calibration's accuracy target, bench_loadcell) or 1 % of the load, whichever
@@ -121,7 +122,7 @@ def command(ctx, mass1: float, mass2: float, port: str | None, element: int | No
     if port is None and not sim and cfg.loadcell["driver"] == "serial":
         port = cfg.loadcell["port"]
     elif port is None and not sim and cfg.loadcell["driver"] == "can":
-        raise click.ClickException(f"{cfg.source}: loadcell.driver = 'can': this command calibrates a serial cell; "
+        raise InputError(f"{cfg.source}: loadcell.driver = 'can': this command calibrates a serial cell; "
                                    "give --port, or --sim")
     if baud is None:
         baud = cfg.loadcell["baudrate"]
@@ -137,16 +138,15 @@ def command(ctx, mass1: float, mass2: float, port: str | None, element: int | No
     if result["status"] != "completed":
         if as_json:  # the document first, as every procedure's --json
             click.echo(result_json(result, indent=None))
-        if "calibration" in result:  # it ran, and missed its bound: the run's own exit code
-            click.echo(f"rig {CALIBRATION_PROCEDURE}: failed: {result['error']} (run folder {run.dir})", err=True)
-            sys.exit(EXIT_MISSED)
-        raise click.ClickException(f"load-cell calibration failed: {result['error']} (recorded in {run.dir})")
+        # it ran and missed its bound, or its readings made no calibration: a failed run
+        click.echo(f"rig {CALIBRATION_PROCEDURE}: failed: {result['error']} (run folder {run.dir})", err=True)
+        sys.exit(EXIT_MISSED)
     emit_result(result, as_json, format_report(result))
 
 
 def _calibrate(run: Run, cfg, params: dict, element: int | None) -> dict:
     """The steps; the result document with its "status" ("completed" or "failed", with
-    "error"). A device or operator error ends it failed, recorded; Ctrl-C ends the run."""
+    "error"). A device or operator error aborts the run (AbortRun), recorded; Ctrl-C too."""
     port, simulated, baud = params["port"], params["sim"], params["baud"]
     mass1, mass2, seconds, rate_hz = params["mass1_kg"], params["mass2_kg"], params["seconds"], params["rate_hz"]
     result: dict = {"status": "failed", "parameters": params}
@@ -242,12 +242,13 @@ def _calibrate(run: Run, cfg, params: dict, element: int | None) -> dict:
             result["truth"] = {"newtons_per_count": true_k, "zero_counts": fake.model.offset,
                                "gain_error_rel": cal.newtons_per_count / true_k - 1.0,
                                "zero_error_counts": cal.zero_counts - fake.model.offset}
-    except (LoadCellError, OperatorError, ValueError, OSError) as exc:
+    except (LoadCellError, OperatorError, OSError) as exc:
+        # the cell, its port or the operator's channel failed: an abort, as in every procedure
+        # (the run engine records it with the reason; exit 3)
+        raise AbortRun(str(exc)) from None
+    except ValueError as exc:  # masses or readings that cannot make a calibration
         result["status"] = "failed"
         result["error"] = str(exc)
-    except Exception as exc:  # noqa: BLE001 - serial.SerialException and the like: record, then fail
-        result["status"] = "failed"
-        result["error"] = f"{type(exc).__name__}: {exc}"
     finally:
         if lc is not None:
             lc.close()

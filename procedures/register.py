@@ -33,6 +33,7 @@ from calibration.fit_error import FitError
 from calibration.registration import invert, pose_error, register_from_touch_points
 from calibration.rcm import DEFAULTS as RCM_DEFAULTS, arm_bodies, calibrate_arm
 from rig import psm_kinematics as K
+from rig.exit_codes import InputError
 from rig.params import Parameter, with_parameters
 from rig import provenance
 from rig.mocap_capture import Collector, measure_rcm_phases, open_devices, settle
@@ -128,7 +129,7 @@ def rcm_frames_from_calibration(cfg, dev, run, arms: list[str], parameters: dict
 def run_register(cfg, parameters: dict, run_root=None, progress: bool = True) -> dict:
     arms = list(cfg.arms)
     if len(arms) < 2:
-        raise click.ClickException(f"{cfg.source}: registration needs at least two arms, got {arms}")
+        raise InputError(f"{cfg.source}: registration needs at least two arms, got {arms}")
     ref = arms[0]
     seed = None if parameters["seed"] < 0 else parameters["seed"]
     dev = open_devices(cfg, seed=seed, arms=arms)

@@ -22,6 +22,7 @@ import time
 import click
 import numpy as np
 
+from rig.exit_codes import InputError
 from rig.run import EXIT_MISSED, exit_on_abort, json_option, result_json
 
 LIFT = np.array([0.0, 0.0, 0.010])          # world-frame tip step, m
@@ -97,12 +98,12 @@ def run_selftest(cfg, duration: float, seed: int | None = None) -> dict:
     from rig.sim import world_from_config
 
     if not any(a["driver"] == "sim" for a in cfg.arms.values()):
-        raise click.ClickException(f"{cfg.source}: no simulated arm to test (no arm has driver 'sim'); "
+        raise InputError(f"{cfg.source}: no simulated arm to test (no arm has driver 'sim'); "
                                    f"the self-test runs the simulated rig only")
     world = world_from_config(cfg, seed=seed)
     n_steps = int(round(duration / world.dt))
     if n_steps < 1:
-        raise click.ClickException(f"--duration {duration:g} s is less than one step of the rig "
+        raise InputError(f"--duration {duration:g} s is less than one step of the rig "
                                    f"({world.dt:g} s at rig.rate {1 / world.dt:g} Hz)")
     # The rate check measures the headroom over real time: pacing to the wall clock (a
     # `rig sim` setting) would hide it.
@@ -124,7 +125,7 @@ def run_selftest(cfg, duration: float, seed: int | None = None) -> dict:
         try:
             targets[n] = K.ik_rcm((np.linalg.inv(world.arms[n].rcm_world) @ np.append(tip, 1.0))[:3])
         except K.IKError as exc:
-            raise click.ClickException(f"{cfg.source}: {n} cannot lift its tip {LIFT[2] * 1000:.0f} mm "
+            raise InputError(f"{cfg.source}: {n} cannot lift its tip {LIFT[2] * 1000:.0f} mm "
                                        f"from where it hangs ({_joints(q_lift[n])}): {exc}") from None
         world.servo_jp(n, targets[n])
 

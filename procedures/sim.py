@@ -28,6 +28,7 @@ import time
 
 import click
 
+from rig.exit_codes import InputError
 from rig.sim_server import DVRK_ROS_PERIOD
 
 STEPS = ("build the simulated world", "start the load cell on a pty", "create the ROS 2 node and topics",
@@ -262,7 +263,7 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
                                           multicast=m["multicast"], version=parse_version(natnet_version),
                                           epoch=time.time() - 3600.0).start()
             except OSError as exc:
-                raise click.ClickException(
+                raise InputError(
                     f"cannot serve NatNet on {natnet_host}:{m['command_port']} (data {m['data_port']}): "
                     f"{exc.strerror or exc}; another Motive or `rig sim --natnet` serves there: stop it, or set "
                     f"[mocap] command_port and data_port in {cfg.source}") from None

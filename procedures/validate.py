@@ -33,6 +33,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from rig.exit_codes import EXIT_INPUT
 from rig.params import Parameter, with_parameters
 from rig.run import Run, emit_result, exit_on_abort, json_option
 
@@ -206,7 +207,7 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
     from calibration.discrepancy import Settings
     from calibration.prediction import predict
     from rig.model_file import load_model
-    from rig.runs_cli import resolve_run
+    from rig.export_cli import resolve_run
 
     settings = Settings(cutoff=parameters["cutoff"], heldout=parameters["heldout"],
                         effort_lag=parameters["effort_lag"] * 1e-3)
@@ -285,7 +286,7 @@ def command(run_dir, parameters, list_steps: bool, as_json: bool) -> None:
     from calibration.prediction import PredictionError
     from calibration.signals import SignalError
     from rig.model_file import ModelFileError
-    from rig.runs_cli import ExportError
+    from rig.export_cli import ExportError
 
     try:
         result = run(parameters, run_dir)
@@ -293,5 +294,5 @@ def command(run_dir, parameters, list_steps: bool, as_json: bool) -> None:
         text = exc.format_message() if isinstance(exc, click.ClickException) else str(exc)
         where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
         click.echo(f"rig {PROCEDURE}: {text}{where}", err=True)
-        sys.exit(1)
+        sys.exit(EXIT_INPUT)  # the recording or the model named cannot be used
     emit_result(result, as_json, report_text(result))

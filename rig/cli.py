@@ -37,7 +37,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "selftest": ("procedures.selftest:command", "Short run of the simulated rig: PID step on every arm, object tension."),
     "loadcell-calibrate": ("procedures.loadcell_calibrate:command", "Two-point load-cell calibration with known masses, stored for later runs."),
     "runs": ("rig.runs_cli:runs_command", "List recorded runs (time, procedure, status, key result)."),
-    "export": ("rig.runs_cli:export_command", "Export an arm's q, dq, tau from a run as CSV (wpi-psm format)."),
+    "export": ("rig.export_cli:export_command", "Export a run's recorded streams as CSV: one file per topic (--out) or an arm's q, dq, tau (--csv, wpi-psm)."),
+    "plot": ("rig.plot_cli:plot_command", "Draw a run's figures again from its recording (aborted runs too)."),
 }
 
 
@@ -58,7 +59,13 @@ class LazyGroup(click.Group):
             formatter.write_dl(rows)
 
 
-@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+def _exit_codes_epilog() -> str:
+    from rig.exit_codes import MEANINGS
+
+    return "\b\nExit status:\n" + "\n".join(f"  {code:>3}  {text}" for code, text in MEANINGS)
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]}, epilog=_exit_codes_epilog())
 @click.version_option(__version__, prog_name="rig")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
               envvar="RIG_CONFIG", help="Rig configuration (TOML). Default: ./rig.toml if present, else the built-in simulated rig.")
@@ -77,7 +84,9 @@ def main(ctx: click.Context, config_path: str | None) -> None:
         try:
             config.load(config_path)
         except config.ConfigError as exc:
-            raise click.ClickException(str(exc)) from None
+            from rig.exit_codes import InputError
+
+            raise InputError(str(exc)) from None
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -27,11 +27,11 @@ import weakref
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
-import click
 import numpy as np
 
 from drivers.interfaces import TrackerFrame
 from drivers.quaternion import matrix_to_quat_xyzw
+from rig.exit_codes import InputError
 from rig.run import AbortRun
 
 # A move has arrived when the measured joints are this close to the goal and at rest. Looser
@@ -337,7 +337,7 @@ def open_devices(cfg, seed: int | None = None, arms: list[str] | None = None) ->
     rig = open_rig(cfg, arms, seed=seed, uses=("mocap",))
     if rig.tracker is None:
         rig.close()
-        raise click.ClickException(f"{cfg.source}: no motion-capture system ([mocap] driver = 'none'); "
+        raise InputError(f"{cfg.source}: no motion-capture system ([mocap] driver = 'none'); "
                                    "this procedure tracks marker bodies")
     return Devices(rig.clock, dict(rig.arms), rig.tracker, rig.operator, rig.world, rig)
 

@@ -282,6 +282,13 @@ class Recorder:
                                       _floats(quat_xyzw, "quat_xyzw", 4))
         self._message(topic, rm.POSE_STAMPED, t_ns, data)
 
+    def point(self, topic: str, t: float, position: Sequence[float], frame_id: str = "") -> None:
+        """A Cartesian position (m) as a geometry_msgs/PoseStamped with the identity
+        orientation (0, 0, 0, 1): for a tool tip whose orientation is neither measured nor
+        commanded (the three-joint tip of the cooperative loop). Readers take the position
+        only; the orientation carries nothing."""
+        self.pose(topic, t, position, (0.0, 0.0, 0.0, 1.0), frame_id)
+
     def wrench(self, topic: str, t: float, force: Sequence[float],
                torque: Sequence[float] = (0.0, 0.0, 0.0), frame_id: str = "") -> None:
         """geometry_msgs/WrenchStamped: force (N) and torque (N m)."""

@@ -47,13 +47,12 @@ from rig.model_file import ModelFileError
 from rig.paths import run_dir_name, runs_root
 from rig.records import Recorder, to_json
 
-EXIT_FAILED = 1
-EXIT_ABORTED = 3
-#: a run that ended without meeting what it exists for (status "failed"; see Run.finish)
-EXIT_MISSED = 4
+from rig.exit_codes import EXIT_ABORTED, EXIT_BUG, EXIT_INTERRUPTED, EXIT_MISSED, InputError  # noqa: F401
+
+#: an ending rig did not expect (rig.exit_codes.EXIT_BUG), under the name older code imports
+EXIT_FAILED = EXIT_BUG
 #: statuses a procedure may declare for a run that ended without an exception
 DECLARED_STATUSES = ("completed", "failed", "dry-run")
-EXIT_INTERRUPTED = 130  # the shell's convention for SIGINT
 
 
 class AbortRun(Exception):
@@ -572,14 +571,16 @@ def _short(value: Any) -> str:
 def exit_for_status(name: str, result: dict) -> None:
     """End a procedure's command after its report: a run that missed its purpose (status
     "failed") prints one last line with the reason on stderr and exits EXIT_MISSED; any
-    other status but "completed" and "dry-run" exits EXIT_FAILED."""
+    "aborted" exits EXIT_ABORTED; any other status but "completed" and "dry-run" exits EXIT_BUG."""
     status = result.get("status")
     if status == "failed":
         where = f" (run folder {result['run_dir']})" if result.get("run_dir") else ""
         click.echo(f"rig {name}: failed: {result.get('error')}{where}", err=True)
         sys.exit(EXIT_MISSED)
+    if status == "aborted":
+        sys.exit(EXIT_ABORTED)
     if status not in ("completed", "dry-run"):
-        sys.exit(EXIT_FAILED)
+        sys.exit(EXIT_BUG)
 
 
 def _remember_yes(ctx: click.Context, _param, value: bool) -> bool:
@@ -606,7 +607,7 @@ def config_from_context(ctx: click.Context):
     try:
         cfg = config.load(obj.get("config_path"))
     except config.ConfigError as exc:
-        raise click.ClickException(str(exc)) from None
+        raise InputError(str(exc)) from None
     if obj.get("yes"):
         cfg.operator["yes"] = True
     return cfg
@@ -651,14 +652,14 @@ def exit_on_abort(fn: Callable) -> Callable:
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
         except ConfigError as exc:
-            raise click.ClickException(str(exc)) from None
+            raise InputError(str(exc)) from None
         except ModelFileError as exc:  # a file the user named: theirs to fix, not a bug
-            raise click.ClickException(str(exc)) from None
+            raise InputError(str(exc)) from None
         except Exception as exc:  # noqa: BLE001 - a traceback is for developers (RIG_DEBUG=1)
             if os.environ.get("RIG_DEBUG"):
                 raise
             text = str(exc).splitlines()[0] if str(exc) else ""
             end(exc, f"failed: {type(exc).__name__}: {text}; a bug of rig: please report it "
-                     "(RIG_DEBUG=1 shows where)", EXIT_FAILED)
+                     "(RIG_DEBUG=1 shows where)", EXIT_BUG)
 
     return wrapper

@@ -1,10 +1,5 @@
-"""`rig runs` (list recorded runs, or show one) and `rig export` (an arm's q, dq, tau as CSV).
-
-The CSV is the format of the WPI dVRK identification data (`data/wpi-psm/`): no header,
-comma separated, one row per sample on a uniform time grid, columns grouped by quantity:
-q1..qn | dq1..dqn | tau1..taun for the n joints in the recorded JointState messages
-(rad or m; rad/s or m/s; N m or N).
-"""
+"""`rig runs`: list the recorded runs, or show one (`rig export` and `rig plot` take a run
+the way this finds it)."""
 
 from __future__ import annotations
 
@@ -18,11 +13,11 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import click
-import numpy as np
 
+from rig.exit_codes import InputError
 from rig.paths import RUN_TIME_FORMAT, procedure_of, run_dirs, runs_root
-from rig.records import Recording, decode_metadata, read_recording
-from rig.run import json_option, result_json
+from rig.records import decode_metadata
+from rig.run import result_json
 
 
 # ---------------------------------------------------------------------- rig runs
@@ -371,10 +366,10 @@ def find_run(run: str) -> Path:
             c = c.parent
         if c.is_dir():
             if not ((c / "result.json").exists() or (c / "run.mcap").exists()):
-                raise click.ClickException(f"{c} is not a run folder (no result.json or run.mcap); "
+                raise InputError(f"{c} is not a run folder (no result.json or run.mcap); "
                                            f"'rig runs' lists the runs under {runs_root()}")
             return c.resolve()
-    raise click.ClickException(f"no run '{run}' under {runs_root()}, and no such folder; "
+    raise InputError(f"no run '{run}' under {runs_root()}, and no such folder; "
                                f"'rig runs' lists the runs")
 
 
@@ -627,7 +622,7 @@ def runs_command(run: str | None, procedure: str | None, statuses: tuple[str, ..
                  wide: bool, as_json: bool) -> None:
     if run is not None:
         if procedure or statuses or last:
-            raise click.ClickException("RUN shows one run; --procedure, --status and --last select runs "
+            raise InputError("RUN shows one run; --procedure, --status and --last select runs "
                                        "for the list: give one or the other")
         detail = run_detail(find_run(run))
         if as_json:
@@ -654,11 +649,3 @@ def runs_command(run: str | None, procedure: str | None, statuses: tuple[str, ..
         return
     for line in _list_table(infos, None if wide else list_width()):
         click.echo(line)
-
-
-# ---------------------------------------------------------------------- rig export
-# `rig export` lives in rig/export_cli.py; these names stay importable from here for the
-# modules that take them from here (calibration.recorded_runs, procedures.validate,
-# procedures.discrepancy, tests/rig/test_runs_cli.py).
-from rig.export_cli import (ExportError, export_command, export_csv, joint_arrays,  # noqa: E402,F401
-                            resample, resolve_run)

@@ -34,7 +34,9 @@ class SafetyLimits:
         if over.any():
             j = int(np.argmax(over))
             what = "measured effort" if measured else "commanded effort"
-            raise AbortRun(f"{name}: joint {j + 1} {what} {effort[j]:.2f} above the ceiling {ceiling[j]:.2f}")
+            unit = "N" if j == 2 else "N m"  # joint 3 is the insertion (prismatic)
+            raise AbortRun(f"{name}: joint {j + 1} {what} {effort[j]:+.2f} {unit}, beyond its limit "
+                           f"+/-{ceiling[j]:.2f} {unit}")
 
     def check_arm(self, name: str, q: np.ndarray, dq: np.ndarray, effort: np.ndarray | None,
                   tip_world: np.ndarray) -> None:

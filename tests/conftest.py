@@ -148,3 +148,11 @@ def free_ports():
     yield claim
     for c in claims:
         c.release()
+
+
+@pytest.fixture(autouse=True)
+def _no_terminal_size(monkeypatch):
+    """Output as a pipe gets it: no test depends on the width of the terminal it runs in
+    (pytest-xdist's workers and CI set COLUMNS differently)."""
+    monkeypatch.delenv("COLUMNS", raising=False)
+    monkeypatch.delenv("LINES", raising=False)

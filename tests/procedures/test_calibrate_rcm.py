@@ -67,12 +67,12 @@ def test_csv_without_the_body_names_the_bodies_present(tmp_path):
 def test_too_little_rotation_is_refused(tmp_path):
     path, _ = _take(tmp_path, "Millimeters", rotation_deg=3.0)
     code, _, err = run_cli("calibrate-rcm", "--from-csv", str(path), "--body", "PSM1_tool", "--json")
-    assert code == 1
+    assert code == 5
     assert "too little rotation" in err
 
 
 def test_mostly_occluded_body_is_refused(tmp_path):
     path, _ = _take(tmp_path, "Millimeters", occluded=0.995)
     code, _, err = run_cli("calibrate-rcm", "--from-csv", str(path), "--body", "PSM1_tool", "--json")
-    assert code == 1
+    assert code == 5
     assert "too few frames" in err

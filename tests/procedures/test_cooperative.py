@@ -97,7 +97,7 @@ def test_effort_ceiling_aborts_and_every_moved_arm_holds(monkeypatch):
         mp.setattr(safety.SafetyLimits, "__init__", _limits_with(effort_limit=np.array([0.05, 5.0, 15.0])))
         mp.setattr(sim_arm.SimArm, "hold", spy)
 
-    with pytest.raises(AbortRun, match="effort .* above the ceiling"):
+    with pytest.raises(AbortRun, match="effort .* beyond its limit"):
         _api_run(monkeypatch, patch)
     assert {n for n, _ in held} == {"PSM1", "PSM2"}
 

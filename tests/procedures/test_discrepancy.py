@@ -81,7 +81,7 @@ def test_cli_validate_csv_is_the_other_motion(tmp_path):
     assert doc["data"]["samples"] == 3600
     assert all(w <= p for w, p in zip(g["relative_error"]["written"], g["relative_error"]["plain"]))
     res = CliRunner().invoke(main, ["discrepancy", "--csv", str(first), "--validate-csv", str(short), "--no-plots"])
-    assert res.exit_code == 1
+    assert res.exit_code == 5
     assert f"{short}: 100 rows (0.5 s at 200 Hz) are too few for the other motion" in res.output
     assert "Traceback" not in res.output
 
@@ -102,7 +102,7 @@ def test_cli_truncated_csv_is_a_clear_error(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9\n0.1,0.2\n")
     res = CliRunner().invoke(main, ["discrepancy", "--csv", str(bad)])
-    assert res.exit_code == 1
+    assert res.exit_code == 5
     assert "line 2" in res.output
 
 
@@ -156,7 +156,7 @@ def test_cli_too_little_motion_for_gravity_is_a_clear_error(tmp_path):
     path = tmp_path / "slow.csv"
     np.savetxt(path, d, delimiter=",")
     res = CliRunner().invoke(main, ["discrepancy", "--csv", str(path), "--no-plots"])
-    assert res.exit_code == 1
+    assert res.exit_code == 5
     assert f"{path}: joint 3 moves faster than 0.005 m/s in only 0.0 %" in res.output
     assert "--model" in res.output
 
@@ -265,3 +265,25 @@ def test_a_run_is_read_as_its_continuous_pieces(tmp_path):
     t = np.concatenate([np.arange(601) / 200.0, 5.8 + np.arange(601) / 200.0])
     np.testing.assert_allclose(rec.q, q_of(t), atol=1e-9)
     np.testing.assert_allclose(rec.tau, -q_of(t), atol=1e-9)
+
+
+def _verdict_doc(verdict, effects, left):
+    return {"verdict": verdict, "effects": [{"name": n, "joint": j} for n, j in effects],
+            "detection": {"structured_left": left},
+            "baseline": {"heldout_rms": [0.1, 0.2, 0.4]}, "final": {"heldout_rms": [0.1, 0.2, 0.1]}}
+
+
+@pytest.mark.parametrize("verdict, effects, left, words", [
+    ("none", [], [], "the model explains these measurements"),
+    ("explained", [("stiction", 3), ("position_friction", 3), ("hysteresis", 1)], [],
+     "the model missed joint 1: hysteresis; joint 3: stiction and position friction (held-out RMS error with them: "
+     "joint 1 0.1 -> 0.1 N m, joint 3 0.4 -> 0.1 N)"),
+    ("unexplained", [], [2], "the model misses something on joint(s) 2 that no effect of the catalogue explains"),
+    ("unexplained", [("stiction", 3)], [1], "it still misses something on joint(s) 1"),
+])
+def test_the_report_leads_with_the_verdict_in_plain_words(verdict, effects, left, words):
+    from procedures.discrepancy import verdict_words
+
+    text = verdict_words(_verdict_doc(verdict, effects, left))
+    assert words in text, text
+    assert "Ljung" not in text and "R^2" not in text

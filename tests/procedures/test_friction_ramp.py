@@ -230,3 +230,30 @@ def test_latest_model_merges_a_newer_friction_ramp_without_rewriting_the_identif
     assert m.path == path
     assert m.stick_slip().fs_pos == 1.02 and m.stick_slip().fs_neg == -0.98
     assert path.read_bytes() == before
+
+
+def test_a_stribeck_fit_that_did_not_converge_is_reported_in_plain_words_and_not_compensated_with(tmp_path,
+                                                                                                   monkeypatch):
+    """The run did its job (breakaway forces, the viscous + Coulomb fit): an unresolved
+    Stribeck curve is said so without a shouted 'NOT resolved' on a completed run, and the
+    model file compensates with the viscous + Coulomb fit, not the unconverged curve."""
+    import calibration.friction_fit as ff
+    from procedures.friction_ramp import report_text
+    from rig.model_file import load_model
+
+    real = ff.fit_stribeck
+
+    def unconverged(*args, **kwargs):
+        return {**real(*args, **kwargs), "success": False}
+
+    monkeypatch.setattr(ff, "fit_stribeck", unconverged)
+    r = _run(tmp_path, values={"speeds": "0.005,0.02,0.08", "plots": False})
+    assert r["status"] == "completed"
+    assert "stribeck" not in r["stick_slip"]["fits"] and "viscous_coulomb" in r["stick_slip"]["fits"]
+    st = load_model(r["model"]).stick_slip()
+    assert "stribeck" not in st.fits
+    text = report_text(r)
+    assert "NOT resolved" not in text and "Stribeck curve: not determined by the swept speeds" in text, text
+    # where the model went: its own file, and what it holds
+    assert f"model file written: {r['model']} (friction terms only" in text, text
+    assert "written to the" not in text

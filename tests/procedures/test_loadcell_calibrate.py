@@ -64,7 +64,8 @@ def test_a_port_that_is_not_there_fails_in_one_line_and_is_recorded(tmp_path):
     res = _calibrate("--port", str(tmp_path / "ttyNOPE"))
     assert res.exit_code != 0 and "Traceback" not in res.output
     last = res.stderr.strip().splitlines()[-1]
-    assert "ttyNOPE" in last and "recorded in" in last, last
+    assert res.exit_code == 3  # a device that cannot be reached aborts the run, as in every procedure
+    assert "ttyNOPE" in last and "aborted:" in last and "run folder" in last, last
     doc = json.loads(CliRunner().invoke(main, ["runs", "--json"]).stdout)
     (info,) = doc["runs"]
-    assert info["status"] == "failed" and "ttyNOPE" in info["error"]
+    assert info["status"] == "aborted" and "ttyNOPE" in info["error"]

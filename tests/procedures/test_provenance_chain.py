@@ -62,7 +62,7 @@ def test_a_model_of_another_arm_is_skipped_refused_or_forced_and_the_untensioned
     assert data["max_error_during_motion"] < 0.5
 
     res = CliRunner().invoke(main, ["cooperative", "--object", "string", "--model", model, *SHORT])
-    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert res.exit_code == 5 and "Traceback" not in res.output
     line = res.output.strip().splitlines()[-1]
     assert "not a model of this rig" in line and "--force-model" in line and "rig identify" in line
 
@@ -103,7 +103,7 @@ def test_a_registration_of_another_rig_configuration_is_not_used(tmp_path):
                    f'base_xyz = [{config.DEFAULT_PSM2_X}, 0.0, 0.0]\nbase_rpy = [0.0, 0.0, 3.141592653589793]\n')
     model = _model_of(tmp_path / "m" / "model.json", config.load(ros))
     res = CliRunner().invoke(main, ["--config", str(ros), "cooperative", "--model", str(model)])
-    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert res.exit_code == 5 and "Traceback" not in res.output
     line = res.output.strip().splitlines()[-1]
     assert "run `rig register` first" in line and f"skipped register run {reg_run}" in line
 
@@ -127,7 +127,7 @@ def test_a_model_file_edited_by_hand_is_passed_over_until_forced(tmp_path):
     assert data["warnings"] == [f"skipped identify run {run.name}: it was edited after it was written (its digest "
                                 "does not match)"]
     res = CliRunner().invoke(main, ["cooperative", "--dry-run", "--model", str(run / "model.json")])
-    assert res.exit_code == 1 and "edited after it was written" in res.output and "Traceback" not in res.output
+    assert res.exit_code == 5 and "edited after it was written" in res.output and "Traceback" not in res.output
     res = CliRunner().invoke(main, ["cooperative", "--dry-run", "--json", "--force-model", "--model",
                                     str(run / "model.json")])
     assert res.exit_code == 0, res.output

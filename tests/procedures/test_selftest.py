@@ -114,13 +114,13 @@ def test_bad_configurations_are_one_line(tmp_path):
     # an insertion so shallow that the lift would take the tip above the RCM
     (tmp_path / "shallow.toml").write_text("[arms.PSM1]\nq0 = [0.0, 0.0, 0.005]\n")
     res = CliRunner().invoke(main, ["--config", str(tmp_path / "shallow.toml"), "selftest"])
-    assert res.exit_code == 1
+    assert res.exit_code == 5
     assert len(res.output.strip().splitlines()) == 1, res.output
     assert "PSM1 cannot lift its tip 10 mm" in res.output and "Traceback" not in res.output
     (tmp_path / "ros.toml").write_text('[arms.PSM1]\ndriver = "ros"\n[arms.PSM2]\ndriver = "ros"\n')
     res = CliRunner().invoke(main, ["--config", str(tmp_path / "ros.toml"), "selftest"])
-    assert res.exit_code == 1 and len(res.output.strip().splitlines()) == 1, res.output
+    assert res.exit_code == 5 and len(res.output.strip().splitlines()) == 1, res.output
     assert "no simulated arm to test" in res.output
     res = CliRunner().invoke(main, ["selftest", "--duration", "0.0001"])
-    assert res.exit_code == 1 and len(res.output.strip().splitlines()) == 1
+    assert res.exit_code == 5 and len(res.output.strip().splitlines()) == 1
     assert "less than one step of the rig" in res.output

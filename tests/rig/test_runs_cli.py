@@ -10,7 +10,7 @@ from click.testing import CliRunner
 from rig.cli import main
 from rig.records import Recorder
 from rig.run import AbortRun, Run
-from rig.runs_cli import export_csv
+from rig.export_cli import export_csv
 
 JOINTS = 7  # like the dVRK PSM and the wpi-psm file
 
@@ -76,10 +76,10 @@ def test_export_errors_are_clear(logs, tmp_path):
     with Run("identify", progress=False) as run:
         _record(run, seconds=0.01)
     result = invoke("export", "no-such-run", "--csv", str(tmp_path / "x.csv"))
-    assert result.exit_code == 1
+    assert result.exit_code == 5
     assert "no run 'no-such-run'" in result.output and "rig runs" in result.output
     result = invoke("export", run.dir.name, "--csv", str(tmp_path / "x.csv"), "--arm", "PSM3")
-    assert result.exit_code == 1
+    assert result.exit_code == 5
     assert "/PSM3/measured_js is not in the recording" in result.output
     assert "/PSM1/measured_js, /PSM2/measured_js" in result.output
     result = invoke("export", run.dir.name, "--csv", str(tmp_path / "x.csv"), "--rate", "0")
@@ -280,12 +280,12 @@ def test_runs_run_errors_are_one_line(logs, tmp_path):
                         ["no run '20261125T999999000000Z-cooperative'", "'rig runs' lists"]),
                        (str(tmp_path), [f"{tmp_path} is not a run folder", "'rig runs' lists"])):
         result = invoke("runs", arg)
-        assert result.exit_code == 1
+        assert result.exit_code == 5
         assert len(result.output.strip().splitlines()) == 1, result.output
         assert all(w in result.output for w in words), result.output
         assert "Traceback" not in result.output and isinstance(result.exception, SystemExit)
     both = invoke("runs", "20261125T100000000000Z-cooperative", "--last", "2")
-    assert both.exit_code == 1 and len(both.output.strip().splitlines()) == 1
+    assert both.exit_code == 5 and len(both.output.strip().splitlines()) == 1
 
 
 def test_runs_help_explains_the_columns_and_filters():

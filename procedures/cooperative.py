@@ -188,7 +188,13 @@ def _model_for(cfg, model_path, simulated: bool, force_model: bool = False, warn
     note = f"identified model {m.path}"
     if effects:
         note += " with its effects " + ", ".join(f"{e['name']}@{e['joint']}" for e in effects)
-    return m.dynamics(), m.stick_slip(), note, effects
+    stick = m.stick_slip()
+    if stick is not None:
+        # every file the feedforward takes terms from: a newer friction ramp's are merged in
+        ramp = (stick.provenance or {}).get("run_dir")
+        where = Path(ramp) / model_file.STICK_SLIP_FILENAME if ramp else m.path
+        note += f"; joint 3 stick-slip and friction terms from {where}"
+    return m.dynamics(), stick, note, effects
 
 
 def _registration_for(cfg, names, simulated: bool, warnings: list | None = None):
@@ -436,6 +442,8 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         # fell behind and caught up, or rig sim re-anchored its time on a starved machine):
         # the arm moved less than the stamps say. Their largest (ms) and count (> 20 ms).
         stamp_jumps, stamp_jump_max, t_prev_tick = 0, 0.0, None
+        # and how old the arms' samples were when the loop acted on them (ms, the oldest arm's)
+        sample_age_ms = np.zeros(n_ticks)
         # The force loop acts only on a tension at most two of the cell's frame periods old
         # (at a tick the newest sample is up to one period old, plus its way to the loop);
         # older, the controller holds its force loop (CooperativeController.step, blind).
@@ -463,7 +471,20 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         blind_ticks, blind_longest = 0, 0.0
         t_last_tick = None
         # the ROS 2 context and the keyboard are released however the loop ends
-        with live, _plot_hint(run), run.step(STEPS[3], total=n_ticks) as step:
+        done = 0  # ticks completed
+
+        def timing_so_far() -> dict:
+            """The loop's timing over the ticks it completed (an aborted run's result has it)."""
+            lt = _loop_timing(log["t"][:done], clock.rate, getattr(clock, "overruns", 0) - overruns0,
+                              getattr(clock, "skipped", 0) - skipped0, repeated_js, len(names), log["loop_us"][:done])
+            lt["arm_clock_jumps"] = int(stamp_jumps)
+            lt["arm_clock_jump_ms_max"] = 1e3 * stamp_jump_max
+            ages = sample_age_ms[:done]
+            lt["arm_sample_age_ms"] = ({"median": float(np.median(ages)), "p99": float(np.percentile(ages, 99)),
+                                        "max": float(np.max(ages))} if len(ages) else None)
+            return lt
+
+        with live, _plot_hint(run, timing_so_far), run.step(STEPS[3], total=n_ticks) as step:
             for k in range(n_ticks):
                 clock.tick()
                 t = clock.now()
@@ -476,6 +497,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                         stamp_jumps += jump > 0.02
                     last_js_t[n] = js[n].t
                 t_prev_tick = t
+                sample_age_ms[k] = 1e3 * max(t - js[n].t for n in names)
                 fresh = None
                 newest = []
                 for k_el, sensor in enumerate(sensors):
@@ -544,6 +566,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                 log["loop_us"][k] = loop_us
                 log["x_f"][k] = [controller.x_f[s] for s in controller.slaves]
                 rec.scalar("/cooperative/x_f", t, float(log["x_f"][k][0]))
+                done = k + 1
                 if k % 100 == 0:
                     step.update(k)
                     live.show(t - t_start, float(tension.mean()), {n: log[f"{n}.x"][k] for n in names})
@@ -551,10 +574,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         with run.step(STEPS[4]):
             result = _figures(log, params, names, master, mode, kind, controller,
                               last_live=None if live.last_applied is None else live.last_applied - t_start)
-            result["loop_timing"] = _loop_timing(log["t"], clock.rate, getattr(clock, "overruns", 0) - overruns0,
-                                                 getattr(clock, "skipped", 0) - skipped0, repeated_js, len(names))
-            result["loop_timing"]["arm_clock_jumps"] = int(stamp_jumps)
-            result["loop_timing"]["arm_clock_jump_ms_max"] = 1e3 * stamp_jump_max
+            result["loop_timing"] = timing_so_far()
             result["loop_timing"].update(_force_hold_figures(blind_ticks, n_ticks, blind_longest, max_force_age))
             if ros_commands or interactive:
                 result["live_commands"] = live.summary(t_start)
@@ -575,12 +595,19 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
 
 
 @contextmanager
-def _plot_hint(run):
-    """A loop cut short (an abort, Ctrl-C, a fault) draws no figure: say how to see it."""
+def _plot_hint(run, timing=None):
+    """A loop cut short (an abort, Ctrl-C, a fault) draws no figure: say how to see it, and
+    leave the loop's timing so far (`timing()`) in the run's result (result.json of an
+    aborted run then says whether the machine kept time)."""
     try:
         yield
     except BaseException:
         run._write(f"the figures of this run up to where it stopped: rig plot {run.dir}\n")
+        if timing is not None and run.result is None:
+            try:
+                run.result = {"loop_timing": timing()}
+            except Exception:  # noqa: BLE001 - the abort's own reason is the one to report
+                pass
         raise
 
 
@@ -708,9 +735,15 @@ def _timing_line(lt: dict | None) -> str:
     if not lt or lt.get("period_ms_median") is None:
         return ""
     return (f"  loop at {lt['rate_hz']:g} Hz: period median {lt['period_ms_median']:.3f} ms, p99 "
-            f"{lt['period_ms_p99']:.3f} ms, max {lt['period_ms_max']:.1f} ms; overruns {lt['overruns_per_10k']:.0f} "
-            f"and skipped {lt['skipped_per_10k']:.0f} per 10 000 ticks; measured_js not renewed in "
+            f"{lt['period_ms_p99']:.3f} ms, max {lt['period_ms_max']:.1f} ms; late ticks (begun after their "
+            f"deadline) {lt['overruns_per_10k']:.0f} and skipped {lt['skipped_per_10k']:.0f} per 10 000; "
+            "measured_js not renewed in "
             f"{lt['repeated_measured_js_per_10k']:.0f} of 10 000 reads"
+            + (f"; the arms' samples {lt['arm_sample_age_ms']['median']:.1f} ms old at the loop (median; p99 "
+               f"{lt['arm_sample_age_ms']['p99']:.1f}, max {lt['arm_sample_age_ms']['max']:.1f} ms)"
+               if lt.get("arm_sample_age_ms") else "")
+            + (f"; the arms' clock jumped on {lt['arm_clock_jumps']} ticks, by up to {lt['arm_clock_jump_ms_max']:.0f} ms "
+               "(the console, or rig sim, fell behind its own clock)" if lt.get("arm_clock_jumps") else "")
             + (f"; force loop held (tension older than {lt['force_max_age_ms']:.0f} ms) on "
                f"{lt['force_hold_per_10k']:.0f} per 10 000 ticks, the oldest {lt['force_hold_longest_ms']:.0f} ms"
                if lt.get("force_hold_per_10k") else ""))
@@ -745,7 +778,8 @@ def _force_hold_figures(blind_ticks: int, n_ticks: int, longest: float, max_age:
             "force_hold_longest_ms": 1e3 * longest, "force_max_age_ms": 1e3 * max_age}
 
 
-def _loop_timing(t: np.ndarray, rate: float, overruns: int, skipped: int, repeated_js: int, arms: int) -> dict:
+def _loop_timing(t: np.ndarray, rate: float, overruns: int, skipped: int, repeated_js: int, arms: int,
+                 step_us: np.ndarray | None = None) -> dict:
     """The control loop's timing: tick periods (ms; on the simulated rig exactly 1/rate),
     ticks that began late (overruns) or were skipped, per 10 000 ticks, and the share of
     arm reads that found no new measured_js since the tick before (per 10 000 reads)."""
@@ -757,7 +791,10 @@ def _loop_timing(t: np.ndarray, rate: float, overruns: int, skipped: int, repeat
             "period_ms_p99": float(np.percentile(period, 99)) if n > 1 else None,
             "period_ms_max": float(np.max(period)) if n > 1 else None,
             "overruns_per_10k": overruns * per10k, "skipped_per_10k": skipped * per10k,
-            "repeated_measured_js_per_10k": repeated_js * 1e4 / max(n * arms, 1)}
+            "repeated_measured_js_per_10k": repeated_js * 1e4 / max(n * arms, 1),
+            # ticks whose own computation took longer than the period (the loop then runs late)
+            "steps_over_period_per_10k": (float(np.sum(np.asarray(step_us) > 1e6 / rate)) * per10k
+                                          if step_us is not None and len(step_us) else 0.0)}
 
 
 def _filter_delays(controller) -> dict:
@@ -789,8 +826,10 @@ def format_report(result: dict) -> str:
                   + (f", {result['hold_reversals']} reversals of the position steps)" if result.get("mode") == "position"
                      else ")"),
                   f"  controller step ({len(result.get('arms') or []) or '?'} arms): median "
-                  f"{result['loop_time_us']['median']:.0f} us, p99 {result['loop_time_us']['p99']:.0f} us "
-                  f"(budget {1e6 / result['loop_timing']['rate_hz']:.0f} us at {result['loop_timing']['rate_hz']:g} Hz)"
+                  f"{result['loop_time_us']['median']:.0f} us, p99 {result['loop_time_us']['p99']:.0f} us of "
+                  f"computation, against the {1e6 / result['loop_timing']['rate_hz']:.0f} us period at "
+                  f"{result['loop_timing']['rate_hz']:g} Hz; longer than the period on "
+                  f"{result['loop_timing'].get('steps_over_period_per_10k', 0.0):.0f} per 10 000 ticks"
                   if result.get("loop_timing") else "",
                   _timing_line(result.get("loop_timing"))]
         lines += figures.tracking_lines(result.get("cartesian_tracking") or {})

@@ -185,7 +185,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
     },
     "loadcell": {
         "driver": Key("str", "sim", "load-cell driver", *_DRIVER_LOADCELL),
-        "port": Key("str", "", "serial port of the Arduino (driver = serial)"),
+        "port": Key("str", "", "serial port of the Arduino (driver = serial; a relative path is taken from the "
+                    "configuration file's folder)"),
         "ports": Key("strlist", [], "serial ports of one load cell per object element, in the elements' order "
                      "(PSM1-PSM2, PSM1-PSM3, PSM2-PSM3 for three arms; driver = serial); replaces port"),
         "baudrate": Key("int", LOADCELL_BAUDRATE, "serial baud rate (the rig's firmware's)", _positive,
@@ -445,6 +446,12 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
                                                   in ("serial", "can") else SIM_STALE_FLOOR)
     if loadcell["ports"] and loadcell["driver"] != "serial":
         raise ConfigError(f"{source}: loadcell.ports: only with loadcell.driver = 'serial'")
+    if loadcell["driver"] == "serial":
+        # a relative port is the configuration file's folder's: the link `rig sim` makes to
+        # its pty then belongs to this lab folder (a fixed /tmp name collides between two
+        # users, or two rigs, of one machine), whichever folder a command runs from
+        loadcell["port"] = _beside(source, loadcell["port"])
+        loadcell["ports"] = [_beside(source, x) for x in loadcell["ports"]]
     if loadcell["ports"] and not loadcell["port"]:
         loadcell["port"] = loadcell["ports"][min(loadcell["element"], len(loadcell["ports"]) - 1)]
     if loadcell["driver"] == "serial" and not loadcell["port"]:
@@ -484,6 +491,14 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
         effects[name] = _section(source, f"effects.{name}", SCHEMA["effects"], e)
     operator = _section(source, "operator", SCHEMA["operator"], document.get("operator", {}))
     return RigConfig(source, rig, arms, loadcell, mocap, obj, effects, ros, operator)
+
+
+def _beside(source: str, path: str) -> str:
+    """`path` as it is when empty or absolute, else taken from the folder of the
+    configuration file `source` (from the working folder for the built-in configuration)."""
+    if not path or Path(path).expanduser().is_absolute() or not Path(source).is_file():
+        return str(Path(path).expanduser()) if path else path
+    return str(Path(source).resolve().parent / path)
 
 
 def _plant_model(source: str, name: str, arm: dict) -> str:

@@ -73,3 +73,15 @@ def test_a_cell_per_element_and_the_rate_of_three_ros_arms(tmp_path):
     assert cfg.rig["rate"] == config.ROS_DEFAULT_RATE_MANY_ARMS
     two = _load(tmp_path, '[arms.PSM1]\ndriver = "ros"\n[arms.PSM2]\ndriver = "ros"\n')
     assert two.rig["rate"] == config.ROS_DEFAULT_RATE
+
+
+def test_a_relative_load_cell_port_is_the_configuration_folders(tmp_path, monkeypatch):
+    """Two users of one machine each get their own pty link: a relative port lies beside
+    the rig.toml, whatever folder the command runs from; an absolute one is kept."""
+    lab = tmp_path / "lab"
+    lab.mkdir()
+    (lab / "rig.toml").write_text('[loadcell]\ndriver = "serial"\nport = "rig-loadcell"\n')
+    monkeypatch.chdir(tmp_path)
+    assert config.load(lab / "rig.toml").loadcell["port"] == str((lab / "rig-loadcell").resolve())
+    (lab / "abs.toml").write_text('[loadcell]\ndriver = "serial"\nport = "/dev/ttyACM0"\n')
+    assert config.load(lab / "abs.toml").loadcell["port"] == "/dev/ttyACM0"

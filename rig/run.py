@@ -44,6 +44,7 @@ import click
 from rig.config import ConfigError
 from rig.faults import DeviceFault
 from rig.model_file import ModelFileError
+from rig import run_owner
 from rig.paths import run_dir_name, runs_root
 from rig.records import Recorder, to_json
 
@@ -167,6 +168,7 @@ class Run:
             except FileExistsError:
                 self.utc_start += timedelta(microseconds=1)
         self.dir = candidate
+        run_owner.claim(self.dir)  # released once the run's files are written (rig.run_owner)
         self.recorder = Recorder(self.dir / "run.mcap", **self.recorder_options)
         describe = getattr(self.parameters, "describe", None)
         self.recorder.start(self.procedure,
@@ -295,6 +297,7 @@ class Run:
                 raise
             # the original error is the one to see; this one is secondary
             self._write(f"rig {self.procedure}: could not write result.json: {err}\n")
+        run_owner.release(self.dir)
         if exc is not None:
             try:  # lets exit_on_abort name the folder for Ctrl-C and failures too
                 exc.run_dir = self.dir

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import click
 
+from rig import run_owner
 from rig.exit_codes import InputError
 from rig.paths import RUN_TIME_FORMAT, procedure_of, run_dirs, runs_root
 from rig.records import decode_metadata
@@ -21,9 +22,11 @@ from rig.run import result_json
 
 
 # ---------------------------------------------------------------------- rig runs
-#: statuses a run can show: those of result.json and the stop record, "unfinished" (no
-#: result and no stop record: running, or killed) and "unreadable" (a broken result.json)
-STATUSES = ("completed", "failed", "aborted", "dry-run", "unfinished", "unreadable")
+#: statuses a run can show: those of result.json and the stop record; with neither,
+#: "running" (its process lives), "interrupted" (its process died without closing it:
+#: SIGKILL, a power cut) or, for a run from before owner files, "unfinished"; and
+#: "unreadable" (a broken result.json)
+STATUSES = ("completed", "failed", "aborted", "dry-run", "running", "interrupted", "unfinished", "unreadable")
 
 # The figures each procedure's summary leads with in the list (the others follow in their
 # order), with the units the procedure computes them in (the summaries carry bare numbers):
@@ -265,8 +268,13 @@ def run_info(run_dir: Path, result: dict | None = None) -> dict:
             info["error"] = stop.get("error", "")
             result = {"held": stop.get("held"), "hold_errors": stop.get("hold_errors")}
         else:
-            # no result and no stop record: still running, or killed without a chance to finish
-            info["status"] = "unfinished"
+            # no result and no stop record: still running, or killed without a chance to
+            # finish; its owner file (rig.run_owner) tells which, for runs that have one
+            owner = run_owner.state(run_dir)
+            info["status"] = {"running": "running", "interrupted": "interrupted"}.get(owner, "unfinished")
+            if owner == "interrupted":
+                info["error"] = ("interrupted (no stop record): its process ended without closing the run; "
+                                 "the recording holds the samples up to its last chunk")
             result = {}
     if info["procedure"] == "cooperative":
         info["setup"] = cooperative_setup(result, start_record())
@@ -587,7 +595,8 @@ Without RUN, a line per run (a cooperative run's result may take a second):
             `rig export RUN`, `rig discrepancy RUN_DIR` and
             `--model logs/<run>/model.json` take
   status    completed, failed (ran but missed its purpose), aborted (a limit, a fault,
-            Ctrl-C), dry-run, unfinished (running, or killed) or unreadable
+            Ctrl-C), dry-run, running, interrupted (its process killed before it could close
+            the run: no stop record), unfinished (an older run: running, or killed) or unreadable
   duration  wall time, s
   arms      the arms the run used: those its result comes from (its provenance), else
             those it names or held

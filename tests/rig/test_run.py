@@ -6,6 +6,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import click
@@ -268,3 +269,47 @@ def test_runs_started_in_the_same_microsecond_get_their_own_folders(logs, monkey
         pass
     assert first.dir.name == "20261121T050203999999Z-selftest"
     assert second.dir.name == "20261121T050204000000Z-selftest"
+
+
+def test_a_run_whose_process_is_killed_outright_reads_back_and_lists_as_interrupted(tmp_path, monkeypatch):
+    """SIGKILL leaves no chance to close anything: the recording is readable up to its last
+    chunk on disk, in order, with no stop record, and `rig runs` shows the run interrupted
+    (its owner file names a process that is gone), not running and not missing."""
+    from click.testing import CliRunner
+
+    from rig.cli import main
+    from rig.run_owner import OWNER_FILE
+
+    logs, marker = tmp_path / "logs", tmp_path / "marker"
+    marker.mkdir()
+    proc = _start_target(logs, "wait", marker)
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("READY "), proc.stderr.read() if proc.poll() is not None else line
+        run_dir = Path(line.split(" ", 1)[1].strip())
+        assert (run_dir / OWNER_FILE).exists()
+        monkeypatch.setenv("RIG_LOGS", str(logs))
+        listed = json.loads(CliRunner().invoke(main, ["runs", "--json"]).stdout)["runs"]
+        assert [r["status"] for r in listed] == ["running"], listed
+        mcap = run_dir / "run.mcap"
+        deadline = time.monotonic() + 120.0  # a guard against a hang, not a figure
+        while mcap.stat().st_size < 700 * 1024:  # more than one 512 kB chunk written
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGKILL)
+        proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == -signal.SIGKILL
+    rec = read_recording(mcap)
+    assert not rec.finalised and rec.stop is None and rec.problem
+    js = rec.messages["/PSM1/measured_js"]
+    assert len(js) >= 1000
+    assert [m.effort[0] for _, m in js] == [float(i) for i in range(len(js))]  # from the first, in order
+    assert not (marker / "held-PSM1").exists()  # nothing ran after the kill
+    listed = json.loads(CliRunner().invoke(main, ["runs", "--json"]).stdout)["runs"]
+    assert [r["status"] for r in listed] == ["interrupted"], listed
+    assert listed[0]["error"].startswith("interrupted (no stop record)")
+    text = CliRunner().invoke(main, ["runs"]).stdout
+    assert "interrupted" in text and "no stop record" in text, text

@@ -901,6 +901,8 @@ class RosArm:
             # machine the spin thread may take more than a second to notice the shutdown
             self._executor.shutdown(timeout_sec=5.0)
             self._spin_thread.join(timeout=5.0)
+            if self._spin_thread.is_alive():
+                return  # still in the executor: its endpoints are left to the process's end
         for s in self._subs:
             self.node.destroy_subscription(s)
         if self._state_client is not None:

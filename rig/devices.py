@@ -167,6 +167,16 @@ def open_operator(cfg, session=None):
     return ConsoleOperator(yes=cfg.operator["yes"])
 
 
+def _once_stopped(session, close):
+    """`close` of a driver with endpoints on `session`'s node, run only when no executor
+    spins that node (never started, or stopped): with the executor thread stuck, the
+    endpoints are left to the process's end instead of crashing it."""
+    def closer() -> None:
+        if session.executor is None or session.stopped:
+            close()
+    return closer
+
+
 def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
     from drivers.dvrk_arm import RosArm
     from rig.ros_session import RosSession
@@ -183,7 +193,7 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
                          console=cfg.ros["console"], streams=arm_streams, polled=session.executor_time)
             rig.arms[n] = arm
             rig.clock.add_source(arm)
-            rig._closers.append(arm.close)
+            rig._closers.append(_once_stopped(session, arm.close))
         lc = cfg.loadcell
         if "loadcell" in uses:
             if lc["driver"] == "serial" and lc["ports"]:
@@ -205,7 +215,7 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
             bodies = [mb.name for n in names for mb in default_marker_bodies(n)] + ["world"]
             rig.tracker = RosMocapTracker(session.node, bodies, prefix=m["prefix"], stale_timeout=m["stale_timeout"],
                                           polled=session.executor_time)
-            rig._closers.append(rig.tracker.close)
+            rig._closers.append(_once_stopped(session, rig.tracker.close))
         elif "mocap" in uses and m["driver"] == "natnet":
             from drivers.natnet import open_natnet_tracker
             from rig.sim import default_marker_bodies
@@ -216,6 +226,9 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
             rig._closers.append(rig.tracker.close)
         rig.operator = open_operator(cfg, session)
         session.start()
+        # closed first (the closers run newest first): the executor stops before any driver
+        # destroys its endpoints on the node it spins (RosSession.stop)
+        rig._closers.append(session.stop)
     except BaseException:
         rig.close()
         raise

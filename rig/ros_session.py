@@ -23,6 +23,9 @@ import time
 
 #: s, longest wait of the executor before it notes the time again (no message arrived)
 POLL = 0.005
+#: s, longest wait for the executor thread to return when the session stops (a starved
+#: process: the thread must get the CPU once to see the request)
+STOP_WAIT = 10.0
 
 
 def domain_text() -> str:
@@ -76,6 +79,7 @@ class RosSession:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._spin, name=f"ros-{name}", daemon=True)
         self.spins = 0
+        self.stopped = False
 
     def executor_time(self) -> float:
         """Monotonic s at which the executor last finished a wait (see the module docstring)."""
@@ -101,15 +105,30 @@ class RosSession:
             self._t = time.monotonic()
             self.spins += 1
 
-    def close(self) -> None:
-        import rclpy
-
+    def stop(self) -> bool:
+        """Stop spinning: the executor thread has returned and the executor is shut down,
+        so the drivers may destroy their endpoints (destroyed under a spinning executor,
+        an endpoint takes the process down with a segmentation fault: rclpy#663, and
+        the EventsExecutor's rclpy#1644). Idempotent. False if the thread did not return
+        within STOP_WAIT s: then nothing may be destroyed (`stopped` stays False)."""
         self._stop.set()
         if self._thread.is_alive():
-            self._thread.join(timeout=1.0)
+            self._thread.join(timeout=STOP_WAIT)
+        if self._thread.is_alive():
+            return False
+        if self.executor is not None and not self.stopped:
+            self.executor.shutdown(timeout_sec=STOP_WAIT)
+        self.stopped = True
+        return True
+
+    def close(self) -> None:
+        """Stop spinning, destroy the node and shut the context down; a thread that would
+        not stop leaves them to the process's end rather than crash it."""
+        import rclpy
+
+        if not self.stop():
+            return
         try:
-            if self.executor is not None:
-                self.executor.shutdown(timeout_sec=1.0)
             self.node.destroy_node()
         finally:
             if self.context.ok():

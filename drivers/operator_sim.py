@@ -77,6 +77,9 @@ class SimOperator:
         self.cells = dict(cells) if cells else ({cell.element: cell} if cell is not None else {})
         self.object_spec = object_spec if object_spec is not None else world.object
         self.pinned: dict[str, np.ndarray] = {}  # arm -> joints where a touch holds its tip
+        #: other cables a person can pull: "mocap" (the tracker's stream stops), "operator"
+        #: (the person walks away: requests go unanswered), each a callable set by its server
+        self.cables: dict[str, object] = {}
 
     def confirm(self, message: str) -> None:
         return None
@@ -113,12 +116,19 @@ class SimOperator:
         cell.kg = float(kg)
 
     def unplug(self, device: str) -> None:
-        """Pull a cable out (a fault a person can cause): "loadcell"."""
-        if device != "loadcell":
-            raise OperatorError(f"can only unplug the 'loadcell', not {device!r}")
-        if self.cell is None or self.cell.cable is None:
-            raise OperatorError("the simulated rig serves no load cell to unplug")
-        self.cell.cable()
+        """Pull a cable out (a fault a person can cause): "loadcell" (its pty closes),
+        "mocap" (the tracker stops streaming), "operator" (the person leaves: this reply
+        is the last)."""
+        if device == "loadcell":
+            if self.cell is None or self.cell.cable is None:
+                raise OperatorError("the simulated rig serves no load cell to unplug")
+            self.cell.cable()
+            return
+        cable = self.cables.get(device)
+        if cable is None:
+            known = ["loadcell", *self.cables]
+            raise OperatorError(f"can only unplug {', '.join(repr(k) for k in known)} here, not {device!r}")
+        cable()
 
     def fault(self, arm: str, kind: str, joint: int = 1, timeout: float = 0.1) -> None:
         """Inject an arm fault (tests): "joint_limit" pushes `joint` (1-3) past its upper
@@ -187,11 +197,19 @@ class OperatorServer:
         self._pub = node.create_publisher(String, REPLY_TOPIC, qos)
         self._sub = node.create_subscription(String, REQUEST_TOPIC, lambda m: self._queue.append(m), qos)
         self.served: dict[str, int] = {}
+        self.gone = False  # the person left (unplug "operator"): requests go unanswered
+        operator.cables["operator"] = self._leave
+
+    def _leave(self) -> None:
+        self.gone = True
 
     def apply(self) -> None:
-        """Carry out the queued requests and reply to each (main thread, between steps)."""
+        """Carry out the queued requests and reply to each (main thread, between steps);
+        once the person has left, requests are dropped unanswered."""
         while self._queue:
             msg = self._queue.popleft()
+            if self.gone:
+                continue
             try:
                 doc = json.loads(msg.data)
                 key = doc["id"]

@@ -114,6 +114,8 @@ class SimServer:
                                                    cells={c.element: c for c in cells or []}, states=self.states,
                                                    object_spec=object_spec), node)
         self.cells = list(cells or [])
+        self.operator.operator.cables["mocap"] = self._unplug_mocap
+        self.mocap_unplugged = False
         self.tracker = None
         self.natnet = None  # a drivers.natnet_server.SimMotive when serving NatNet (`--natnet`)
         self._mocap_msg: dict = {}
@@ -255,8 +257,15 @@ class SimServer:
             self.tracker.close()
             self.tracker = None
 
+    def _unplug_mocap(self) -> None:
+        """The tracker's cable pulled (a fault for tests): no pose is published from now on."""
+        self.mocap_unplugged = True
+
     def _publish_mocap(self) -> None:
-        for frame in self.tracker.frames():
+        frames = self.tracker.frames()
+        if self.mocap_unplugged:
+            return
+        for frame in frames:
             for body, pose in frame.bodies.items():
                 if pose is None:
                     continue  # occluded: bridges publish nothing for a lost body
@@ -325,7 +334,7 @@ class SimServer:
                 self._refresh_watched()
             if self.tracker is not None:
                 self._publish_mocap()
-            if self.natnet is not None:
+            if self.natnet is not None and not self.mocap_unplugged:
                 self.natnet.pump(self._epoch0)  # Motive's clock is the stamps' timeline
             lag = time.perf_counter() - (perf0 + t)
             if lag > self.max_lag:

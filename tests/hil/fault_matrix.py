@@ -1,0 +1,173 @@
+"""The fault matrix over the wire, shared by bench/bench_faults.py and tests/hil/test_fault_matrix.py:
+each procedure as a lab runs it, the faults a rig meets, how each is injected into `rig sim`
+(tests/hil/harness.py) when the procedure's step begins, and what a clean ending is (issue 37).
+
+* server killed: rig sim SIGKILLed (the arms' console, its load cell and mocap die with it)
+* load-cell pty closed, mocap stopped: the simulated person pulls that cable
+* operator gone: the simulated person walks away (requests go unanswered)
+* arm FAULT: PSM1 pushed past its joint-1 limit (the arm faults, as a dVRK's does)
+* SIGINT, SIGTERM: sent to the procedure
+
+A fault that cannot reach the procedure (it does not use that device after the fault)
+must leave it completing as if nothing happened ("unused"). Otherwise a cell is clean when
+the procedure ends with one line on stderr, no traceback, no signal, the documented exit
+(3 aborted; 130 for SIGINT), every arm it moved held (an arm in FAULT obeys nothing: it is
+reported not held), and its recording closed with the reason.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from dataclasses import dataclass, field
+
+from tests.hil.harness import ServedRig, lab_toml
+from tests.ros_domains import ros_environment
+
+#: the operator's answer limit on this rig (s): an operator gone is seen after it
+OPERATOR_TIMEOUT = 5.0
+
+
+@dataclass
+class Procedure:
+    args: list[str]
+    step: str                  # the fault lands when this step begins (its "... " line)
+    arms: list[str]            # the arms it moves
+    uses: set[str] = field(default_factory=set)  # devices it reads after the step begins
+
+
+PROCEDURES: dict[str, Procedure] = {
+    "loadcell-calibrate": Procedure(["loadcell-calibrate", "--seconds", "3"], "average counts with mass 1 ...", [],
+                                    {"loadcell", "operator"}),
+    "link-lengths": Procedure(["link-lengths", "--q1-range", "0.5", "--q2-range", "0.4", "--passes", "1",
+                               "--q3-stroke", "0.05"], "sweep q1 with q2 = 0 ...", ["PSM1"], {"arms", "mocap"}),
+    "calibrate-rcm": Procedure(["calibrate-rcm", "--arm", "PSM1", "--duration", "6", "--q1-range", "0.5",
+                                "--q2-range", "0.4"], "sweep q1 with q2 = 0 ...", ["PSM1"], {"arms", "mocap"}),
+    "register": Procedure(["register", "--points", "6"], "measure ...", ["PSM1", "PSM2"], {"arms", "operator"}),
+    "identify": Procedure(["identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5",
+                           "--no-plots"], "run the excitation trajectory ...", ["PSM1"], {"arms"}),
+    "friction-ramp": Procedure(["friction-ramp", "--arm", "PSM1", "--ramp-time", "1.5", "--speeds", "0.01,0.02,0.04",
+                                "--no-plots"], "force ramp, positive direction ...", ["PSM1"], {"arms"}),
+    "cooperative": Procedure(["cooperative", "--force", "5", "--object", "spring", "--move", "0.02,0,0", "--duration",
+                              "4", "--settle", "1", "--hold-after", "0"], "hold the tension while moving ...",
+                             ["PSM1", "PSM2"], {"arms", "loadcell"}),
+    "cooperative-string": Procedure(["cooperative", "--force", "5", "--object", "string", "--move", "0.02,0,0",
+                                     "--duration", "4", "--settle", "1", "--hold-after", "0"],
+                                    "hold the tension while moving ...", ["PSM1", "PSM2"], {"arms", "loadcell"}),
+}
+
+#: fault -> (the device it takes away: "any" for all of them, None for a signal; the exit code;
+#: whether rig sim is left broken after it)
+FAULTS = {
+    "server killed": ("any", 3, True),  # rig sim serves every device: the arms, the cell's pty, mocap, the operator
+    "load-cell pty closed": ("loadcell", 3, True),
+    "mocap stopped": ("mocap", 3, True),
+    "operator gone": ("operator", 3, True),
+    "arm FAULT": ("arms", 3, True),
+    "SIGINT": (None, 130, False),
+    "SIGTERM": (None, 3, False),
+}
+
+
+def _operator(domain: int, fn) -> None:
+    """Call fn(RosOperator) from a ROS session of this process on `domain`."""
+    from drivers.operator import RosOperator
+    from rig.ros_session import RosSession
+
+    with ros_environment(domain):
+        session = RosSession("bench_person")
+        session.start()
+        try:
+            fn(RosOperator(session.node, timeout=10.0))
+        finally:
+            session.close()
+
+
+def _inject(rig: ServedRig, fault: str, proc_box: list) -> None:
+    if fault == "server killed":
+        rig.kill(signal.SIGKILL)
+    elif fault == "load-cell pty closed":
+        _operator(rig.domain, lambda op: op.unplug("loadcell"))
+    elif fault == "mocap stopped":
+        _operator(rig.domain, lambda op: op.unplug("mocap"))
+    elif fault == "operator gone":
+        _operator(rig.domain, lambda op: op.unplug("operator"))
+    elif fault == "arm FAULT":
+        _operator(rig.domain, lambda op: op.fault("PSM1", "joint_limit", joint=1))
+    elif fault == "SIGINT":
+        proc_box[0].send_signal(signal.SIGINT)
+    elif fault == "SIGTERM":
+        proc_box[0].send_signal(signal.SIGTERM)
+
+
+def cell(rig: ServedRig, name: str, fault: str) -> dict:
+    """Run one procedure with one fault; what happened."""
+    from rig.records import read_recording
+
+    p = PROCEDURES[name]
+    device, code, _ = FAULTS[fault]
+    box: list = [None]
+    t_fault: list[float] = []
+
+    def fire() -> None:
+        t_fault.append(time.monotonic())
+        try:
+            _inject(rig, fault, box)
+        except Exception as exc:  # noqa: BLE001 - reported in the cell
+            t_fault.append(-1.0)
+            print(f"    injecting {fault}: {type(exc).__name__}: {exc}", flush=True)
+
+    out = rig.run(*p.args, on_start=lambda proc: box.__setitem__(0, proc), when=(p.step, fire))
+    t_end = time.monotonic()
+    doc = out.doc or {}
+    unused = device not in (None, "any") and device not in p.uses
+    problems = []
+    if out.code < 0:
+        problems.append(f"signal {-out.code}")
+    if "Traceback" in out.stderr or "Fatal Python error" in out.stderr:
+        problems.append("traceback")
+    if not t_fault:
+        problems.append("the step never began")
+    status = doc.get("status", "?")
+    if unused:
+        if out.code != 0:
+            problems.append(f"a fault of an unused device ended it: exit {out.code}")
+    else:
+        if out.code != code:
+            problems.append(f"exit {out.code}, not {code}")
+        if not out.last_line.startswith(f"rig {p.args[0]}: aborted: "):
+            problems.append("last line")
+        held = sorted(doc.get("held") or [])
+        moved = sorted(a for a in p.arms if not (fault == "arm FAULT" and a == "PSM1"))
+        if held != moved:
+            problems.append(f"held {held}, moved {moved}")
+    rec_status = "-"
+    if doc.get("run_dir"):
+        rec = read_recording(os.path.join(doc["run_dir"], "run.mcap"))
+        rec_status = (rec.stop or {}).get("status", "no stop record") if rec.finalised else "not finalised"
+        if not unused and (not rec.finalised or rec.stop is None or rec.stop.get("status") != "aborted"
+                           or not rec.stop.get("error")):
+            problems.append(f"recording {rec_status}")
+    elif not unused:
+        problems.append("no run folder")
+    return {"ok": not problems, "problems": problems, "unused": unused, "status": status, "line": out.last_line,
+            "held": doc.get("held") or [], "recording": rec_status,
+            "detect_s": (t_end - t_fault[0]) if t_fault and t_fault[0] > 0 else None}
+
+
+
+
+def lab(folder) -> str:
+    """The matrix's rig.toml: the chain's, the operator's answer limit OPERATOR_TIMEOUT."""
+    return lab_toml(folder) + f"timeout = {OPERATOR_TIMEOUT}\n"  # appended to its [operator] table
+
+
+def prepare(rig: ServedRig) -> str | None:
+    """What every procedure needs in the lab's logs; None, or the line of what failed."""
+    for what in (("loadcell-calibrate", "--seconds", "0.5"), ("register", "--points", "6"),
+                 PROCEDURES["identify"].args, PROCEDURES["friction-ramp"].args):
+        out = rig.run(*what)
+        if out.code:
+            return f"{what[0]}: {out.last_line}"
+    return None

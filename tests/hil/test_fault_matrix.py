@@ -1,0 +1,46 @@
+"""The fault matrix over the wire (issue 37): every procedure x every fault, one test each.
+
+A module `rig sim` (tests/hil/fault_matrix.py: the chain's rig.toml, the operator's answer
+limit 5 s) prepared once; a fault that leaves rig sim broken (killed, a cable pulled, an
+arm in FAULT, the operator gone) gets the next test a fresh one on the same folder and
+domain. Each cell ends cleanly (`fault_matrix.cell`): one line, no traceback, no signal,
+the documented exit, the arms it moved held, the recording closed with the reason; or, a
+device it no longer uses, completed as if nothing happened. The whole matrix takes about
+half an hour on this 2-core machine, so it runs with `-m slow` (and bench/bench_faults.py
+prints it as a table); the default run keeps one fault of each kind in tests/hil/test_chain.py,
+tests/hil/test_operating_state.py and tests/rig/test_run.py.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("rclpy")
+
+from tests.hil.fault_matrix import FAULTS, PROCEDURES, cell, lab, prepare  # noqa: E402
+from tests.hil.harness import ServedRig  # noqa: E402
+
+pytestmark = [pytest.mark.ros, pytest.mark.hil, pytest.mark.slow]
+
+
+@pytest.fixture(scope="module")
+def matrix_rig(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("faults")
+    with ServedRig(folder, toml=lab(folder), sim_args=("--ros-period", "0.002")) as rig:
+        problem = prepare(rig)
+        assert problem is None, problem
+        yield rig
+
+
+@pytest.mark.parametrize("fault", list(FAULTS))
+@pytest.mark.parametrize("procedure", list(PROCEDURES))
+def test_a_fault_ends_the_procedure_cleanly(matrix_rig, procedure, fault):
+    rig = matrix_rig
+    if not rig.running or rig.faulted:
+        rig.restart()
+    try:
+        r = cell(rig, procedure, fault)
+    finally:
+        if FAULTS[fault][2] and rig.running:
+            rig.stop(keep_domain=True)  # its cable stays pulled: the next test gets a fresh rig sim
+    assert r["ok"], (r["problems"], r["line"])

@@ -1,24 +1,12 @@
 """The fault matrix over the wire: every procedure x every fault (issue 37).
 
-One `rig sim` in its own folder (tests/hil/harness.py) from a lab's rig.toml (ROS arms, the
-serial load cell on rig sim's pty, ROS mocap, rig sim's simulated operator with a 5 s
-answer limit), prepared once (load cell calibrated, arms registered, PSM1 identified and
-friction-ramped, so every procedure finds what it needs). Then, per procedure and fault, a
-`rig <procedure> --json` process as a lab runs it; the fault lands when the procedure's
-step named in PROCEDURES begins:
-
-* server killed: rig sim SIGKILLed (the arms' console, its load cell and mocap die with it)
-* load-cell pty closed, mocap stopped: the simulated person pulls that cable
-* operator gone: the simulated person walks away (requests go unanswered)
-* arm FAULT: PSM1 pushed past its joint-1 limit (the arm faults, as a dVRK's does)
-* SIGINT, SIGTERM: sent to the procedure
-
-A fault that cannot reach the procedure (it does not use that device after the fault) must
-leave it completing as if nothing happened ("unused"). Otherwise the cell is green when the
-procedure ends with one line on stderr, no traceback, no signal, the documented exit
-(3 aborted; 130 for SIGINT), every arm it moved held (an arm in FAULT obeys nothing: it is
-reported not held), and its recording closed with the reason. rig sim is restarted after a
-fault that leaves it broken.
+One `rig sim` in its own folder (tests/hil/harness.py) from a lab's rig.toml, prepared once
+(load cell calibrated, arms registered, PSM1 identified and friction-ramped); then per
+procedure and fault a `rig <procedure> --json` process as a lab runs it, the fault injected
+when the procedure's step begins, and the ending judged: tests/hil/fault_matrix.py says
+which faults, how they are injected and what a clean ending is. rig sim is restarted after
+a fault that leaves it broken. `--burners N` starts N CPU-burning processes once the rig is
+prepared.
 
     .venv/bin/python bench/bench_faults.py [--procedures identify,cooperative] [--faults SIGINT,SIGTERM] [--burners 2]
 

@@ -140,6 +140,7 @@ class SimOperator:
         if kind == "joint_limit":
             if joint not in (1, 2, 3):
                 raise OperatorError(f"joint must be 1, 2 or 3, got {joint!r}")
+            self.release(arm)  # a person pushing the joint no longer holds the tip on a touch point
             state.push_past_limit(joint)
         elif kind == "servo_watchdog":
             if not (np.isfinite(timeout) and timeout >= 0):

@@ -32,21 +32,11 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
 from _table import print_table  # noqa: E402
 
+from bench_cooperative_wire import _model  # noqa: E402  (an identified model of the simulated plant)
 from tests.hil.harness import ServedRig, lab_toml  # noqa: E402
 
 #: the step whose progress bar says the object is held and the master moves
 HOLDING = "hold the tension while moving ["
-
-
-def _model(folder: Path) -> Path:
-    """An identified model of the simulated plant (the built-in rig, in-process)."""
-    env = dict(os.environ, RIG_LOGS=str(folder / "logs"))
-    env.pop("RIG_CONFIG", None)
-    folder.mkdir(parents=True, exist_ok=True)
-    subprocess.run([sys.executable, "-m", "rig.cli", "identify", "--arm", "PSM1", "--duration", "10", "--starts", "1",
-                    "--iterations", "5", "--no-plots", "--json"], cwd=folder, env=env, check=True,
-                   capture_output=True, text=True)
-    return sorted((folder / "logs").glob("*-identify/model.json"))[-1]
 
 
 def judge(out, run_dir: str | None) -> list[str]:

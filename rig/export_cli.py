@@ -23,7 +23,7 @@ import numpy as np
 from rig.exit_codes import InputError
 from rig.paths import runs_root
 from rig.records import Recording, read_recording
-from rig.run import json_option, result_json
+from rig.run import emit_result, json_option, result_json
 from rig.topic_tables import TopicError, csv_name, topic_table, write_csv
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
@@ -267,13 +267,7 @@ def export_command(run: str, out_dir: str | None, csv_path: str | None, list_onl
                  f"column{'s' if len(f['columns']) != 2 else ''} ({f['type']})" for f in summary["files"]]
         lines.append(f"{len(summary['files'])} topic{'s' if len(summary['files']) != 1 else ''} of "
                      f"{summary['run_dir']} exported to {summary['out']}")
-    if as_json:
-        for line in lines:
-            click.echo(line, err=True)
-        click.echo(result_json(summary, indent=None))
-    else:
-        for line in lines:
-            click.echo(line)
+    emit_result(summary, as_json, "\n".join(lines))
 
 
 def _warn(warnings: list[str]) -> None:

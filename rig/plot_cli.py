@@ -14,7 +14,7 @@ import click
 
 from rig.exit_codes import InputError
 from rig.export_cli import read_run, resolve_run
-from rig.run import json_option, result_json
+from rig.run import emit_result, json_option
 
 PLOT_HELP = """Draw a run's figures again from its recording (run.mcap), aborted runs included.
 
@@ -106,10 +106,4 @@ def plot_command(run: str, out_dir: str | None, as_json: bool) -> None:
     lines += [f"wrote {p}" for p in summary["figures"]]
     lines.append(f"{len(summary['figures'])} figures of {summary['run_dir']} ({summary['status']}) "
                  f"in {summary['out']}")
-    if as_json:
-        for line in lines:
-            click.echo(line, err=True)
-        click.echo(result_json(summary, indent=None))
-    else:
-        for line in lines:
-            click.echo(line)
+    emit_result(summary, as_json, "\n".join(lines))

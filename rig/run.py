@@ -41,14 +41,13 @@ from typing import Any, Callable, Iterator, TextIO
 
 import click
 
+from rig import run_owner
 from rig.config import ConfigError
+from rig.exit_codes import EXIT_ABORTED, EXIT_BUG, EXIT_INTERRUPTED, EXIT_MISSED, InputError  # noqa: F401
 from rig.faults import DeviceFault
 from rig.model_file import ModelFileError
-from rig import run_owner
 from rig.paths import run_dir_name, runs_root
 from rig.records import Recorder, to_json
-
-from rig.exit_codes import EXIT_ABORTED, EXIT_BUG, EXIT_INTERRUPTED, EXIT_MISSED, InputError  # noqa: F401
 
 #: an ending rig did not expect (rig.exit_codes.EXIT_BUG), under the name older code imports
 EXIT_FAILED = EXIT_BUG

@@ -67,6 +67,7 @@ def main() -> int:
     ap.add_argument("--burners", type=int, default=0)
     ap.add_argument("--window", type=float, default=4.0, help="s: rig sim dies up to this long into the hold")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--keep", default=None, help="folder to write the whole stderr of every run that ended badly")
     args = ap.parse_args()
     rng = random.Random(args.seed)
     burners: list[subprocess.Popen] = []  # started once the rig is prepared: the load is on the kills
@@ -109,6 +110,9 @@ def main() -> int:
                           + f" [{out.last_line[:120]}]", flush=True)
                     if problems:
                         rows_bad.append((i + 1, delay, problems, out.stderr[-1500:]))
+                        if args.keep:  # the whole stderr (a fatal error's thread stacks come first)
+                            Path(args.keep).mkdir(parents=True, exist_ok=True)
+                            (Path(args.keep) / f"run{i + 1}.stderr").write_text(out.stderr)
     finally:
         for b in burners:
             b.kill()

@@ -28,7 +28,7 @@ import numpy as np
 from procedures import cooperative_figures as figures
 from rig.exit_codes import InputError
 from rig.params import Parameter, with_parameters
-from rig import provenance
+from rig import provenance, ros_exit
 from rig.run import (AbortRun, Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option,
                      yes_option)
 
@@ -904,9 +904,11 @@ class _LiveCommands:
         from rclpy.executors import SingleThreadedExecutor
         from std_msgs.msg import Float64
 
+        ros_exit.before_init()
         self.context = Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node("rig_cooperative_teleop", context=self.context)
+        ros_exit.after_node()
         # deque.append is atomic: the executor's thread only ever appends
         self.node.create_subscription(Twist, "/psm/cmd_vel", lambda m: self.pending.append(("/psm/cmd_vel", m)), 10)
         self.node.create_subscription(Float64, "/psm/cmd_force",
@@ -1030,10 +1032,8 @@ class _LiveCommands:
             import rclpy
 
             self.executor.shutdown(timeout_sec=1.0)
-            self.node.destroy_node()
-            if self.context.ok():
-                rclpy.shutdown(context=self.context)
             self.thread.join(timeout=2.0)
+            ros_exit.teardown(self.node, self.context)
             self.node = None
 
 

@@ -28,6 +28,7 @@ import time
 
 import click
 
+from rig import ros_exit
 from rig.exit_codes import InputError
 from rig.sim_server import DVRK_ROS_PERIOD
 
@@ -236,12 +237,14 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
     from rig.sim_server import SimServer
     from rclpy.signals import SignalHandlerOptions
 
+    ros_exit.before_init()
     context = Context()
     # Our own handlers stop the loop cleanly; rclpy's would shut the context under it.
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     node = server = None
     try:
         node = rclpy.create_node("rig_sim", context=context)
+        ros_exit.after_node()
         mocap_cfg = dict(cfg.mocap) if mocap and cfg.mocap["driver"] != "none" else None
         if world.object is not None:
             world.detach_object()
@@ -290,9 +293,7 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
                 os.unlink(link)
             except OSError:
                 pass
-        if node is not None:
-            node.destroy_node()
-        rclpy.shutdown(context=context)
+        ros_exit.teardown(node, context)
     hz = stats["measured_js_hz"]
     rates = ", ".join(f"{n} {v:.1f} Hz" for n, v in hz.items())
     target = 1.0 / (server.ros_every / rate)

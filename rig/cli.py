@@ -89,5 +89,18 @@ def main(ctx: click.Context, config_path: str | None) -> None:
             raise InputError(str(exc)) from None
 
 
+def run() -> None:
+    """The `rig` program: the command, then the process's end through `rig.ros_exit.leave`
+    (a command that used ROS 2 leaves its DDS participants to the process's end)."""
+    from rig import ros_exit
+
+    ros_exit.end_with_process()
+    try:
+        main()
+    except SystemExit as done:
+        ros_exit.leave(done.code)
+    ros_exit.leave(0)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    run()

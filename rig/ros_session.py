@@ -21,6 +21,8 @@ import os
 import threading
 import time
 
+from rig import ros_exit
+
 #: s, longest wait of the executor before it notes the time again (no message arrived)
 POLL = 0.005
 #: s, longest wait for the executor thread to return when the session stops (a starved
@@ -64,12 +66,14 @@ class RosSession:
         from rclpy.context import Context
         from rclpy.signals import SignalHandlerOptions
 
+        ros_exit.before_init()
         self.context = Context()
         # The run engine owns SIGINT/SIGTERM: rclpy's handlers would shut the context
         # under a procedure instead of letting it hold the arms and close its recording.
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
         try:
             self.node = rclpy.create_node(name, context=self.context)
+            ros_exit.after_node()
             self.executor = None
             self.executor_kind = executor
         except BaseException:
@@ -122,14 +126,9 @@ class RosSession:
         return True
 
     def close(self) -> None:
-        """Stop spinning, destroy the node and shut the context down; a thread that would
-        not stop leaves them to the process's end rather than crash it."""
-        import rclpy
-
+        """Stop spinning, then destroy the node and shut the context down (in a `rig`
+        command's process: leave them to its end, `rig.ros_exit`); a thread that would not
+        stop leaves them to the process's end rather than crash it."""
         if not self.stop():
             return
-        try:
-            self.node.destroy_node()
-        finally:
-            if self.context.ok():
-                rclpy.shutdown(context=self.context)
+        ros_exit.teardown(self.node, self.context)

@@ -105,12 +105,13 @@ def teardown(node, context) -> None:
 
 def leave(code) -> None:
     """End the process with `code` (an int, None for 0, or a message for 1, as sys.exit):
-    with `os._exit` when a participant was parked, else with `sys.exit`."""
+    with `os._exit` once ROS 2 was loaded (a participant parked, or one whose executor
+    would not stop: Python's finalisers would delete it), else with `sys.exit`."""
     if isinstance(code, str):
         print(code, file=sys.stderr)
         code = 1
     code = 0 if code is None else int(code)
-    if not _parked:
+    if not _parked and "rclpy" not in sys.modules:
         sys.exit(code)
     try:
         atexit._run_exitfuncs()  # the recorder's last-chance close and the like

@@ -71,6 +71,7 @@ def test_leave_without_a_parked_participant_is_sys_exit(monkeypatch):
     from rig import ros_exit
 
     monkeypatch.setattr(ros_exit, "_parked", [])
+    monkeypatch.delitem(sys.modules, "rclpy", raising=False)
     with pytest.raises(SystemExit) as done:
         ros_exit.leave(None)
     assert done.value.code == 0

@@ -1,7 +1,8 @@
 """The fault matrix over the wire: every procedure x every fault (issue 37).
 
 One `rig sim` in its own folder (tests/hil/harness.py) from a lab's rig.toml, prepared once
-(load cell calibrated, arms registered, PSM1 identified and friction-ramped); then per
+(load cell calibrated, arms registered, PSM1 identified and friction-ramped; the three-arm
+triangle on a second rig sim with PSM3 and a cell per element); then per
 procedure and fault a `rig <procedure> --json` process as a lab runs it, the fault injected
 when the procedure's step begins, and the ending judged: tests/hil/fault_matrix.py says
 which faults, how they are injected and what a clean ending is. rig sim is restarted after
@@ -31,6 +32,31 @@ from _table import print_table  # noqa: E402
 from tests.hil.fault_matrix import FAULTS, PROCEDURES, cell, lab, prepare  # noqa: E402
 from tests.hil.harness import ServedRig  # noqa: E402
 
+def _lab(folder: Path, three: bool, names: list[str], faults: list[str], n_burners: int,
+         burners: list, results: dict) -> bool:
+    """One lab's rig sim, prepared, then its procedures x faults into `results`; the
+    burners start once the first lab is prepared. False if preparing failed."""
+    with ServedRig(folder, toml=lab(folder, three), sim_args=("--ros-period", "0.002")) as rig:
+        problem = prepare(rig, three)
+        if problem:
+            print(f"preparing: {problem}")
+            return False
+        if not burners:
+            burners += [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n_burners)]
+        for n in names:
+            for f in faults:
+                if not rig.running or rig.faulted:
+                    rig.restart()
+                r = cell(rig, n, f)
+                results[(n, f)] = r
+                print(f"{n} x {f}: {'green' if r['ok'] else 'RED: ' + '; '.join(r['problems'])}"
+                      f"{' (unused: completed)' if r['unused'] and r['ok'] else ''}; "
+                      f"{r['line'][:150]}", flush=True)
+                if FAULTS[f][2] and rig.running:
+                    rig.stop(keep_domain=True)  # its cable stays pulled: a fresh one next
+    return True
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--procedures", default=",".join(PROCEDURES))
@@ -50,25 +76,11 @@ def main() -> int:
     t0 = time.monotonic()
     try:
         with tempfile.TemporaryDirectory(prefix="bench-faults-") as tmp:
-            folder = Path(tmp) / "lab"
-            with ServedRig(folder, toml=lab(folder), sim_args=("--ros-period", "0.002")) as rig:
-                problem = prepare(rig)
-                if problem:
-                    print(f"preparing: {problem}")
+            for three in (False, True):  # the two-arm lab, then the three-arm one
+                on_lab = [n for n in names if PROCEDURES[n].three_arms == three]
+                if on_lab and not _lab(Path(tmp) / ("lab3" if three else "lab"), three, on_lab, faults,
+                                       args.burners, burners, results):
                     return 2
-                burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
-                           for _ in range(args.burners)]
-                for n in names:
-                    for f in faults:
-                        if not rig.running or rig.faulted:
-                            rig.restart()
-                        r = cell(rig, n, f)
-                        results[(n, f)] = r
-                        print(f"{n} x {f}: {'green' if r['ok'] else 'RED: ' + '; '.join(r['problems'])}"
-                              f"{' (unused: completed)' if r['unused'] and r['ok'] else ''}; "
-                              f"{r['line'][:150]}", flush=True)
-                        if FAULTS[f][2] and rig.running:
-                            rig.stop(keep_domain=True)  # its cable stays pulled: a fresh one next
     finally:
         for b in burners:
             b.kill()

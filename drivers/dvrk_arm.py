@@ -202,6 +202,7 @@ class RosArm:
         self._fault_error: ArmFault | None = None
         #: how the last move_jp(wait=True) waited: "busy" (operating_state) or "position"
         self.move_wait: str | None = None
+        self.move_end: str | None = None
         self.states_error: str | None = None  # why states are not read, if they are not
         self._command_qos = None
         # the whole arm: where joints 1-3 are in its messages, how many it has, the wrist
@@ -617,26 +618,35 @@ class RosArm:
         REST_VELOCITY. An arm that is not ENABLED and homed drops the command: False once
         the flag did not rise. False after `timeout` s. Raises StaleStream if measured_js
         stops while waiting, ArmFault if the arm faults. `move_wait` says which of the two
-        waits it took.
+        waits it took ("busy" or "position"), `move_end` how the wait ended: "arrived",
+        "dropped" (the arm is not ready: busy never rose) or "timeout".
         """
         goal = np.asarray(_vector(position, "move_jp"))
         with self._lock:
             since = self._state_count
             states = self._state is not None
         self._publish("move_jp", position=self._whole(goal, self._wrist_fill()))
+        self.move_wait = self.move_end = None
         if not wait:
             return True
         deadline = time.monotonic() + timeout
         if states:
-            done = self._wait_busy(since, deadline)
-            if done is not None:
+            busy = self._wait_busy(since, deadline)
+            if busy is not None:
                 self.move_wait = "busy"
+                if busy != "fell":
+                    self.move_end = busy
+                    return False
                 # The arm's trajectory is over. Its joints settle on the goal under the PID
                 # (joint 3 hovers about the 1 mm tolerance for a while): confirm on them,
                 # for what is left of the timeout.
-                return done and self._wait_arrived(goal, deadline, rest=False)
+                arrived = self._wait_arrived(goal, deadline, rest=False)
+                self.move_end = "arrived" if arrived else "timeout"
+                return arrived
         self.move_wait = "position"
-        return self._wait_arrived(goal, deadline)
+        arrived = self._wait_arrived(goal, deadline)
+        self.move_end = "arrived" if arrived else "timeout"
+        return arrived
 
     @staticmethod
     def _at(goal: np.ndarray, js: JointState, rest: bool = True) -> bool:
@@ -649,11 +659,11 @@ class RosArm:
         return bool(len(q) == n and np.all(np.abs(q - goal) <= tol)
                     and (not rest or len(dq) < n or np.all(np.abs(dq) <= rest_v)))
 
-    def _wait_busy(self, since: int, deadline: float) -> bool | None:
+    def _wait_busy(self, since: int, deadline: float) -> str | None:
         """Wait for is_busy to rise (an operating_state after index `since` with it set)
-        and fall again. True: it fell; False: the timeout passed, or it did not rise and the
-        arm is not ready (the command was dropped); None: it did not rise on a ready arm
-        (wait on positions instead)."""
+        and fall again. "fell"; "timeout": the timeout passed; "dropped": it did not rise
+        and the arm is not ready (the command was dropped); None: it did not rise on a
+        ready arm (wait on positions instead)."""
         rise_by = min(deadline, time.monotonic() + BUSY_RISE)
         rose = None
         while True:
@@ -662,13 +672,13 @@ class RosArm:
                 if rose is None and self._busy_index > since:
                     rose = self._busy_index
                 if rose is not None and self._idle_index > rose:
-                    return True
+                    return "fell"
                 now = time.monotonic()
                 if rose is None and now >= rise_by:
                     st = self._state
-                    return None if (st is not None and st.ready) else False
+                    return None if (st is not None and st.ready) else "dropped"
                 if now >= deadline:
-                    return False
+                    return "timeout"
                 # wake at least five times per watchdog interval (a stream that stops is
                 # then seen within the watchdog plus a fifth of it)
                 self._cond.wait(min((rise_by if rose is None else deadline) - now, self.watchdog / 5.0))

@@ -210,7 +210,7 @@ def test_move_jp_waits_until_arrived_and_times_out(rig_sim):
     t0 = time.monotonic()
     assert arm.move_jp(goal, wait=True, timeout=8.0)
     elapsed = time.monotonic() - t0
-    assert arm.move_wait == "busy"  # rig sim publishes operating_state: the wait is on is_busy
+    assert (arm.move_wait, arm.move_end) == ("busy", "arrived")  # rig sim publishes operating_state: the wait is on is_busy
     assert not arm.operating_state().is_busy
     q = arm.measured_js().position
     assert np.all(np.abs(q - goal) <= 1.5 * np.array([2e-3, 2e-3, 1e-3]))
@@ -219,7 +219,7 @@ def test_move_jp_waits_until_arrived_and_times_out(rig_sim):
     t0 = time.monotonic()
     assert arm.move_jp(np.array([0.08, -0.05, 0.13]), wait=True, timeout=0.1) is False
     # Never before the timeout (that it returns at all is the mechanism's other half)
-    assert time.monotonic() - t0 >= 0.1
+    assert time.monotonic() - t0 >= 0.1 and arm.move_end == "timeout"
     assert arm.move_jp(np.array([0.0, 0.0, 0.12]), wait=True, timeout=8.0)
 
 

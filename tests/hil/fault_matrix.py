@@ -36,6 +36,7 @@ class Procedure:
     step: str                  # the fault lands when this step begins (its "... " line)
     arms: list[str]            # the arms it moves
     uses: set[str] = field(default_factory=set)  # devices it reads after the step begins
+    three_arms: bool = False   # on the three-arm lab (PSM3 too, a triangle with a cell per element)
 
 
 PROCEDURES: dict[str, Procedure] = {
@@ -45,7 +46,8 @@ PROCEDURES: dict[str, Procedure] = {
                                "--q3-stroke", "0.05"], "sweep q1 with q2 = 0 ...", ["PSM1"], {"arms", "mocap"}),
     "calibrate-rcm": Procedure(["calibrate-rcm", "--arm", "PSM1", "--duration", "6", "--q1-range", "0.5",
                                 "--q2-range", "0.4"], "sweep q1 with q2 = 0", ["PSM1"], {"arms", "mocap"}),
-    "register": Procedure(["register", "--points", "6"], "measure ...", ["PSM1", "PSM2"], {"arms", "operator"}),
+    # 10 points: the step lasts long enough for the fault to land inside it on a loaded machine
+    "register": Procedure(["register", "--points", "10"], "measure ...", ["PSM1", "PSM2"], {"arms", "operator"}),
     "identify": Procedure(["identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5",
                            "--no-plots"], "run the excitation trajectory ...", ["PSM1"], {"arms"}),
     "friction-ramp": Procedure(["friction-ramp", "--arm", "PSM1", "--ramp-time", "1.5", "--speeds", "0.01,0.02,0.04",
@@ -56,6 +58,10 @@ PROCEDURES: dict[str, Procedure] = {
     "cooperative-string": Procedure(["cooperative", "--force", "5", "--object", "string", "--move", "0.02,0,0",
                                      "--duration", "4", "--settle", "1", "--hold-after", "0"],
                                     "hold the tension while moving ...", ["PSM1", "PSM2"], {"arms", "loadcell"}),
+    "cooperative-triangle": Procedure(["cooperative", "--force", "5", "--arms", "PSM1,PSM2,PSM3", "--object", "spring",
+                                       "--move", "0.02,0,0", "--duration", "4", "--settle", "1", "--hold-after", "0"],
+                                      "hold the tension while moving ...", ["PSM1", "PSM2", "PSM3"],
+                                      {"arms", "loadcell"}, three_arms=True),
 }
 
 #: fault -> (the device it takes away: "any" for all of them, None for a signal; the exit code;
@@ -71,31 +77,43 @@ FAULTS = {
 }
 
 
-def _operator(domain: int, fn) -> None:
-    """Call fn(RosOperator) from a ROS session of this process on `domain`."""
-    from drivers.operator import RosOperator
-    from rig.ros_session import RosSession
+class _Person:
+    """The simulated person's side channel, opened before the procedure starts so that a
+    fault lands at once when its step begins (opening a ROS session and finding rig sim
+    takes a second or more: longer than some steps, e.g. register's touches)."""
 
-    with ros_environment(domain):
-        session = RosSession("bench_person")
-        session.start()
+    def __init__(self, domain: int):
+        from drivers.operator import RosOperator
+        from rig.ros_session import RosSession
+
+        self._env = ros_environment(domain)
+        self._env.__enter__()
+        self.session = RosSession("bench_person")
+        self.session.start()
+        self.operator = RosOperator(self.session.node, timeout=10.0)
+        self.operator.wait_for_server(10.0)
+
+    def close(self) -> None:
         try:
-            fn(RosOperator(session.node, timeout=10.0))
+            self.session.close()
         finally:
-            session.close()
+            self._env.__exit__(None, None, None)
 
 
-def _inject(rig: ServedRig, fault: str, proc_box: list) -> None:
+#: fault -> what the person does (faults of the procedure's process are signals, not in here)
+_BY_PERSON = {
+    "load-cell pty closed": lambda op: op.unplug("loadcell"),
+    "mocap stopped": lambda op: op.unplug("mocap"),
+    "operator gone": lambda op: op.unplug("operator"),
+    "arm FAULT": lambda op: op.fault("PSM1", "joint_limit", joint=1),
+}
+
+
+def _inject(rig: ServedRig, fault: str, proc_box: list, person: _Person | None) -> None:
     if fault == "server killed":
         rig.kill(signal.SIGKILL)
-    elif fault == "load-cell pty closed":
-        _operator(rig.domain, lambda op: op.unplug("loadcell"))
-    elif fault == "mocap stopped":
-        _operator(rig.domain, lambda op: op.unplug("mocap"))
-    elif fault == "operator gone":
-        _operator(rig.domain, lambda op: op.unplug("operator"))
-    elif fault == "arm FAULT":
-        _operator(rig.domain, lambda op: op.fault("PSM1", "joint_limit", joint=1))
+    elif fault in _BY_PERSON:
+        _BY_PERSON[fault](person.operator)
     elif fault == "SIGINT":
         proc_box[0].send_signal(signal.SIGINT)
     elif fault == "SIGTERM":
@@ -111,15 +129,21 @@ def cell(rig: ServedRig, name: str, fault: str) -> dict:
     box: list = [None]
     t_fault: list[float] = []
 
+    person = _Person(rig.domain) if fault in _BY_PERSON else None
+
     def fire() -> None:
         t_fault.append(time.monotonic())
         try:
-            _inject(rig, fault, box)
+            _inject(rig, fault, box, person)
         except Exception as exc:  # noqa: BLE001 - reported in the cell
             t_fault.append(-1.0)
             print(f"    injecting {fault}: {type(exc).__name__}: {exc}", flush=True)
 
-    out = rig.run(*p.args, on_start=lambda proc: box.__setitem__(0, proc), when=(p.step, fire))
+    try:
+        out = rig.run(*p.args, on_start=lambda proc: box.__setitem__(0, proc), when=(p.step, fire))
+    finally:
+        if person is not None:
+            person.close()
     t_end = time.monotonic()
     doc = out.doc or {}
     unused = device not in (None, "any") and device not in p.uses
@@ -160,15 +184,23 @@ def cell(rig: ServedRig, name: str, fault: str) -> dict:
 
 
 
-def lab(folder) -> str:
-    """The matrix's rig.toml: the chain's, the operator's answer limit OPERATOR_TIMEOUT."""
-    return lab_toml(folder) + f"timeout = {OPERATOR_TIMEOUT}\n"  # appended to its [operator] table
+def lab(folder, three_arms: bool = False) -> str:
+    """The matrix's rig.toml: the chain's (`three_arms`: with PSM3 and a triangle), the
+    operator's answer limit OPERATOR_TIMEOUT."""
+    return lab_toml(folder, three_arms=three_arms) + f"timeout = {OPERATOR_TIMEOUT}\n"  # in its [operator] table
 
 
-def prepare(rig: ServedRig) -> str | None:
-    """What every procedure needs in the lab's logs; None, or the line of what failed."""
-    for what in (("loadcell-calibrate", "--seconds", "0.5"), ("register", "--points", "6"),
-                 PROCEDURES["identify"].args, PROCEDURES["friction-ramp"].args):
+def prepare(rig: ServedRig, three_arms: bool = False) -> str | None:
+    """What the lab's procedures need in its logs; None, or the line of what failed. The
+    two-arm lab: the load cell calibrated, the arms registered, PSM1 identified and
+    friction-ramped; the three-arm lab: each element's cell calibrated, the arms registered."""
+    if three_arms:
+        steps = [("loadcell-calibrate", "--seconds", "0.5", "--element", str(k)) for k in range(3)]
+        steps.append(("register", "--points", "6"))
+    else:
+        steps = [("loadcell-calibrate", "--seconds", "0.5"), ("register", "--points", "6"),
+                 tuple(PROCEDURES["identify"].args), tuple(PROCEDURES["friction-ramp"].args)]
+    for what in steps:
         out = rig.run(*what)
         if out.code:
             return f"{what[0]}: {out.last_line}"

@@ -1,5 +1,7 @@
 """The fault matrix over the wire (issue 37): every procedure x every fault, one test each.
 
+The three-arm triangle runs on a second module `rig sim` (PSM3 too, a cell per element).
+
 A module `rig sim` (tests/hil/fault_matrix.py: the chain's rig.toml, the operator's answer
 limit 5 s) prepared once; a fault that leaves rig sim broken (killed, a cable pulled, an
 arm in FAULT, the operator gone) gets the next test a fresh one on the same folder and
@@ -23,19 +25,28 @@ from tests.hil.harness import ServedRig  # noqa: E402
 pytestmark = [pytest.mark.ros, pytest.mark.hil, pytest.mark.slow]
 
 
-@pytest.fixture(scope="module")
-def matrix_rig(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("faults")
-    with ServedRig(folder, toml=lab(folder), sim_args=("--ros-period", "0.002")) as rig:
-        problem = prepare(rig)
+def _lab(tmp_path_factory, three_arms: bool):
+    folder = tmp_path_factory.mktemp("faults3" if three_arms else "faults")
+    with ServedRig(folder, toml=lab(folder, three_arms), sim_args=("--ros-period", "0.002")) as rig:
+        problem = prepare(rig, three_arms)
         assert problem is None, problem
         yield rig
 
 
+@pytest.fixture(scope="module")
+def matrix_rig(tmp_path_factory):
+    yield from _lab(tmp_path_factory, False)
+
+
+@pytest.fixture(scope="module")
+def matrix_rig3(tmp_path_factory):
+    yield from _lab(tmp_path_factory, True)
+
+
 @pytest.mark.parametrize("fault", list(FAULTS))
 @pytest.mark.parametrize("procedure", list(PROCEDURES))
-def test_a_fault_ends_the_procedure_cleanly(matrix_rig, procedure, fault):
-    rig = matrix_rig
+def test_a_fault_ends_the_procedure_cleanly(request, procedure, fault):
+    rig = request.getfixturevalue("matrix_rig3" if PROCEDURES[procedure].three_arms else "matrix_rig")
     if not rig.running or rig.faulted:
         rig.restart()
     try:

@@ -33,9 +33,12 @@ import atexit
 import os
 import re
 import sys
+import threading
 
 #: where Fast DDS keeps its shared-memory segments on Linux
 SHM = "/dev/shm"
+#: s, longest wait for each thread that is not a daemon before the process ends
+THREAD_WAIT = 10.0
 _SEGMENT = re.compile(r"fastrtps_[0-9a-f]{16}$")
 
 _ending = False
@@ -114,7 +117,12 @@ def leave(code) -> None:
     if not _parked and "rclpy" not in sys.modules:
         sys.exit(code)
     try:
-        atexit._run_exitfuncs()  # the recorder's last-chance close and the like
+        # as the interpreter's own exit: the threads that are not daemons end first (up to
+        # THREAD_WAIT s each), then the exit handlers (the recorder's last-chance close)
+        for thread in threading.enumerate():
+            if thread is not threading.current_thread() and not thread.daemon:
+                thread.join(timeout=THREAD_WAIT)
+        atexit._run_exitfuncs()
     finally:
         for name in _own_segments:
             for path in (f"{SHM}/{name}", f"{SHM}/{name}_el"):

@@ -34,6 +34,8 @@ SCRIPT = textwrap.dedent("""
     session.close()
     print("context ok after close", session.context.ok())
     sys.stderr.write("rig test: aborted: the last line\\n")
+    import threading, time
+    threading.Thread(target=lambda: (time.sleep(0.5), print("worker done", flush=True))).start()
     ros_exit.leave(3)
     print("not reached")
 """)
@@ -48,6 +50,7 @@ def test_a_commands_process_parks_its_participant_and_ends_with_its_code(ros_env
     lines = out.stdout.splitlines()
     assert "context ok after close True" in lines  # parked, not shut down
     assert "exit handler ran" in lines and "not reached" not in lines
+    assert lines.index("worker done") < lines.index("exit handler ran")  # threads end first, as at any exit
     segments = lines[0].split()[1:]
     if os.path.isdir("/dev/shm") and segments:  # Fast DDS made one for its participant: it is gone
         assert "present True" in lines

@@ -48,6 +48,11 @@ PROTOCOL_VERSION = 1
 #: place the host side takes it from (rig.toml's [loadcell] baudrate default). 250000 is exact on a
 #: 16 MHz AVR (115200 is 2 % off there) and carries a 500 Hz stream at 38 % of the line.
 BAUDRATE = 250000
+
+#: s, longest wait for a command's reply. The firmware answers within a few ms; the margin is
+#: for the host: a starved 2-core machine (two CPU burners, a procedure and `rig sim` serving
+#: the pty) delivered a SET_RATE reply more than 0.5 s late (bench/bench_kill.py, 2 of 112 runs)
+COMMAND_TIMEOUT = 1.5
 FIRMWARE_VERSION = (1, 0, 0)
 SYNC = b"\xa5\x5a"
 MAX_PAYLOAD = 16  # bytes; a larger LEN byte can only be corruption
@@ -898,8 +903,10 @@ class _StreamingLoadCell(abc.ABC):
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def command(self, ctype: int, payload: bytes = b"", timeout: float = 0.5) -> bytes:
-        """Send one command and return its reply payload; raises LoadCellCommandError."""
+    def command(self, ctype: int, payload: bytes = b"", timeout: float | None = None) -> bytes:
+        """Send one command and return its reply payload (within `timeout` s, default
+        COMMAND_TIMEOUT); raises LoadCellCommandError."""
+        timeout = COMMAND_TIMEOUT if timeout is None else timeout
         with self._cmd_lock:
             if self._error is not None:
                 raise self._error

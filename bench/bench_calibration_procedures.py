@@ -31,7 +31,7 @@ def main() -> int:
     os.environ["RIG_LOGS"] = tmp
     from procedures import calibrate_rcm, link_lengths, register
     from rig import config
-    from rig.params import resolve
+    from rig.commands.parameters import resolve
 
     cfg = config.load(None)
     worst = {"len": 0.0, "len_name": "", "axis": 0.0, "axis_name": "", "ll_rcm": 0.0, "rcm": 0.0,

@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _table import print_table  # noqa: E402
 
 from rig import config  # noqa: E402
-from rig.psm_dynamics import BODY_NAMES, Body, DriveParameters, PSMDynamics, PSMParameters  # noqa: E402
+from rig.model.psm_dynamics import BODY_NAMES, Body, DriveParameters, PSMDynamics, PSMParameters  # noqa: E402
 
 PSM3 = {"base_xyz": [0.5364, 0.5730, 0.0], "base_rpy": [0.0, 0.0, -np.pi / 2]}
 

@@ -6,7 +6,7 @@ dVRK PSM (`drivers.sim_psm.SimPSM`, its servo_ci run in its servo loop); the arm
 and the load cell are "published" every ROS period, reach the procedure's loop `--delay`
 periods later, and the loop's commands (master servo_jp, slaves' servo_ci built as the
 crtk_msgs message RosArm sends and read back as rig sim's bridge reads it) act from the
-next servo period. The procedure's own controller (`rig.cooperative`, slave_control="arm")
+next servo period. The procedure's own controller (`rig.control.cooperative_controller`, slave_control="arm")
 runs at the published rate up to the procedure's ARM_LOOP_MAX_RATE; a held process is
 emulated by `--hold-every`/`--hold` (the loop misses its ticks, then acts on the newest
 sample), rig sim catching up by `--gap-every`/`--gap` (the arms' state unpublished).

@@ -99,7 +99,7 @@ def main() -> int:
                     domain = 170 + (os.getpid() + len(rows)) % 30
                     print(f"{obj} at --ros-period {period} ({a.burners} burners):", flush=True)
                     # [rig] rate no faster than the arms publish (every procedure refuses a
-                    # slower stream than its loop needs: rig.devices.check_stream_rates); rig
+                    # slower stream than its loop needs: rig.devices.factory.check_stream_rates); rig
                     # sim's arms keep their 500 Hz servo (--rate), as a console's do at any -p
                     rate = min(500.0, round(1.0 / float(period)))
                     with ServedRig(folder, domain, toml=lab_toml(folder, three_arms=three, rate=rate),

@@ -95,8 +95,8 @@ def identify_excitation() -> dict:
     from calibration.excitation import ExcitationDesigner
     from calibration.identification import make_model
     from procedures.identify import PARAMETERS
-    from rig.params import resolve
-    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+    from rig.commands.parameters import resolve
+    from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
     d = resolve(PARAMETERS, {})
     model = make_model(np.array([0.0, 0.0, -9.81]), 400.0)
@@ -113,7 +113,7 @@ def _two_motions(excitation, excitation_seed: int, validation_seed: int, design_
     identify`'s validation trajectory of ``design_seed`` (noise seed ``validation_seed``)."""
     from calibration.hidden_effects import HiddenCase, generate
     from procedures.identify import PARAMETERS, validation_trajectory
-    from rig.params import resolve
+    from rig.commands.parameters import resolve
 
     d = resolve(PARAMETERS, {})
     validation = validation_trajectory(d["validation_frequency"], d["duration"], d["harmonics"], design_seed, d["fill"])
@@ -320,7 +320,7 @@ def _oracle_job(args) -> float:
 
 def real_data() -> dict:
     from procedures.discrepancy import PARAMETERS, run
-    from rig.params import resolve
+    from rig.commands.parameters import resolve
     import tempfile
 
     if not REAL.exists():

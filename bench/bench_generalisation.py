@@ -53,7 +53,7 @@ FLOOR_FACTOR = 1.2
 
 
 def _model_file(directory: Path, name: str, standard, names, slope, gravity, stribeck=None):
-    from rig.model_file import load_model, save_model
+    from rig.model.model_file import load_model, save_model
 
     return load_model(save_model(directory / name, standard=standard, names=names, slope=slope, gravity=gravity,
                                  stribeck=stribeck))
@@ -117,8 +117,8 @@ def _run_case(args):
     from calibration.hidden_effects import HiddenCase, generate
     from calibration.prediction import extra_effort, standard_parameters
     from procedures.discrepancy import estimate_gravity
-    from rig.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
-    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+    from rig.model.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
+    from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
     from bench.bench_discrepancy import _mode_for
 
@@ -172,8 +172,8 @@ def _fit_pipeline(q, dq, tau, rate: float, breaks, tmp: Path, name: str):
     from calibration.discrepancy import Settings, run_workflow
     from calibration.generalisation import EffectGate
     from procedures.discrepancy import estimate_gravity, identify_plain
-    from rig.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
-    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+    from rig.model.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
+    from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
     settings = Settings()
     out = identify_plain(q, dq, tau, rate, settings, name, breaks)
@@ -222,7 +222,7 @@ def real_data(blocks: int = 5) -> list[tuple[str, str, str, bool]]:
     from calibration.discrepancy import Settings
     from calibration.prediction import predict
     from procedures.discrepancy import PARAMETERS, run
-    from rig.params import resolve
+    from rig.commands.parameters import resolve
 
     if not REAL.exists():
         return [("real data", f"not run: {REAL} not found", "report", True)]

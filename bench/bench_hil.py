@@ -79,7 +79,7 @@ def _truth_figure(name: str, doc: dict | None, cfg) -> tuple[float | None, str]:
     """The procedure's figure against the truth, and its unit."""
     if doc is None or doc.get("status") != "completed":
         return None, ""
-    from rig import psm_kinematics as K
+    from rig.model import psm_kinematics as K
 
     if name == "loadcell-calibrate":
         return abs(doc["check"]["error_n"]), "N"
@@ -100,7 +100,7 @@ def _truth_figure(name: str, doc: dict | None, cfg) -> tuple[float | None, str]:
     if name == "identify":
         return max(doc["validation_moving"]["sdp"]), "rel."
     if name == "friction-ramp":
-        from rig.psm_dynamics import PSMParameters
+        from rig.model.psm_dynamics import PSMParameters
 
         fc = PSMParameters().drive.Fc[2]
         return abs(doc["fits"]["viscous_coulomb"]["Fc"] - fc) / fc, "rel."

@@ -20,7 +20,7 @@
 4. Real data (shared/data/wpi-psm/one_results.csv, joints 1-3, PSM model only): per-joint
    relative error on a held-out last quarter, reported against the published 7-DOF figures.
 
-Uses rig.psm_dynamics.PSMDynamics when it is importable (``--model psm``, the default),
+Uses rig.model.psm_dynamics.PSMDynamics when it is importable (``--model psm``, the default),
 otherwise the reference arm of calibration.reference_arm; the table says which.
 """
 
@@ -48,11 +48,11 @@ PUBLISHED = np.array([0.093, 0.178, 0.191])
 def load_model(which: str):
     if which == "psm":
         try:
-            from rig.psm_dynamics import PSMDynamics
-            from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
-            return "PSMDynamics (rig.psm_dynamics)", PSMDynamics(), Q_MIN, Q_MAX, DQ_MAX
+            from rig.model.psm_dynamics import PSMDynamics
+            from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+            return "PSMDynamics (rig.model.psm_dynamics)", PSMDynamics(), Q_MIN, Q_MAX, DQ_MAX
         except ImportError as e:
-            print(f"rig.psm_dynamics not importable ({e}); using the reference arm", file=sys.stderr)
+            print(f"rig.model.psm_dynamics not importable ({e}); using the reference arm", file=sys.stderr)
     from calibration.reference_arm import ReferenceArm
     arm = ReferenceArm(seed=0)
     return "ReferenceArm (calibration.reference_arm)", arm, arm.q_min, arm.q_max, arm.dq_max

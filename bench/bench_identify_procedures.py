@@ -56,7 +56,7 @@ def main() -> int:
     tmp = Path(tempfile.mkdtemp(prefix="bench-identify-"))
     os.environ["RIG_LOGS"] = str(tmp / "logs")
     from rig import config
-    from rig.params import resolve
+    from rig.commands.parameters import resolve
 
     rows = []
     if not a.skip_sim:

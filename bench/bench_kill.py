@@ -16,7 +16,7 @@ their targets) and, for every run that did not end cleanly, its exit and last li
 that ended before it held the object (a connect failure on a starved machine) had no kill:
 it is counted on its own row and left out of the others. `--keep DIR` writes the whole
 stderr of every run that ended badly; with `ulimit -c unlimited` the cores of a crash are
-what gdb reads (rig/ros_exit.py tells what one showed).
+what gdb reads (drivers/ros_exit.py tells what one showed).
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ HOLDING = "hold the tension while moving ["
 
 def judge(out, run_dir: str | None) -> list[str]:
     """What was not clean about one run's ending (empty: clean)."""
-    from rig.records import read_recording
+    from rig.runs.recording import read_recording
 
     problems = []
     if out.code < 0:

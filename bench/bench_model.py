@@ -17,8 +17,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _table import print_table  # noqa: E402
 
 from rig import config  # noqa: E402
-from rig.psm_dynamics import PSMDynamics  # noqa: E402
-from rig.sim import world_from_config  # noqa: E402
+from rig.model.psm_dynamics import PSMDynamics  # noqa: E402
+from rig.sim.world import world_from_config  # noqa: E402
 
 
 def median_us(fn, args_list, repeat=2000) -> float:

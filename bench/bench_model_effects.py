@@ -49,7 +49,7 @@ def _model_file(effects, seed, directory):
     from calibration.discrepancy import Discrepancy, Settings
     from calibration.discrepancy_null import sim_model_and_base
     from calibration.hidden_effects import HiddenCase, generate
-    from rig.model_file import load_model, save_model
+    from rig.model.model_file import load_model, save_model
 
     model, base = sim_model_and_base()
     case = HiddenCase(tuple(effects), seed)
@@ -66,7 +66,7 @@ def _track(plant, m, feed_effects: bool, effects=None) -> float:
     """RMS tip error (m) over the last 2 s of an impedance-controlled path on ``plant``
     (``effects``: entries fed forward in place of the model file's)."""
     from calibration.effects import EffectCompensation
-    from rig.control import follow_path
+    from rig.control.controllers import follow_path
 
     entries = m.effects if effects is None else effects
     return follow_path(plant, m.dynamics(), EffectCompensation(entries, m.slope) if feed_effects else None)
@@ -92,7 +92,7 @@ def _true_entries(m, truth) -> list[dict] | None:
 def run_case(spec: str, seed: int) -> dict:
     from calibration.effects import NOT_COMPENSATED
     from calibration.hidden_effects import case_plant, generate
-    from rig.sim import HiddenEffects
+    from rig.model.plant_effects import HiddenEffects
 
     effects = [(e.split(":")[0], int(e.split(":")[1])) for e in spec.split("+")]
     t0 = time.perf_counter()

@@ -44,9 +44,9 @@ def pct(values: list[float], q: float) -> float:
 def serve(conn, rate: float, seconds: float) -> None:
     """The Motive side: the simulated rig paced to the wall clock, streamed at `rate`."""
     from drivers.natnet_server import SimMotive
-    from rig.clock import SimClock
+    from rig.devices.clock import SimClock
     from rig.config import parse
-    from rig.sim import world_from_config
+    from rig.sim.world import world_from_config
 
     world = world_from_config(parse({}, "built-in simulated rig"), seed=0)
     clock = SimClock(world)

@@ -15,7 +15,7 @@ Figures:
 - at real rates for --paced-seconds of wall time: the recording cost per 1 ms tick, which
   is what a 1 kHz control loop pays, for information (on a shared machine the worst tick
   includes the OS descheduling either thread for a time slice);
-- mcap_ros2's own encoder rate, for information: why rig.ros_messages exists.
+- mcap_ros2's own encoder rate, for information: why rig.runs.ros_messages exists.
 
 Run: .venv/bin/python bench/bench_recorder.py [--seconds 60] [--keep DIR]
 """
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.records import Recorder, read_recording
+from rig.runs.recording import Recorder, read_recording
 
 ARMS = ("PSM1", "PSM2", "PSM3")
 JOINTS = 7
@@ -149,7 +149,7 @@ def mcap_ros2_encoder_rate(n: int = 5000) -> float:
     """JointState messages/s through mcap_ros2's dynamic encoder (for comparison)."""
     from mcap_ros2._dynamic import serialize_dynamic
 
-    from rig import ros_messages as rm
+    from rig.runs import ros_messages as rm
 
     encode = serialize_dynamic(rm.JOINT_STATE, rm.DEFINITIONS[rm.JOINT_STATE])[rm.JOINT_STATE]
     row = np.random.default_rng(2).normal(size=JOINTS)

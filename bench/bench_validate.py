@@ -66,8 +66,8 @@ def fmt(v, d=4):
 
 
 def write_model(path, effects):
-    from rig.model_file import save_model
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model.model_file import save_model
+    from rig.model.psm_dynamics import PSMDynamics
 
     dyn = PSMDynamics()
     g = np.array([-0.96, 0.05, -0.24])
@@ -80,7 +80,7 @@ def synthetic(model_path):
     """q, dq and the efforts the model file describes for an exact multi-sine motion."""
     from calibration.effects import CATALOGUE
     from calibration.hidden_effects import trajectory
-    from rig.model_file import load_model
+    from rig.model.model_file import load_model
 
     q, dq, ddq = trajectory(0, N / RATE + 1.0)(np.arange(N) / RATE)
     m = load_model(model_path)
@@ -108,7 +108,7 @@ def main() -> int:
     os.environ["RIG_LOGS"] = str(tmp / "logs")
     from calibration.discrepancy import Settings
     from calibration.prediction import predict
-    from rig.model_file import load_model
+    from rig.model.model_file import load_model
 
     plain_path = write_model(tmp / "plain.json", [])
     exact_path = write_model(tmp / "effects.json", EFFECTS)

@@ -40,8 +40,8 @@ def sim_model_and_base():
     """The model of the simulated rig's arm (frame-0 gravity of an untilted base) and its
     base parameters."""
     from calibration.base_params import base_parameters_of
-    from rig.psm_dynamics import PSMDynamics
-    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+    from rig.model.psm_dynamics import PSMDynamics
+    from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
     model = PSMDynamics()
     return model, base_parameters_of(model.regressor_batch, model, Q_MIN, Q_MAX, DQ_MAX)

@@ -48,7 +48,7 @@ from numba import njit
 #: moving up, Fc_neg = Fc moving down (1.2 wrote Fc -/+ dFc/2; dFc, what is evaluated, unchanged).
 CATALOGUE_VERSION = "1.3"
 
-#: Bodies a payload is attributed to for joint 1, 2, 3 (rig.psm_dynamics.BODY_NAMES).
+#: Bodies a payload is attributed to for joint 1, 2, 3 (rig.model.psm_dynamics.BODY_NAMES).
 PAYLOAD_BODIES = ("yaw_link", "pitch_end", "tool")
 
 

@@ -6,7 +6,7 @@ takes the arm past them (over the wire, joint 3 commanded to 2.4 mm above its lo
 reached -2.0 mm and the console faulted). The margin is measured, not guessed: the
 trajectory is streamed, set-point by set-point at the rig rate with the velocity
 feed-forward the procedure sends (servo_jp position and velocity), to the simulated plant
-of the arm (`rig.sim`: the configured arm's parameters, hidden effects, PID, effort limits
+of the arm (`rig.sim.world`: the configured arm's parameters, hidden effects, PID, effort limits
 and sensor noise), from rest at its start after the PID has settled there. Per joint, how
 far the joint went beyond the commanded range (at least how far it was off the set-point
 at the range's ends) and how far its speed went beyond the commanded peak, times SAFETY,
@@ -103,9 +103,9 @@ def _plain(x):
 
 @dataclass
 class Plant:
-    """The simulated plant a trajectory is measured on: one arm of `rig.sim` at the rig rate.
+    """The simulated plant a trajectory is measured on: one arm of `rig.sim.world` at the rig rate.
 
-    spec: a `rig.sim.ArmSpec` (parameters, hidden effects, PID, effort limit, noise, base);
+    spec: a `rig.sim.world.ArmSpec` (parameters, hidden effects, PID, effort limit, noise, base);
     rate: the rig rate, Hz (one set-point per period, as the procedure streams them);
     gravity: world gravity, m/s^2; seed: the world's noise seed.
     """
@@ -123,7 +123,7 @@ class Plant:
                 "seed": int(self.seed)}
 
     def world(self):
-        from rig.sim import SimWorld
+        from rig.sim.world import SimWorld
 
         spec = dataclasses.replace(self.spec, name="arm")
         return SimWorld([spec], None, seed=self.seed, dt=1.0 / self.rate, gravity=np.asarray(self.gravity, float),

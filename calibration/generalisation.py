@@ -124,7 +124,7 @@ def plain_fit(train):
 class EffectGate:
     """Steps 2-4 of the module docstring for one plain model and the workflow's effects.
 
-    ``plain``: a `rig.model_file.IdentifiedModel`; ``named``: the workflow's added effects
+    ``plain``: a `rig.model.model_file.IdentifiedModel`; ``named``: the workflow's added effects
     (`calibration.discrepancy.Added`); ``motions``: other recordings (empty: cross-validation
     in time); the training arrays and ``settings``/``breaks`` as the workflow had them;
     ``refit``: the workflow's own model (`workflow_model`: its rigid body fitted again with
@@ -139,7 +139,7 @@ class EffectGate:
                  motions=(), refit=None, training=None):
         from calibration.base_params import base_parameters_of
         from calibration.prediction import extra_effort, standard_parameters
-        from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+        from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
         self.plain = plain
         self.refit = refit
@@ -657,11 +657,11 @@ IDENTIFIED_CHOICE = ("the plain model identified again with the confirmed effect
 def _model_in_memory(plain, standard, slope: float, gravity, stribeck, effects):
     """A model file (in memory, on ``plain``'s path and provenance) with these standard
     parameters (82,), smooth-sign slope, gravity (3,), Stribeck term ({"Fst", "vs"} or None)
-    and effects entries, laid out as `rig.model_file.save_model` writes it."""
+    and effects entries, laid out as `rig.model.model_file.save_model` writes it."""
     import tempfile
     from pathlib import Path
 
-    from rig.model_file import load_model, save_model
+    from rig.model.model_file import load_model, save_model
 
     with tempfile.TemporaryDirectory() as tmp:
         m = load_model(save_model(Path(tmp) / "model.json", standard=standard, names=plain.names, slope=slope,

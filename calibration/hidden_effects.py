@@ -1,6 +1,6 @@
 """Seeded generator of hidden-effect test data for the discrepancy workflow (issue 7).
 
-This module is the *experimenter*: it sets up the simulated rig (`rig.sim.SimWorld`) with
+This module is the *experimenter*: it sets up the simulated rig (`rig.sim.world.SimWorld`) with
 an effect hidden in the plant, streams an exciting trajectory through the joint PID at
 1 kHz with servo_jp, and records what the dVRK would report (measured q, dq, effort) at
 200 Hz. It returns only those measured arrays plus, separately, the truth for scoring.
@@ -27,10 +27,11 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from rig import sim_kernel
-from rig.psm_dynamics import Body, PSMParameters
-from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
-from rig.sim import ArmSpec, HiddenEffects, SensorNoise, SimWorld
+from rig.model.plant_effects import HiddenEffects
+from rig.model.psm_dynamics import Body, PSMParameters
+from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+from rig.sim import kernel as sim_kernel
+from rig.sim.world import ArmSpec, SensorNoise, SimWorld
 
 GENERATOR_VERSION = 2
 ARM = "PSM1"
@@ -60,7 +61,7 @@ _SIZE = {
     "sinusoidal_disturbance": np.array([0.12, 0.15, 0.6]),
     "cross_coupling": np.array([0.3, 0.3, 2.0]),        # N m s/rad from the next joint's velocity
 }
-# Coulomb level of the plant's nominal friction (rig.psm_dynamics.DriveParameters.Fc):
+# Coulomb level of the plant's nominal friction (rig.model.psm_dynamics.DriveParameters.Fc):
 # position-dependent friction scales it, so joints 1-2 would see only ~0.05 N m. The generator
 # raises the plant's Coulomb level on that joint to make the effect as large as the others.
 _POSFRIC_FC = np.array([0.15, 0.15, 0.6])
@@ -250,7 +251,7 @@ def generate(case: HiddenCase, n_samples: int = N_SAMPLES, rate: float = RATE,
     axis (see _PITCH_BALANCE), and so does its twin.
 
     ``plant`` = (PSMParameters, HiddenEffects) replaces the case's plant (a model file's,
-    `rig.model_file.IdentifiedModel.plant`): the same trajectory and noise draws on another
+    `rig.model.model_file.IdentifiedModel.plant`): the same trajectory and noise draws on another
     plant, to compare what that model's simulated rig records with what the case recorded.
     """
     case_params = draw_case_parameters(case)
@@ -340,7 +341,7 @@ def design_reference_excitation(path: Path = REFERENCE_EXCITATION_PATH) -> dict:
     `calibration.excitation`) and write it to ``path``; ~30 s."""
     from calibration.base_params import base_parameters_of
     from calibration.excitation import ExcitationDesigner
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model.psm_dynamics import PSMDynamics
 
     d = REFERENCE_EXCITATION_DESIGN
     model = PSMDynamics()

@@ -23,7 +23,7 @@ FILTER_ORDER = 8
 
 def make_model(gravity, slope: float):
     """PSMDynamics with the nominal parameters, this gravity (frame 0, m/s^2) and slope (s/rad)."""
-    from rig.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
+    from rig.model.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
 
     return PSMDynamics(PSMParameters(drive=DriveParameters(slope=float(slope))), gravity=np.asarray(gravity, float))
 
@@ -478,7 +478,7 @@ def fit_identification(train, gravity_mode, slope_mode, configured_gravity=None,
     """
     from calibration.base_params import RankDeficientError, base_parameters_of
     from calibration.model_selection import DEFAULT_SLOPES, STANDARD_GRAVITY, GravitySlopeSearch
-    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+    from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
     say = progress or (lambda s: None)
     t0 = time.perf_counter()

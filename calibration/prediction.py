@@ -136,8 +136,8 @@ def _standard(model) -> tuple[np.ndarray, list[str]]:
     notes = []
     for i, e in enumerate(model.effects):
         if e["name"] == "payload" and e.get("applied_to") != "standard_parameters":
-            from rig.model_file import ModelFileError
-            from rig.psm_dynamics import BODY_NAMES
+            from rig.model.model_file import ModelFileError
+            from rig.model.psm_dynamics import BODY_NAMES
 
             try:
                 pi = pi + payload_standard_delta(e["params"], BODY_NAMES)
@@ -198,7 +198,7 @@ def _effects(model, entries: list[dict], p: Prepared, base: np.ndarray, slope: f
              cache: dict) -> np.ndarray:
     """(n, 3) model effort with the effects added in the file's order on ``base``; entries
     that do not use the model's effort are computed once (``cache``)."""
-    from rig.model_file import ModelFileError
+    from rig.model.model_file import ModelFileError
 
     total = base.copy()
     for i, e in enumerate(entries):
@@ -243,11 +243,11 @@ def _effect_docs(entries: list[dict]) -> list[dict]:
 
 def predict(model, q, dq, tau, rate: float, settings: Settings | None = None, source: str = "the data",
             inertia: str = "auto") -> Prediction:
-    """The efforts a model file (`rig.model_file.IdentifiedModel`) predicts for a recording
+    """The efforts a model file (`rig.model.model_file.IdentifiedModel`) predicts for a recording
     (q, dq, tau (n, 3) at ``rate`` Hz, SI) and the measured ones, as compared (see the
     module docstring). ``inertia``: "auto" (the workflow's choice per joint) or one of
     INERTIA_SOURCES for every joint. Raises PredictionError for data it cannot use and
-    `rig.model_file.ModelFileError` for a model it cannot evaluate, each naming them."""
+    `rig.model.model_file.ModelFileError` for a model it cannot evaluate, each naming them."""
     if inertia != "auto" and inertia not in INERTIA_SOURCES:
         raise ValueError(f"inertia must be 'auto' or one of {INERTIA_SOURCES}, got {inertia!r}")
     t0 = time.perf_counter()

@@ -1,7 +1,7 @@
 """Remote centre of motion from mocap (thesis appendix A.2): the pivot fits of a tool body,
 the joints' axis directions, and the dVRK RCM frame they define.
 
-Input: the captures of `rig.mocap_capture.measure_rcm_phases` (single-joint sweeps of q1 and
+Input: the captures of `procedures.mocap_capture.measure_rcm_phases` (single-joint sweeps of q1 and
 q2 and a Lissajous of both with q3 held), output: the pivot point (the RCM, mocap frame),
 the tool offset, the yaw and pitch axes and the 4x4 RCM frame. Units: m, rad.
 """
@@ -13,11 +13,11 @@ import math
 import numpy as np
 
 from calibration.axis_fit import axis_angle, fit_axis_bias_compensated
+from calibration.captures import Capture, body_points, concatenate
 from calibration.fit_error import FitError
 from calibration.joint_axis import joint_sign
 from calibration.pivot import PivotFit, fit_pivot
 from calibration.pivot_insertion import pivot_with_insertion
-from rig.mocap_capture import Capture, body_points, concatenate
 
 METHODS = ("one_step", "two_step", "sphere")
 

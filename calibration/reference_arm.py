@@ -8,7 +8,7 @@ parallelogram-like pair of links, and a tool body rigidly fixed to the insertion
 consistent; it computes torques two independent ways (regressor and RNEA) so tests can check
 one against the other.
 
-It is not a model of the PSM: use ``rig.psm_dynamics.PSMDynamics`` for that.
+It is not a model of the PSM: use ``rig.model.psm_dynamics.PSMDynamics`` for that.
 """
 
 from __future__ import annotations

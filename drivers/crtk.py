@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig import psm_kinematics as K
 from rig.faults import DeviceFault, silence_text, starved_text
+from rig.model import psm_kinematics as K
 
 # dVRK PSM joint names (sensor_msgs/JointState.name), joints 1-6; the jaw is separate.
 PSM_JOINT_NAMES = ("outer_yaw", "outer_pitch", "outer_insertion",
@@ -44,7 +44,7 @@ class StaleStream(DeviceFault):
 
     def __init__(self, topic: str, age: float, watchdog: float, *, rate_hz: float = 0.0,
                  setting: str | None = None):
-        from rig.ros_session import domain_text
+        from drivers.ros_session import domain_text
 
         self.topic = topic
         self.age = age

@@ -44,7 +44,7 @@ Threading model. The driver is given a node (STYLE item 1) and never creates one
 subscription callbacks only copy the newest message under a lock; they run on whatever
 executor spins the node: with `spin=True` (the default) the driver starts its own
 single-threaded executor on a daemon thread for this node; with `spin=False` the caller
-spins it (one executor per node, e.g. `rig.devices` spins one node shared by every
+spins it (one executor per node, e.g. `rig.devices.factory` spins one node shared by every
 driver). Reads (`measured_js()` ...) and commands (`servo_jp()` ...) are called from the
 procedure's thread: reads return the newest sample, commands publish at once (rclpy
 publishers are thread-safe). A third thread, the watchdog, wakes every `watchdog / 5` s:
@@ -147,7 +147,7 @@ class RosArm:
     ("/console", "/system", or "auto": the one the running system shows in the ROS graph);
     streams: which of `ALL_STREAMS` to subscribe (measured_js always: every fewer topic is
     less work for the executor); polled: the monotonic time at which the executor last
-    looked for messages (`rig.ros_session.RosSession.executor_time`): the staleness age is
+    looked for messages (`drivers.ros_session.RosSession.executor_time`): the staleness age is
     counted up to then, so that a starved process never takes a healthy stream for a stale
     one (None: up to now, for an executor that is never starved); states: read
     operating_state and send state_command (False: neither, as on a controller without
@@ -567,7 +567,7 @@ class RosArm:
     def measured_arm(self) -> tuple[np.ndarray, np.ndarray]:
         """The newest measured positions and velocities of the whole arm in the dVRK's order
         (joints 1-3, then the others as the message carries them: the wrist), for the
-        PSM-with-tool kinematics (`rig.psm_arm_kinematics`). StaleStream and ArmFault as
+        PSM-with-tool kinematics (`rig.model.psm_arm_kinematics`). StaleStream and ArmFault as
         measured_js()."""
         js = self.measured_js()
         with self._lock:

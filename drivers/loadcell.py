@@ -491,7 +491,6 @@ class ClockMapper:
 # --------------------------------------------------------------------------- calibration
 
 STANDARD_GRAVITY = 9.80665  # m/s^2
-CALIBRATION_PROCEDURE = "loadcell-calibrate"
 
 
 class LoadCellError(DeviceFault):
@@ -620,61 +619,6 @@ def usb_serial_number(port: str) -> str:
     except Exception:  # noqa: BLE001 - no enumeration on this platform: the port names the cell
         return ""
     return ""
-
-
-def calibration_mismatch(data: dict, device: str | None) -> str | None:
-    """Why the calibration run `data` (a result.json) is not of the cell on `device`, or None.
-
-    A cell is its port and, when the operating system knows it, its USB serial number; a
-    result edited by hand after it was written (its provenance digest) belongs to no cell.
-    """
-    from rig import provenance
-
-    made_on = str((data.get("calibration") or {}).get("device") or "")
-    if device is not None and made_on != device:
-        return f"made on {made_on or 'an unnamed port'}, not {device}"
-    prov = data.get(provenance.KEY)
-    if isinstance(prov, dict):
-        if not provenance.sealed(data):
-            return "edited after it was written (its digest does not match)"
-        was = (prov.get("cell") or {}).get("usb_serial") or ""
-        now = usb_serial_number(device) if device else ""
-        if was and now and was != now:
-            return f"made on the cell with USB serial {was}; {device} is now the cell with serial {now}"
-    return None
-
-
-def load_latest_calibration(device: str | None = None) -> LoadCellCalibration:
-    """The calibration of the newest completed `rig loadcell-calibrate` run of this cell.
-
-    With `device` (the cell's port as rig.toml names it), only a calibration made on that
-    port, of the same cell (calibration_mismatch): another cell's calibration is never
-    taken. Without it (a CAN cell, which this command does not calibrate), the newest.
-    """
-    from rig.paths import run_dirs, runs_root
-
-    skipped = []
-    for run in reversed(run_dirs(CALIBRATION_PROCEDURE)):
-        try:
-            data = json.loads((run / "result.json").read_text())
-        except (OSError, json.JSONDecodeError):
-            continue
-        if not isinstance(data, dict) or data.get("status") != "completed" or "calibration" not in data:
-            continue
-        why = calibration_mismatch(data, device)
-        if why is None:
-            return LoadCellCalibration.from_dict(data["calibration"], source=str(run / "result.json"))
-        if str(data["calibration"].get("device") or "") == (device or ""):  # other ports' cells: not news
-            skipped.append(f"{run.name}: {why}")
-    if device:
-        raise LoadCellNotCalibrated(
-            f"no completed '{CALIBRATION_PROCEDURE}' run of the load cell on {device} under {runs_root()}"
-            + (f" (skipped {'; '.join(skipped)})" if skipped else "")
-            + f"; run `rig loadcell-calibrate --port {device}` (or --element) first")
-    raise LoadCellNotCalibrated(
-        f"no completed '{CALIBRATION_PROCEDURE}' run under {runs_root()}"
-        + (f" (skipped {'; '.join(skipped)})" if skipped else "")
-        + "; run `rig loadcell-calibrate` first (or set RIG_LOGS to where it was run)")
 
 
 # --------------------------------------------------------------------------- host driver
@@ -1102,7 +1046,6 @@ class LoadCell(_StreamingLoadCell):
             self.parser.flush()
             self._copy_parser_stats()
         self._fail(LoadCellDisconnected(f"load cell on {self.name} disconnected: {why}"))
-
 
 
 # --------------------------------------------------------------------------- firmware fake

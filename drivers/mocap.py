@@ -83,7 +83,7 @@ class RosMocapTracker:
     reliable: subscribe RELIABLE (only matches reliable publishers) instead of the
     default BEST_EFFORT (matches both kinds, what bridges such as vrpn use).
     clock: monotonic seconds for the stale check (injectable for tests); polled: when the
-    executor last looked for messages (`rig.ros_session.RosSession.executor_time`): ages
+    executor last looked for messages (`drivers.ros_session.RosSession.executor_time`): ages
     are counted up to then, so a starved process does not take healthy streams for stale.
     Times in TrackerFrame.t are the header stamps in s; positions in m.
     """
@@ -241,7 +241,7 @@ class RosMocapTracker:
                     parts.append(f"{b!r} on {self.topics[b]}: {silence_text(a, self.rate(b), seconds=True)}")
                 else:
                     parts.append(f"{b!r} on {self.topics[b]}: no message for {a:.3f} s (never received)")
-            from rig.ros_session import domain_text
+            from drivers.ros_session import domain_text
 
             raise MocapStaleError(f"mocap stream stale beyond {self.stale_timeout:g} s ({self.setting}): "
                                   + "; ".join(parts) + ". "

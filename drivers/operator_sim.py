@@ -150,7 +150,7 @@ class SimOperator:
             raise OperatorError(f"unknown fault {kind!r}; known: joint_limit, servo_watchdog")
 
     def touch(self, arms, point_index: int, goal_world) -> None:
-        from rig import psm_kinematics as K
+        from rig.model import psm_kinematics as K
 
         goal = np.asarray(goal_world, float)
         if goal.shape != (3,) or not np.all(np.isfinite(goal)):

@@ -25,7 +25,7 @@ import numpy as np
 
 from drivers.crtk import ARRIVAL_TOLERANCE, PSM_JOINT_NAMES, REST_VELOCITY, Wrench, body_wrench_from_effort
 from drivers.interfaces import JointState, Pose
-from rig import psm_kinematics as K
+from rig.model import psm_kinematics as K
 
 # The rig's own choice (Table 4.2 gives no accelerations): about what the dVRK's default
 # move_jp reaches on a PSM, rad/s^2, rad/s^2, m/s^2.
@@ -81,10 +81,10 @@ def _joints(values, what: str) -> np.ndarray:
 
 
 class SimArm:
-    """One PSM of a `rig.sim.SimWorld`, driven through the Arm protocol.
+    """One PSM of a `rig.sim.world.SimWorld`, driven through the Arm protocol.
 
     world: the simulated rig; name: the arm's name in it ("PSM1"); clock: the rig clock
-    that steps the world (`rig.clock.SimClock`); limits: Table 4.2 joint limits that move_jp
+    that steps the world (`rig.devices.clock.SimClock`); limits: Table 4.2 joint limits that move_jp
     goals must respect; velocity_ratio / acceleration_ratio: fraction of DQ_MAX / DDQ_MAX
     that move_jp plans for (the dVRK's trajectory ratios).
     """

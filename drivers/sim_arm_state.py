@@ -44,7 +44,7 @@ import math
 import numpy as np
 
 from drivers.crtk import OperatingState
-from rig import psm_kinematics as K
+from rig.model import psm_kinematics as K
 
 #: s the drives take to power on after `enable`
 POWERING = 0.25

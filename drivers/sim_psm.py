@@ -1,16 +1,16 @@
 """A whole dVRK PSM on the simulated rig: six joints and the jaw behind the dVRK arm's control modes.
 
-`SimPSM` is what `rig sim` serves for each arm over the CRTK topics (rig.crtk_bridge). It
+`SimPSM` is what `rig sim` serves for each arm over the CRTK topics (rig.sim_server.crtk_bridge). It
 follows sawIntuitiveResearchKit's arm and PSM components (mtsIntuitiveResearchKitArm.cpp,
 mtsIntuitiveResearchKitPSM.cpp) where a client can see the difference:
 
 * Joints 1-3 are the simulated world's plant (identified dynamics, friction, the joint
-  PID of `rig.sim`); joints 4-6 and the jaw are a `rig.wrist_plant.WristPlant` (inertia,
+  PID of `rig.sim.world`); joints 4-6 and the jaw are a `rig.model.wrist_plant.WristPlant` (inertia,
   friction, the dVRK's PID gains, the tool's stops). Positions are in the dVRK's joint
   order: outer_yaw, outer_pitch, outer_insertion, outer_roll, outer_wrist_pitch,
   outer_wrist_yaw, then the jaw on its own topics.
-* Kinematics are the dVRK's PSM with its tool (`rig.psm_arm_kinematics`, tool definitions
-  in `rig.psm_tool`, the large needle driver by default). `local` poses are in the arm's
+* Kinematics are the dVRK's PSM with its tool (`rig.model.psm_arm_kinematics`, tool definitions
+  in `rig.model.psm_tool`, the large needle driver by default). `local` poses are in the arm's
   kinematic base (the RCM at the origin); `measured_cp` is `base_frame @ local`, and the
   base frame is the identity named "<arm>_base" unless one is set, as on a dVRK without a
   set-up joint or registration.
@@ -36,7 +36,7 @@ mtsIntuitiveResearchKitPSM.cpp) where a client can see the difference:
 
 What the server publishes and the operating state (enable, home, faults, "arm not ready")
 live elsewhere: the state in `drivers.sim_arm_state.SimArmState` (which wraps this object),
-the topics in `rig.crtk_bridge`. Messages for <arm>/status, warning and error are queued in
+the topics in `rig.sim_server.crtk_bridge`. Messages for <arm>/status, warning and error are queued in
 `messages` as (level, text), other events (goal_reached, trajectory ratio) in `events`.
 
 Units: rad and m (joint 3), N m and N, s.
@@ -48,9 +48,9 @@ import numpy as np
 
 from drivers.crtk import PSM_JOINT_NAMES
 from drivers.sim_arm import DDQ_MAX, JointTrajectory
-from rig import psm_kinematics as K
-from rig.psm_arm_kinematics import rotation_error
-from rig.psm_tool import SAFE_DISTANCE_FROM_RCM, SAFE_DISTANCE_FROM_RCM_BUFFER
+from rig.model import psm_kinematics as K
+from rig.model.psm_arm_kinematics import rotation_error
+from rig.model.psm_tool import SAFE_DISTANCE_FROM_RCM, SAFE_DISTANCE_FROM_RCM_BUFFER
 
 #: rad/s and rad/s^2 of joints 4-6 and the jaw at trajectory ratio 1 (our choice: the
 #: tool's wrist turns a quarter turn in about half a second)
@@ -112,20 +112,20 @@ class Impedance:
 
 
 class SimPSM:
-    """One arm of a `rig.sim.SimWorld` as a whole dVRK PSM (see the module docstring).
+    """One arm of a `rig.sim.world.SimWorld` as a whole dVRK PSM (see the module docstring).
 
-    world, name, clock: the simulated rig, the arm's name, its clock (`rig.clock.SimClock`);
-    tool: a `rig.psm_tool.Tool` (default: the large needle driver); velocity_ratio: fraction
+    world, name, clock: the simulated rig, the arm's name, its clock (`rig.devices.clock.SimClock`);
+    tool: a `rig.model.psm_tool.Tool` (default: the large needle driver); velocity_ratio: fraction
     of Table 4.2's velocities a trajectory plans for at ratio 1 (as `drivers.sim_arm.SimArm`).
     """
 
     joint_names = PSM_JOINT_NAMES
 
     def __init__(self, world, name: str, clock, tool=None, velocity_ratio: float = 0.5):
-        from rig.psm_arm_kinematics import PSMKinematics
-        from rig.psm_dynamics import PSMDynamics
-        from rig.psm_tool import DEFAULT_TOOL
-        from rig.wrist_plant import WristPlant
+        from rig.model.psm_arm_kinematics import PSMKinematics
+        from rig.model.psm_dynamics import PSMDynamics
+        from rig.model.psm_tool import DEFAULT_TOOL
+        from rig.model.wrist_plant import WristPlant
 
         if name not in world.arms:
             raise ValueError(f"no arm {name!r} in the simulated world; it has {world.names}")
@@ -261,7 +261,7 @@ class SimPSM:
     def _ik(self, seed: np.ndarray, T_local: np.ndarray) -> np.ndarray:
         """The dVRK's PSM::InverseKinematics: refused within 1 mm of the RCM, roll to the turn
         closest to the seed's, the shaft end kept SAFE_DISTANCE_FROM_RCM out (raises IKError)."""
-        from rig.psm_arm_kinematics import IK_MIN_DISTANCE_TO_RCM
+        from rig.model.psm_arm_kinematics import IK_MIN_DISTANCE_TO_RCM
 
         if np.linalg.norm(T_local[:3, 3]) < IK_MIN_DISTANCE_TO_RCM:
             self.messages.append(("warning", f"{self.name}: InverseKinematics, can't solve IK too close to RCM"))
@@ -354,7 +354,7 @@ class SimPSM:
     def move_cp(self, T: np.ndarray) -> bool:
         """Cartesian goal (4x4 in the base frame): inverse kinematics once, then a joint
         trajectory. False (an error, busy ends) when the kinematics have no solution."""
-        from rig.psm_arm_kinematics import IKError
+        from rig.model.psm_arm_kinematics import IKError
 
         if not self._set_space_mode(CARTESIAN, TRAJECTORY):
             return False
@@ -527,7 +527,7 @@ class SimPSM:
                 self._stop_trajectory(True)
         elif self.mode == POSITION:
             if self.space == CARTESIAN and self._servo_cs is not None and self._new_goal:
-                from rig.psm_arm_kinematics import IKError
+                from rig.model.psm_arm_kinematics import IKError
 
                 seed = self.setpoint_js()[0][:6]
                 try:

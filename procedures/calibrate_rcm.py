@@ -12,7 +12,7 @@ not used (the offset b_tip changes with q3), and are counted.
 Outputs per arm, in metres in the mocap frame: the RCM (b_post), the tool offset
 (b_tip), the RMS per axis of the per-frame RCM estimates about the fit (Table 6.1's
 "RMS error"), and the RCM frame: origin at the RCM, y along minus the yaw axis, x along
-minus the pitch axis (the dVRK's measured_cp convention, rig.psm_kinematics.RCM_FRAME),
+minus the pitch axis (the dVRK's measured_cp convention, rig.model.psm_kinematics.RCM_FRAME),
 from the single-joint sweeps. `rig register` uses these frames. On the simulated rig the
 result also gives the errors against the simulated truth (the residual RMS is not an
 accuracy). Figure 6.2's picture, the per-frame RCM estimates and the fit, is saved as a PNG.
@@ -34,12 +34,15 @@ from calibration.fit_error import FitError
 from calibration.pivot import PivotFit
 from calibration.rcm import DEFAULTS, METHODS, arm_bodies, calibrate_arm, pivot_all
 from calibration.registration import pose_error
-from rig.exit_codes import EXIT_INPUT, EXIT_MISSED, InputError
-from rig.mocap_capture import RCM_PHASES, lissajous, measure_rcm_phases, open_devices
-from rig import provenance
-from rig import psm_kinematics as K
-from rig.params import Parameter, with_parameters
-from rig.run import Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option, yes_option
+from procedures.mocap_capture import RCM_PHASES, lissajous, measure_rcm_phases, open_devices
+from rig.commands.abort import exit_on_abort
+from rig.commands.exit_codes import EXIT_INPUT, EXIT_MISSED, InputError
+from rig.commands.options import config_from_context, json_option, yes_option
+from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.report import emit_result, exit_for_status
+from rig.model import psm_kinematics as K
+from rig.runs import provenance
+from rig.runs.run import Run
 
 PROCEDURE = "calibrate-rcm"
 #: m: pivot-fit RMS above which a calibration is not used. Table 6.1 gives the RCM's

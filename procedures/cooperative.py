@@ -5,7 +5,7 @@ rig; the simulation on the simulated one); check the plan against every limit; h
 tension while the master moves (and rotates) the object; report.
 
 The master PSM follows its Cartesian trajectory under the dVRK's position control
-(servo_jp); each slave holds the object with the impedance of `rig.cooperative`, and its
+(servo_jp); each slave holds the object with the impedance of `rig.control.cooperative_controller`, and its
 target moves to track the tension. Where the arms run a Cartesian impedance themselves
 (the dVRK's servo_ci, over ROS) the arm closes the spring and damper in its servo loop and
 this loop only moves the goal and its feedforward, at the rate the arms publish;
@@ -25,12 +25,15 @@ from pathlib import Path
 import click
 import numpy as np
 
+from drivers import ros_exit
 from procedures import cooperative_figures as figures
-from rig.exit_codes import InputError
-from rig.params import Parameter, with_parameters
-from rig import provenance, ros_exit
-from rig.run import (AbortRun, Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option,
-                     yes_option)
+from rig.commands.abort import exit_on_abort
+from rig.commands.exit_codes import InputError
+from rig.commands.options import config_from_context, json_option, yes_option
+from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.report import emit_result, exit_for_status
+from rig.runs import provenance
+from rig.runs.run import AbortRun, Run
 
 #: Live increments: per key press, and the slew rates the controller ramps them in at
 KEY_STEP_M, KEY_STEP_RAD, KEY_STEP_N = 0.002, 0.05, 0.5      # m, rad, N
@@ -156,11 +159,12 @@ def _model_for(cfg, model_path, simulated: bool, force_model: bool = False, warn
     """(PSMDynamics, StickSlip or None, description, effects) from a model file or nominal;
     ``effects``: the file's added effects (`rig discrepancy`), [] when it has none.
 
-    Implicitly only a model of one of this rig's arms is taken (rig.provenance); newer ones
+    Implicitly only a model of one of this rig's arms is taken (rig.runs.provenance); newer ones
     passed over are added to `warnings`. A --model file that does not belong is refused,
     or with `force_model` used with a warning."""
-    from rig import model_file
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model import model_file
+    from rig.runs import model_results
+    from rig.model.psm_dynamics import PSMDynamics
 
     warnings = warnings if warnings is not None else []
     if model_path:
@@ -174,7 +178,7 @@ def _model_for(cfg, model_path, simulated: bool, force_model: bool = False, warn
             warnings.append(f"--force-model: {model_path} used although {why}")
     else:
         skipped: list[str] = []
-        m = model_file.latest_model(cfg=cfg, skipped=skipped)
+        m = model_results.latest_model(cfg=cfg, skipped=skipped)
         warnings.extend(skipped)
         if m is not None and m.standard is None:
             m = None
@@ -199,8 +203,8 @@ def _model_for(cfg, model_path, simulated: bool, force_model: bool = False, warn
 
 def _registration_for(cfg, names, simulated: bool, warnings: list | None = None):
     """Each arm's RCM frame in the world, and where it came from: the newest registration
-    of these arms on this rig (rig.provenance; newer ones passed over go to `warnings`)."""
-    from rig import psm_kinematics as K
+    of these arms on this rig (rig.runs.provenance; newer ones passed over go to `warnings`)."""
+    from rig.model import psm_kinematics as K
 
     def frames_of(data: dict) -> dict:
         transforms = data.get("rcm_frames") or {}
@@ -222,8 +226,9 @@ def build_controller(cfg, names, master, params, translation, rotation, mode, dy
     """The cooperative controller; ``effects`` (a model file's entries) are fed forward on
     every arm with its rigid-body model (`calibration.effects.EffectCompensation`)."""
     from calibration.effects import EffectCompensation
-    from rig.control import FeedforwardModel, StickSlipCompensation
-    from rig.cooperative import CooperativeController, ForceLoop, Motion, PositionForceLoop, arm_preset, preset
+    from rig.control.controllers import FeedforwardModel, StickSlipCompensation
+    from rig.control.cooperative_controller import (CooperativeController, ForceLoop, Motion, PositionForceLoop,
+                                                    arm_preset, preset)
 
     d = dyn.params.drive
     friction = {}
@@ -274,7 +279,7 @@ ARM_LOOP_MAX_RATE = 100.0
 def _pace_at_published_rate(rig, names, master) -> None:
     """The arm-impedance path's loop runs at the rate the arms publish, at most
     ARM_LOOP_MAX_RATE and [rig] rate: every tick has a fresh state of every arm
-    (rig.clock.StreamClock); refuses, in one line, a slave whose arm cannot run servo_ci."""
+    (rig.devices.clock.StreamClock); refuses, in one line, a slave whose arm cannot run servo_ci."""
     for n in names:
         if n != master and not getattr(rig.arms[n], "supports_servo_ci", False):
             raise AbortRun(f"{n} cannot run servo_ci (crtk_msgs/CartesianImpedance not available); "
@@ -292,8 +297,8 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
 
     slave_control: "arm" (the slaves' impedance in the arm: servo_ci), "effort" (closed
     here: servo_jf) or "auto" (arm on ROS arms in impedance mode, else effort)."""
-    from rig.devices import open_rig
-    from rig.safety import SafetyLimits
+    from rig.devices.factory import open_rig
+    from rig.runs.safety import SafetyLimits
 
     simulated = cfg.simulated
     warnings: list[str] = []
@@ -612,18 +617,18 @@ def _plot_hint(run, timing=None):
 
 
 class _ServoCI:
-    """Sends the slaves' arm-impedance commands as the dVRK's servo_ci (rig.arm_impedance),
+    """Sends the slaves' arm-impedance commands as the dVRK's servo_ci (rig.control.arm_impedance),
     with the tool-tip orientation held where it was when the loop started."""
 
     def __init__(self, rig, slaves):
-        from rig.psm_arm_kinematics import PSMKinematics
+        from rig.model.psm_arm_kinematics import PSMKinematics
 
         self.arms = {n: rig.arms[n] for n in slaves}
         self.kinematics = PSMKinematics()
         self.hold = {n: self.kinematics.forward(self.arms[n].measured_arm()[0][:6])[:3, :3] for n in slaves}
 
     def send(self, n: str, cmd, t: float, rec) -> None:
-        from rig.arm_impedance import servo_ci_goal
+        from rig.control.arm_impedance import servo_ci_goal
 
         arm = self.arms[n]
         q = arm.measured_arm()[0][:6]
@@ -661,7 +666,7 @@ def _missed(result: dict, params: dict) -> str | None:
 
 def _check_plan(controller, names, q0, total, limits) -> dict:
     """Sample the planned desired tips, check limits with the IK, return a summary."""
-    from rig import psm_kinematics as K
+    from rig.model import psm_kinematics as K
 
     worst = {}
     for t in np.linspace(0.0, total, 200):
@@ -972,7 +977,7 @@ class _LiveCommands:
 
     def _targets_violation(self) -> str | None:
         """First limit a target of the rest of the plan breaks with the current offsets."""
-        from rig import psm_kinematics as K
+        from rig.model import psm_kinematics as K
 
         c = self.c
         end = c.t0 + c.motion.start + c.motion.duration

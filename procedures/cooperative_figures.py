@@ -16,7 +16,7 @@ error along the object holds that stretch besides its tracking error.
 
 What the recording holds for these (procedures/cooperative.py writes it): per control tick
 `/cooperative/force_setpoint` (Float64, N), `/<arm>/measured_cp` and `/<arm>/setpoint_cp`
-(positions in the world frame, m; rig.records.Recorder.point), the tension samples
+(positions in the world frame, m; rig.runs.recording.Recorder.point), the tension samples
 `/loadcell/force` (force x, N; `/loadcell<k>/force` for element k > 0), and a
 `cooperative_loop` metadata record: the loop's start on the run clock, the arms, the master
 and the motion's window.
@@ -107,7 +107,7 @@ def _positions(rec, topic: str) -> np.ndarray:
 
 
 def trace_from_recording(rec, title: str) -> CooperativeTrace:
-    """From a cooperative run's recording (rig.records.read_recording, decoded), up to its
+    """From a cooperative run's recording (rig.runs.recording.read_recording, decoded), up to its
     last control tick. Recordings made before the tips were recorded give the tension
     panels only (no `x`, `xd`)."""
     start = rec.start or {}

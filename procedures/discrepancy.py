@@ -49,10 +49,13 @@ from pathlib import Path
 import click
 import numpy as np
 
-from calibration.recorded_runs import PAUSE_CUTOFF_PERIODS, load_run_pieces
-from rig.exit_codes import EXIT_INPUT
-from rig.params import Parameter, with_parameters
-from rig.run import Run, emit_result, exit_on_abort, json_option
+from rig.commands.abort import exit_on_abort
+from rig.commands.exit_codes import EXIT_INPUT
+from rig.commands.options import json_option
+from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.report import emit_result
+from rig.runs.recorded_joints import PAUSE_CUTOFF_PERIODS, load_run_pieces
+from rig.runs.run import Run
 
 PROCEDURE = "discrepancy"
 STEPS = ("load the measured data", "baseline model", "detect, attribute, name and add effects",
@@ -394,9 +397,10 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
     from calibration.effects import describe
     from calibration.generalisation import EffectGate, plain_training_block, workflow_model
     from calibration.prediction import extra_effort, standard_parameters
-    from rig.model_file import load_model, provenance, save_model
-    from rig.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
-    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+    from rig.model.model_file import load_model, save_model
+    from rig.runs.model_results import provenance
+    from rig.model.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
+    from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
     settings = Settings(cutoff=parameters["cutoff"], heldout=parameters["heldout"],
                         effort_lag=parameters["effort_lag"] * 1e-3)
@@ -552,8 +556,8 @@ def command(run_dir, parameters, list_steps: bool, as_json: bool) -> None:
     from calibration.discrepancy import DiscrepancyError
     from calibration.prediction import PredictionError
     from calibration.signals import SignalError
-    from rig.model_file import ModelFileError
-    from rig.export_cli import ExportError
+    from rig.model.model_file import ModelFileError
+    from rig.runs.recorded_run import ExportError
 
     try:
         result = run(parameters, run_dir)

@@ -30,11 +30,13 @@ import sys
 import click
 import numpy as np
 
-from rig import provenance
-from rig.exit_codes import InputError
-from rig.params import Parameter, with_parameters
-from rig.run import (AbortRun, Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option,
-                     yes_option)
+from rig.commands.abort import exit_on_abort
+from rig.commands.exit_codes import InputError
+from rig.commands.options import config_from_context, json_option, yes_option
+from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.report import emit_result, exit_for_status
+from rig.runs import provenance
+from rig.runs.run import AbortRun, Run
 
 PROCEDURE = "friction-ramp"
 JOINT = 2  # joint 3, 0-based
@@ -80,11 +82,11 @@ def compensation_model(cfg, arm: str, say=None):
     """(PSMDynamics, description, model or None): the newest identified model of this arm
     on this rig, else nominal with the configuration's gravity. Newer models that belong to
     another arm or rig are named through `say` and passed over."""
-    from rig import model_file
-    from rig.psm_dynamics import PSMDynamics
+    from rig.runs import model_results
+    from rig.model.psm_dynamics import PSMDynamics
 
     skipped: list[str] = []
-    found = model_file.latest_model(with_friction_ramp=False, cfg=cfg, arm=arm, skipped=skipped)
+    found = model_results.latest_model(with_friction_ramp=False, cfg=cfg, arm=arm, skipped=skipped)
     for line in skipped:
         (say or (lambda m: click.echo(m, err=True)))(f"rig {PROCEDURE}: {line}")
     info = {"skipped": skipped} if skipped else {}
@@ -274,8 +276,9 @@ def plot_friction(sweeps: dict, fits: dict, path) -> None:
 def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = True) -> dict:
     """The procedure as a function (CLI, tests and bench). Returns the result."""
     from calibration.friction_fit import FrictionFitError, fit_stribeck, fit_viscous_coulomb
-    from rig import model_file
-    from rig.devices import open_rig
+    from rig.model import model_file
+    from rig.runs import model_results
+    from rig.devices.factory import open_rig
 
     arm_name = parameters["arm"]
     if arm_name not in cfg.arms:
@@ -337,7 +340,7 @@ def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = Tru
                     fits={k: v for k, v in fits.items()
                           if k in ("viscous_coulomb", "stribeck") and v and (k != "stribeck" or v.get("success"))},
                     deadbands={"velocity": parameters["threshold"], "position": 0.0003},
-                    provenance=model_file.provenance(f"{run.dir / 'run.mcap'} ({arm_name})", run.dir,
+                    provenance=model_results.provenance(f"{run.dir / 'run.mcap'} ({arm_name})", run.dir,
                                                      {"procedure": PROCEDURE, "compensation": comp_info}))
                 (run.dir / model_file.STICK_SLIP_FILENAME).write_text(json.dumps(stick.to_dict(), indent=2) + "\n")
                 origin = provenance.live(cfg, [arm_name], run.dir)
@@ -380,7 +383,7 @@ def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = Tru
 def simulated_truth(world, arm_name: str, dyn, ramps: dict) -> dict:
     """What the simulated joint 3 should give: with true load L (gravity + offset + hidden
     constant load) and compensation C, it breaks away at ramp = +Fs + (L - C) and -Fs + (L - C)."""
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model.psm_dynamics import PSMDynamics
 
     a = world.arms[arm_name]
     i = a.index * 3 + JOINT
@@ -449,7 +452,7 @@ def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
             click.echo(f"{i}. {s}")
         return
     from calibration.friction_fit import FrictionFitError
-    from rig.model_file import ModelFileError
+    from rig.model.model_file import ModelFileError
 
     try:
         result = run_friction_ramp(config_from_context(ctx), parameters)

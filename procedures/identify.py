@@ -82,11 +82,13 @@ from calibration.datasets import load_timed_csv
 from calibration.identification import (CUTOFF_HZ, DEADBAND, FILTER_ORDER, FitOutcome, fit_identification,
                                         fit_with_effects, predict,
                                         validation_table)
-from rig.exit_codes import InputError
-from rig.params import Parameter, with_parameters
-from rig import provenance
-from rig.run import (AbortRun, Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option,
-                     yes_option)
+from rig.commands.abort import exit_on_abort
+from rig.commands.exit_codes import InputError
+from rig.commands.options import config_from_context, json_option, yes_option
+from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.report import emit_result, exit_for_status
+from rig.runs import provenance
+from rig.runs.run import AbortRun, Run
 
 PROCEDURE = "identify"
 
@@ -199,7 +201,7 @@ def effects_from(parameters: dict) -> tuple[list, list[str]]:
     if not path:
         return [], []
     from calibration.identification import effect_terms
-    from rig.model_file import ModelFileError, load_model
+    from rig.model.model_file import ModelFileError, load_model
 
     try:
         entries = load_model(path).effects
@@ -351,7 +353,7 @@ def plant_of(cfg, arm_name: str):
     """The simulated twin of `arm_name` at the rig rate (what the margins are measured on):
     the configured parameters, effects, PID, effort limit and sensors, whatever its driver."""
     from calibration.excitation_design import Plant
-    from rig.sim import world_from_config
+    from rig.sim.world import world_from_config
 
     world = world_from_config(cfg, [arm_name], with_object=False, seed=0)
     return Plant(world.arms[arm_name].spec, float(cfg.rig["rate"]), np.asarray(cfg.rig["gravity"], float), 0)
@@ -362,7 +364,7 @@ def design_excitation(parameters: dict, gravity: np.ndarray, plant, progress=Non
     clear of Table 4.2's limits by the margin measured on `plant` (calibration.
     excitation_design), from the user's cache when designed before (see its docstring)."""
     from calibration.excitation_design import design
-    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+    from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
     return design(design_settings(parameters), gravity, plant, Q_MIN, Q_MAX, DQ_MAX, progress=progress,
                   processes=processes)
@@ -372,7 +374,7 @@ def validation_trajectory(frequency_hz: float, duration: float, harmonics: int, 
     """The validation trajectory before its margin (calibration.excitation_design.validation_trajectory
     at Table 4.2's limits)."""
     from calibration.excitation_design import validation_trajectory as raw
-    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+    from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
     return raw(frequency_hz, duration, harmonics, seed, fill, Q_MIN, Q_MAX, DQ_MAX)
 
@@ -618,9 +620,10 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
                 parameters: dict, excitation: dict | None, reference_gravity, origin: dict,
                 extra: dict | None = None, stick_slip=None) -> dict:
     """Validation, plots, model file and the result document (common to both paths);
-    `origin`: the model's provenance (rig.provenance.live or .recording); `stick_slip`: an
+    `origin`: the model's provenance (rig.runs.provenance.live or .recording); `stick_slip`: an
     earlier friction-ramp run's terms of the same arm, carried into the model file."""
-    from rig import model_file
+    from rig.model import model_file
+    from rig.runs import model_results
 
     table = validation_table(outcome, val)
     train_table = validation_table(outcome, train)
@@ -658,7 +661,7 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
         slope=outcome.slope, gravity=outcome.gravity, base_values=sdp.beta, stribeck=outcome.stribeck(),
         base_expressions=outcome.base.expressions(), base_independent=outcome.base.independent,
         gravity_source=outcome.gravity_source, validation=validation_doc, checks=checks["sdp"], stick_slip=stick_slip,
-        provenance_info={**model_file.provenance(data_source, run.dir, {"procedure": PROCEDURE,
+        provenance_info={**model_results.provenance(data_source, run.dir, {"procedure": PROCEDURE,
                                                                          "training_samples": int(train.n_samples),
                                                                          "validation_samples": int(val.n_samples)}),
                          **origin},
@@ -792,8 +795,8 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
     from calibration.datasets import processed
     from calibration.blas_threads import blas_threads
     from calibration.excitation_design import check
-    from rig.devices import open_rig
-    from rig.psm_kinematics import JointLimits
+    from rig.devices.factory import open_rig
+    from rig.model.psm_kinematics import JointLimits
 
     arm_name = parameters["arm"]
     if arm_name not in cfg.arms:
@@ -893,7 +896,8 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
 def earlier_stick_slip(cfg, arm_name: str):
     """(StickSlip or None, note): the newest completed `rig friction-ramp` result of this
     arm on this rig, so that the model file holds it whichever of the two ran first."""
-    from rig import model_file
+    from rig.model import model_file
+    from rig.runs import model_results
 
     found = provenance.find("friction-ramp", cfg, arm=arm_name,
                             usable=lambda run, res: "stick_slip" in res
@@ -901,7 +905,7 @@ def earlier_stick_slip(cfg, arm_name: str):
     notes = list(found.skipped)
     if found.run_dir is None:
         return None, "; ".join(notes)
-    stick = model_file.ramp_stick_slip(found.run_dir, found.data)
+    stick = model_results.ramp_stick_slip(found.run_dir, found.data)
     notes.append(f"stick-slip terms of joint 3 taken from friction-ramp run {found.run_dir.name}")
     return stick, "; ".join(notes)
 
@@ -920,7 +924,7 @@ def simulated_truth(world, arm_name: str, outcome: FitOutcome, val) -> dict:
     from dataclasses import replace
 
     from calibration.estimators import validation_errors
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model.psm_dynamics import PSMDynamics
 
     a = world.arms[arm_name]
     eff = a.spec.effects

@@ -46,7 +46,7 @@ the (parallel) axes, `calibration.axis_fit.distance_in_plane`):
 The DH lengths they imply: a3 = inverse-variance mean of l1 and l2, a4 = that of l3 and
 l4, beta = asin(l2' / a3) and, keeping Table 4.3's a6 = -0.043 m (the tool offset the
 rotations cannot see), a5 = (a3 sin(beta) + a6) / cos(beta) from the exact-RCM condition
-(rig.psm_kinematics). Every value carries a one-sigma uncertainty propagated from the
+(rig.model.psm_kinematics). Every value carries a one-sigma uncertainty propagated from the
 fits. Units: m and rad (degrees only in printed text).
 """
 
@@ -61,15 +61,19 @@ from scipy.spatial.transform import Rotation
 
 from calibration.axis_fit import (AxisFit, axis_angle, axis_distance, common_perpendicular,
                                   distance_in_plane, fit_axis_bias_compensated, fit_axis_gamage_lasenby)
+from calibration.captures import Capture, body_points
 from calibration.fit_error import FitError
 from calibration.joint_axis import JointAxisFit, fit_joint_axis_sara, joint_sign
 from calibration.registration import invert, mean_pose
-from rig.exit_codes import InputError
-from rig.mocap_capture import Capture, Collector, body_points, move_capture, open_devices, settle
-from rig import provenance
-from rig import psm_kinematics as K
-from rig.params import Parameter, with_parameters
-from rig.run import Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option, yes_option
+from procedures.mocap_capture import Collector, move_capture, open_devices, settle
+from rig.commands.abort import exit_on_abort
+from rig.commands.exit_codes import InputError
+from rig.commands.options import config_from_context, json_option, yes_option
+from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.report import emit_result, exit_for_status
+from rig.model import psm_kinematics as K
+from rig.runs import provenance
+from rig.runs.run import Run
 
 PROCEDURE = "link-lengths"
 STEPS = (
@@ -101,7 +105,7 @@ BODY_SUFFIXES = {"yaw": "yaw", "back": "pitch_back", "bottom": "pitch_bottom", "
 
 
 def nominal_lengths() -> dict[str, float]:
-    """Table 4.1 quantities of the model (rig.psm_kinematics, Table 4.3 completed), m."""
+    """Table 4.1 quantities of the model (rig.model.psm_kinematics, Table 4.3 completed), m."""
     return {"l1": K.A3, "l2": K.A3, "l12": 0.0, "l2'": K.A3 * math.sin(K.BETA), "l3": K.A4, "l4": K.A4}
 
 

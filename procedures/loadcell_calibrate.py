@@ -2,7 +2,7 @@
 
 Hang mass 1 (usually nothing), average the counts; hang mass 2, average again; the line
 through the two points (force = m g, g = 9.80665 m/s^2) is the calibration. It is saved as
-`result.json` of a run folder, where `drivers.loadcell.load_latest_calibration()` finds it.
+`result.json` of a run folder, where `rig.devices.loadcell_calibrations.load_latest_calibration()` finds it.
 On the simulated rig the firmware fake is loaded with the masses by the procedure itself,
 and the result also reports the fake's true gain so the fit can be judged. On a rig.toml
 with `[loadcell] driver = "serial"` the configured port is calibrated and the rig's
@@ -21,19 +21,17 @@ from pathlib import Path
 
 import click
 
-from drivers.loadcell import (
-    CALIBRATION_PROCEDURE,
-    STANDARD_GRAVITY,
-    FakeLoadCellFirmware,
-    LoadCell,
-    LoadCellCalibration,
-    LoadCellError,
-    usb_serial_number,
-)
+from drivers.loadcell import (STANDARD_GRAVITY, FakeLoadCellFirmware, LoadCell, LoadCellCalibration, LoadCellError,
+                              usb_serial_number)
 from drivers.operator import OperatorError
-from rig.exit_codes import InputError
-from rig.records import package_version
-from rig.run import EXIT_MISSED, AbortRun, Run, config_from_context, emit_result, exit_on_abort, result_json, yes_option
+from rig.commands.abort import exit_on_abort
+from rig.commands.exit_codes import EXIT_MISSED, InputError
+from rig.commands.options import config_from_context, yes_option
+from rig.commands.report import emit_result
+from rig.devices.loadcell_calibrations import CALIBRATION_PROCEDURE
+from rig.runs.recording import package_version
+from rig.runs.run import AbortRun, Run
+from rig.sealed_json import result_json
 
 #: The check reads mass 2 through the new calibration: it must agree with m g within
 #: 20 mN (the calibration's accuracy target, bench_loadcell) or 1 % of the load, whichever
@@ -130,7 +128,7 @@ def command(ctx, mass1: float, mass2: float, port: str | None, element: int | No
     params = {"mass1_kg": mass1, "mass2_kg": mass2, "port": port, "element": element, "sim": simulated, "baud": baud,
               "seconds": seconds, "rate_hz": rate_hz}
     # Progress and the end line on stderr and result.json with its timings, as every
-    # procedure: the run engine (rig.run) writes them. No arm moves, none is claimed.
+    # procedure: the run engine (rig.runs.run) writes them. No arm moves, none is claimed.
     with Run(CALIBRATION_PROCEDURE, parameters=params, config=cfg.snapshot(), steps=list(STEPS)) as run:
         result = _calibrate(run, cfg, params, element)
         run.finish(result, result.pop("status"), result.get("error"))
@@ -170,10 +168,10 @@ def _calibrate(run: Run, cfg, params: dict, element: int | None) -> dict:
                 ser = serial.Serial(fake.port_path, baudrate=baud)
             else:
                 from drivers.loadcell import open_serial_port
-                from rig.devices import open_operator
+                from rig.devices.factory import open_operator
 
                 if cfg.operator["driver"] == "ros":
-                    from rig.ros_session import RosSession
+                    from drivers.ros_session import RosSession
 
                     session = RosSession("rig_loadcell_calibrate", executor=cfg.ros["executor"])
                 operator = open_operator(cfg, session)

@@ -8,7 +8,7 @@ The cooperative controller (7.7) needs every arm's RCM frame in one common frame
   frame is the mocap frame.
 * `--method touch`: both tool tips touch the same N physical points (a person guides
   them on the real rig; the simulated rig moves them there with its true geometry). Each
-  arm's tip in its own RCM frame comes from its measured joints (rig.psm_kinematics), and
+  arm's tip in its own RCM frame comes from its measured joints (rig.model.psm_kinematics), and
   a rigid fit of the point pairs (Kabsch, calibration.registration) gives
   T_rcm_ref_rcm_arm. The common frame is the reference arm's configured placement
   (rig.toml base_xyz/base_rpy of the first arm).
@@ -16,7 +16,7 @@ The cooperative controller (7.7) needs every arm's RCM frame in one common frame
 Saved in result.json: `transforms[arm]` with "T_ref_rcm_arm_rcm" (4x4, maps the arm's RCM
 frame coordinates to the reference arm's RCM frame) and "T_ref_base_arm_base" (the same
 between frames 0), and `rcm_frames[arm]` (4x4, each arm's RCM frame in the common frame),
-which `rig cooperative` reads through rig.paths.latest_result("register"). On the
+which `rig cooperative` reads through rig.runs.paths.latest_result("register"). On the
 simulated rig the errors against the true placement (cfg.base_matrix) are reported.
 Units: m, rad (deg in printed text).
 """
@@ -30,14 +30,17 @@ import click
 import numpy as np
 
 from calibration.fit_error import FitError
-from calibration.registration import invert, pose_error, register_from_touch_points
 from calibration.rcm import DEFAULTS as RCM_DEFAULTS, arm_bodies, calibrate_arm
-from rig import psm_kinematics as K
-from rig.exit_codes import InputError
-from rig.params import Parameter, with_parameters
-from rig import provenance
-from rig.mocap_capture import Collector, measure_rcm_phases, open_devices, settle
-from rig.run import Run, config_from_context, emit_result, exit_for_status, exit_on_abort, json_option, yes_option
+from calibration.registration import invert, pose_error, register_from_touch_points
+from procedures.mocap_capture import Collector, measure_rcm_phases, open_devices, settle
+from rig.commands.abort import exit_on_abort
+from rig.commands.exit_codes import InputError
+from rig.commands.options import config_from_context, json_option, yes_option
+from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.report import emit_result, exit_for_status
+from rig.model import psm_kinematics as K
+from rig.runs import provenance
+from rig.runs.run import Run
 
 PROCEDURE = "register"
 #: the procedure whose results hold each arm's RCM frame in the mocap frame
@@ -103,7 +106,7 @@ def measure_touch(dev, run, cfg, arms: list[str], parameters: dict) -> dict:
 
 def rcm_frames_from_calibration(cfg, dev, run, arms: list[str], parameters: dict) -> tuple[dict, str]:
     """Each arm's RCM frame in the mocap frame: from the newest calibrate-rcm run of every
-    arm on this rig (rig.provenance), or measured now (calibrate_rcm's phases in this run)."""
+    arm on this rig (rig.runs.provenance), or measured now (calibrate_rcm's phases in this run)."""
     def frames_of(data: dict) -> dict:
         return {a: np.array(r["rcm_frame"]) for a, r in data.get("arms", {}).items()
                 if isinstance(r, dict) and "rcm_frame" in r}

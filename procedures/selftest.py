@@ -22,8 +22,10 @@ import time
 import click
 import numpy as np
 
-from rig.exit_codes import InputError
-from rig.run import EXIT_MISSED, exit_on_abort, json_option, result_json
+from rig.commands.abort import exit_on_abort
+from rig.commands.exit_codes import EXIT_MISSED, InputError
+from rig.commands.options import json_option
+from rig.sealed_json import result_json
 
 LIFT = np.array([0.0, 0.0, 0.010])          # world-frame tip step, m
 # Settled: every joint within this of its target (rad, rad, m). 0.5 mm on the insertion is
@@ -47,7 +49,7 @@ def _check(name: str, passed: bool, shown: str, bound_text: str, detail: str, mi
 
 def tip_at(world, name: str, q: np.ndarray) -> np.ndarray:
     """World position (m) of an arm's tool tip at joints q."""
-    from rig import psm_kinematics as K
+    from rig.model import psm_kinematics as K
 
     rcm = world.arms[name].rcm_world
     return rcm[:3, :3] @ K.tip_in_rcm(q) + rcm[:3, 3]
@@ -65,7 +67,7 @@ def loop_period(world, name: str, q: np.ndarray) -> float:
     The PID's proportional gain against the joint's inertia (mass-matrix diagonal, rotor
     inertia included) sets how fast an error swings through the tolerance band; an arm that
     stayed in the band this long is settled, not passing through it."""
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model.psm_dynamics import PSMDynamics
 
     arm = world.arms[name]
     inertia = np.diag(PSMDynamics(arm.params).mass_matrix(q))
@@ -77,7 +79,7 @@ def steady_load(world, name: str, q: np.ndarray) -> np.ndarray:
     applies them: gravity (the world's, in the arm's frame 0), the drives' constant friction
     offset Fo (thesis eq. 4.16) and any configured torque offset or joint spring. Coulomb
     friction can hold up to Fc of it either way, so this is the centre of a band."""
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model.psm_dynamics import PSMDynamics
 
     arm = world.arms[name]
     gravity = np.asarray(arm.spec.base, float)[:3, :3].T @ np.asarray(world.model.gravity.linear, float)
@@ -87,15 +89,15 @@ def steady_load(world, name: str, q: np.ndarray) -> np.ndarray:
 
 
 def tip_jacobian_world(world, name: str, q: np.ndarray) -> np.ndarray:
-    from rig import psm_kinematics as K
+    from rig.model import psm_kinematics as K
 
     return world.arms[name].rcm_world[:3, :3] @ K.tip_jacobian_rcm(q)
 
 
 def run_selftest(cfg, duration: float, seed: int | None = None) -> dict:
     """Run the self-test on the simulated arms of `cfg`; the result with its checks."""
-    from rig import psm_kinematics as K
-    from rig.sim import world_from_config
+    from rig.model import psm_kinematics as K
+    from rig.sim.world import world_from_config
 
     if not any(a["driver"] == "sim" for a in cfg.arms.values()):
         raise InputError(f"{cfg.source}: no simulated arm to test (no arm has driver 'sim'); "
@@ -331,7 +333,7 @@ stdout carries the checks and "status" ("completed" or "failed"), the report goe
 @click.pass_context
 @exit_on_abort
 def command(ctx: click.Context, duration: float, seed: int | None, as_json: bool) -> None:
-    from rig.run import config_from_context
+    from rig.commands.options import config_from_context
 
     cfg = config_from_context(ctx)
     result = run_selftest(cfg, duration, seed)

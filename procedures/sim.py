@@ -1,6 +1,6 @@
 """`rig sim`: serve the simulated rig over the real device protocols, like a dVRK console and its lab.
 
-One process, paced to the wall clock (`rig.sim_server.SimServer`): every arm of the
+One process, paced to the wall clock (`rig.sim_server.ros_node.SimServer`): every arm of the
 configuration as a whole dVRK 2.4 PSM on its CRTK ROS 2 topics (six joints and the jaw,
 the large needle driver unless `--tool` names another, the streams every `--ros-period`
 s as `dvrk_system -p`, operating_state and the other events on change, the kinematics
@@ -28,9 +28,9 @@ import time
 
 import click
 
-from rig import ros_exit
-from rig.exit_codes import InputError
-from rig.sim_server import DVRK_ROS_PERIOD
+from drivers import ros_exit
+from rig.commands.exit_codes import InputError
+from rig.sim_server.ros_node import DVRK_ROS_PERIOD
 
 STEPS = ("build the simulated world", "start the load cell on a pty", "create the ROS 2 node and topics",
          "serve until stopped")
@@ -141,7 +141,7 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
         for i, s in enumerate(STEPS, 1):
             _say(f"{i}. {s}")
         return
-    from rig.psm_tool import TOOL_NAMES
+    from rig.model.psm_tool import TOOL_NAMES
 
     if tool == "list":
         for name in TOOL_NAMES:
@@ -149,8 +149,8 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
         return
     if tool is not None and tool not in TOOL_NAMES:
         raise click.BadParameter(f"no tool {tool!r}; tools: {', '.join(TOOL_NAMES)}", param_hint="--tool")
-    from rig.run import config_from_context
-    from rig.sim import world_from_config
+    from rig.commands.options import config_from_context
+    from rig.sim.world import world_from_config
 
     _ask_priority(nice)  # before any thread starts: Linux keeps a nice value per thread, new ones inherit it
     cfg = served_config(config_from_context(ctx))
@@ -234,7 +234,7 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
     import rclpy
     from rclpy.context import Context
 
-    from rig.sim_server import SimServer
+    from rig.sim_server.ros_node import SimServer
     from rclpy.signals import SignalHandlerOptions
 
     ros_exit.before_init()

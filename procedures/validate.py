@@ -33,9 +33,12 @@ from pathlib import Path
 import click
 import numpy as np
 
-from rig.exit_codes import EXIT_INPUT
-from rig.params import Parameter, with_parameters
-from rig.run import Run, emit_result, exit_on_abort, json_option
+from rig.commands.abort import exit_on_abort
+from rig.commands.exit_codes import EXIT_INPUT
+from rig.commands.options import json_option
+from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.report import emit_result
+from rig.runs.run import Run
 
 PROCEDURE = "validate"
 STEPS = ("load the recording", "predict the efforts", "compare, plot and report")
@@ -83,7 +86,7 @@ def load_recording(parameters: dict, run_dir: str | None):
         return data.q, data.dq, data.tau, rate, str(parameters["csv"])
     from mcap.exceptions import McapError
 
-    from calibration.recorded_runs import load_run_arrays
+    from rig.runs.recorded_joints import load_run_arrays
 
     try:
         q, dq, tau, source = load_run_arrays(run_dir, parameters["arm"], rate)
@@ -96,8 +99,8 @@ def load_recording(parameters: dict, run_dir: str | None):
 
 def _procedure_of(m) -> str | None:
     """The procedure that wrote a model file: its provenance's, else its run folder's name."""
-    from rig.paths import procedure_of
-    from rig.runs_cli import run_time
+    from rig.runs.paths import procedure_of
+    from rig.runs.paths import run_time
 
     prov = m.provenance
     if prov.get("procedure"):
@@ -206,8 +209,8 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
     from calibration.datasets import DataError
     from calibration.discrepancy import Settings
     from calibration.prediction import predict
-    from rig.model_file import load_model
-    from rig.export_cli import resolve_run
+    from rig.model.model_file import load_model
+    from rig.runs.recorded_run import resolve_run
 
     settings = Settings(cutoff=parameters["cutoff"], heldout=parameters["heldout"],
                         effort_lag=parameters["effort_lag"] * 1e-3)
@@ -285,8 +288,8 @@ def command(run_dir, parameters, list_steps: bool, as_json: bool) -> None:
     from calibration.discrepancy import DiscrepancyError
     from calibration.prediction import PredictionError
     from calibration.signals import SignalError
-    from rig.model_file import ModelFileError
-    from rig.export_cli import ExportError
+    from rig.model.model_file import ModelFileError
+    from rig.runs.recorded_run import ExportError
 
     try:
         result = run(parameters, run_dir)

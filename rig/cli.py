@@ -60,7 +60,7 @@ class LazyGroup(click.Group):
 
 
 def _exit_codes_epilog() -> str:
-    from rig.exit_codes import MEANINGS
+    from rig.commands.exit_codes import MEANINGS
 
     return "\b\nExit status:\n" + "\n".join(f"  {code:>3}  {text}" for code, text in MEANINGS)
 
@@ -84,15 +84,15 @@ def main(ctx: click.Context, config_path: str | None) -> None:
         try:
             config.load(config_path)
         except config.ConfigError as exc:
-            from rig.exit_codes import InputError
+            from rig.commands.exit_codes import InputError
 
             raise InputError(str(exc)) from None
 
 
 def run() -> None:
-    """The `rig` program: the command, then the process's end through `rig.ros_exit.leave`
+    """The `rig` program: the command, then the process's end through `drivers.ros_exit.leave`
     (a command that used ROS 2 leaves its DDS participants to the process's end)."""
-    from rig import ros_exit
+    from drivers import ros_exit
 
     ros_exit.end_with_process()
     try:

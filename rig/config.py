@@ -33,7 +33,7 @@ Simulated arms may carry hidden effects for the discrepancy workflow and tests::
     stiction = [0.0, 0.0, 1.0]      # breakaway level per joint (N m, N m, N)
 
 or take their whole plant from a model file, such as the augmented model `rig discrepancy`
-writes (parameters and added effects; see `rig.model_file.IdentifiedModel.plant`)::
+writes (parameters and added effects; see `rig.model.model_file.IdentifiedModel.plant`)::
 
     [arms.PSM1]
     plant_model = "logs/20261121T101500Z-discrepancy/model.json"
@@ -517,7 +517,7 @@ def _plant_model(source: str, name: str, arm: dict) -> str:
 
 def _checked_plant_model(path: Path) -> str:
     """The absolute path of a model file that loads and maps onto a simulated plant."""
-    from rig.model_file import ModelFileError, load_model
+    from rig.model.model_file import ModelFileError, load_model
 
     path = path.resolve()
     try:

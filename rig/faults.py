@@ -3,7 +3,7 @@
 A stale arm stream, a load cell whose cable came out, a pty that is not a load cell, a
 mocap bridge that went quiet, an operator who never answered, a stream that never
 arrived: each driver raises its own subclass of `DeviceFault` with one line naming the
-device and what to check. The run engine (`rig.run`) records such a run as aborted (the
+device and what to check. The run engine (`rig.runs.run`) records such a run as aborted (the
 arms it moved are held, the recording is closed with the line as its reason) and the
 command prints the line and exits non-zero, without a traceback.
 

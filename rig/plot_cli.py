@@ -1,6 +1,6 @@
 """`rig plot RUN`: draw a run's figures again from its recording, aborted runs included.
 
-Every run gets time-series figures of every recorded stream (rig.stream_figures); a
+Every run gets time-series figures of every recorded stream (rig.runs.stream_figures); a
 cooperative run also gets its own figures (procedures.cooperative_figures: tension and
 tips, Cartesian tracking) and its tracking numbers, up to where it stopped. The CLI layer
 may import a procedure's figure module; procedures never import this.
@@ -12,9 +12,10 @@ from pathlib import Path
 
 import click
 
-from rig.exit_codes import InputError
-from rig.export_cli import read_run, resolve_run
-from rig.run import emit_result, json_option
+from rig.commands.exit_codes import InputError
+from rig.commands.options import json_option
+from rig.commands.report import emit_result
+from rig.runs.recorded_run import read_run, resolve_run
 
 PLOT_HELP = """Draw a run's figures again from its recording (run.mcap), aborted runs included.
 
@@ -46,7 +47,7 @@ def _status(rec) -> tuple[str, str]:
 
 def plot_run(run: str | Path, out: Path | None = None) -> dict:
     """Draw the figures of a run; returns what was written (and notes)."""
-    from rig.stream_figures import stream_figures
+    from rig.runs.stream_figures import stream_figures
 
     run_dir = resolve_run(str(run))
     rec = read_run(run_dir)

@@ -14,11 +14,11 @@ from pathlib import Path
 
 import click
 
-from rig import run_owner
-from rig.exit_codes import InputError
-from rig.paths import RUN_TIME_FORMAT, procedure_of, run_dirs, runs_root
-from rig.records import decode_metadata
-from rig.run import result_json
+from rig.commands.exit_codes import InputError
+from rig.runs import run_owner
+from rig.runs.paths import procedure_of, run_dirs, run_time, runs_root
+from rig.runs.recording import decode_metadata
+from rig.sealed_json import result_json
 
 
 # ---------------------------------------------------------------------- rig runs
@@ -47,16 +47,6 @@ KEY_FIGURES: dict[str, tuple[tuple[str, str], ...]] = {
 #: the list's lines are cut to the terminal's width, or to this many columns when the
 #: output is not a terminal (a pipe, a log); --wide keeps them whole
 LIST_WIDTH = 120
-
-
-def run_time(run_dir: Path) -> datetime | None:
-    """UTC start of a run from its folder name (`20261121T050203123456Z-identify`)."""
-    stamp = run_dir.name.split("-", 1)[0]
-    try:
-        return datetime.strptime(stamp[:15], RUN_TIME_FORMAT).replace(
-            microsecond=int(stamp[15:21] or 0), tzinfo=timezone.utc)
-    except ValueError:
-        return None
 
 
 def _metadata_from_mcap(path: Path) -> dict[str, dict]:
@@ -269,7 +259,7 @@ def run_info(run_dir: Path, result: dict | None = None) -> dict:
             result = {"held": stop.get("held"), "hold_errors": stop.get("hold_errors")}
         else:
             # no result and no stop record: still running, or killed without a chance to
-            # finish; its owner file (rig.run_owner) tells which, for runs that have one
+            # finish; its owner file (rig.runs.run_owner) tells which, for runs that have one
             owner = run_owner.state(run_dir)
             info["status"] = {"running": "running", "interrupted": "interrupted"}.get(owner, "unfinished")
             if owner == "interrupted":

@@ -1,4 +1,4 @@
-"""One exit status per kind of ending (rig.exit_codes), as `rig --help` and the README say:
+"""One exit status per kind of ending (rig.commands.exit_codes), as `rig --help` and the README say:
 a user's configuration or input is not a bug."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from rig.exit_codes import EXIT_ABORTED, EXIT_INPUT, EXIT_USAGE, MEANINGS
+from rig.commands.exit_codes import EXIT_ABORTED, EXIT_INPUT, EXIT_USAGE, MEANINGS
 
 REPO = Path(__file__).resolve().parents[1]
 

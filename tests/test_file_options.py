@@ -47,8 +47,8 @@ def bad_files(tmp_path_factory):
     (d / "malformed.csv").write_text("a,b,c\n1,2\nx,y,z\n")
     (d / "README.md").write_text((REPO / "README.md").read_text())
     (d / "a-folder").mkdir()
-    from rig.model_file import save_model
-    from rig.psm_dynamics import PSMDynamics, standard_parameter_names
+    from rig.model.model_file import save_model
+    from rig.model.psm_dynamics import PSMDynamics, standard_parameter_names
 
     save_model(d / "good" / "model.json", standard=PSMDynamics().standard_params(), names=standard_parameter_names(),
                slope=400.0, gravity=[0.0, 0.0, -9.81])

@@ -1,4 +1,4 @@
-"""The identification mathematics on the project's PSM model (rig.psm_dynamics.PSMDynamics)."""
+"""The identification mathematics on the project's PSM model (rig.model.psm_dynamics.PSMDynamics)."""
 
 import numpy as np
 import pytest
@@ -7,8 +7,8 @@ from calibration.base_params import base_parameters_of, random_samples
 from calibration.estimators import Identification, model_nominal
 from calibration.layout import ParamLayout
 
-psm_dynamics = pytest.importorskip("rig.psm_dynamics")
-from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN  # noqa: E402
+psm_dynamics = pytest.importorskip("rig.model.psm_dynamics")
+from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ from calibration.effects import (CATALOGUE, IDS, EffectContext, dahl_state, effe
                                  gap_crossings, gap_torque)
 from calibration.hidden_effects import (CATALOGUE_CASES, REFERENCE_EXCITATION_PATH, HiddenCase, generate,
                                         reference_excitation)
-from rig.sim import SensorNoise
+from rig.sim.world import SensorNoise
 
 
 @pytest.fixture(scope="session")
@@ -210,7 +210,7 @@ def test_stuck_samples_do_not_leak_into_the_fit(workflow):
     # before filtering, the null held-out residual of the insertion joint is at the level its
     # effort noise leaves after the filter, not the stick-slip mismatch (several times that).
     res, w, _ = workflow([], 3)
-    from rig.sim import SensorNoise
+    from rig.sim.world import SensorNoise
     sigma = SensorNoise().effort_noise[2] * np.sqrt(2 * w.p.cutoff / w.p.rate)
     assert res["baseline"]["heldout_rms"][2] < 2.5 * sigma
 
@@ -496,8 +496,8 @@ def test_augmented_model_file_as_the_simulated_plant_reproduces_the_recording(wo
     # the case's trajectory with the same noise draws, its efforts match the recording to
     # well under a percent of the effects' size; the same parameters without the effects
     # miss by the effects.
-    from rig.model_file import load_model, save_model
-    from rig.sim import HiddenEffects
+    from rig.model.model_file import load_model, save_model
+    from rig.model.plant_effects import HiddenEffects
 
     res, w, _ = workflow([("spring", 1), ("hysteresis", 3)], 0)
     model, _ = sim

@@ -1,13 +1,13 @@
 """A model file's added effects fed forward by the controllers (issue 7: the augmented model
 is one "the controllers ... can use"): `calibration.effects.EffectCompensation` in
-`rig.control.FeedforwardModel`, and what it buys an impedance-controlled arm."""
+`rig.control.controllers.FeedforwardModel`, and what it buys an impedance-controlled arm."""
 
 import numpy as np
 
 from calibration.effects import EffectCompensation, effects_torque
-from rig.control import follow_path
-from rig.model_file import load_model, save_model
-from rig.psm_dynamics import PSMDynamics, PSMParameters
+from rig.control.controllers import follow_path
+from rig.model.model_file import load_model, save_model
+from rig.model.psm_dynamics import PSMDynamics, PSMParameters
 
 EFFECTS = [
     {"name": "position_friction", "joint": 3,

@@ -8,8 +8,8 @@ import pytest
 
 from calibration import excitation_design as D
 from calibration.excitation import FourierTrajectory, rest_basis
-from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
-from rig.sim import ArmSpec, PIDGains, SimWorld
+from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+from rig.sim.world import ArmSpec, PIDGains, SimWorld
 
 G = np.array([0.0, 0.0, -9.81])
 

@@ -15,7 +15,7 @@ from calibration.prediction import predict
 
 
 def _plain_model(rec, tmp_path, name="plain.json"):
-    from rig.model_file import load_model, save_model
+    from rig.model.model_file import load_model, save_model
 
     out = plain_fit(plain_training_block(rec.q, rec.dq, rec.tau, rec.rate, Settings().heldout))
     sdp = out.fits["sdp"]
@@ -99,7 +99,7 @@ def test_a_given_model_is_taken_whole(tmp_path):
     from calibration.base_params import base_parameters_of
     from calibration.discrepancy import Discrepancy
     from calibration.prediction import extra_effort, standard_parameters
-    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+    from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
     rec, _ = generate(HiddenCase((), 3))
     plain = _plain_model(rec, tmp_path)

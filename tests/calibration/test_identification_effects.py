@@ -12,7 +12,7 @@ from calibration.generalisation import plain_training_block
 from calibration.hidden_effects import HiddenCase, draw_case_parameters, generate
 from calibration.identification import DEADBAND, EffectTerm, fit_identification
 
-#: The simulated rig's gravity (rig.psm_dynamics default, PSM frame 0).
+#: The simulated rig's gravity (rig.model.psm_dynamics default, PSM frame 0).
 DOWN = np.array([0.0, 0.0, -1.0])
 
 

@@ -31,7 +31,7 @@ from rclpy.context import Context  # noqa: E402
 from drivers.crtk import StaleStream  # noqa: E402
 from drivers.dvrk_arm import RosArm  # noqa: E402
 from drivers.interfaces import Arm  # noqa: E402
-from rig import psm_kinematics as K  # noqa: E402
+from rig.model import psm_kinematics as K  # noqa: E402
 from tests.ros_domains import claim_domain, ros_environment  # noqa: E402
 
 pytestmark = pytest.mark.ros
@@ -137,11 +137,11 @@ def test_measured_js_streams_every_rig_period_and_cp_matches_kinematics(rig_sim)
     # the simulator re-anchors its time (REANCHOR), and measured_js() returns nothing older
     # than the watchdog (0.5 s here); 1 s more for delivery on a loaded machine. Rig time
     # from zero or the monotonic clock would be off by days or decades.
-    from rig.sim_server import REANCHOR
+    from rig.sim_server.ros_node import REANCHOR
     assert -0.01 < time.time() - js.t < REANCHOR + arm.watchdog + 1.0
     cp = arm.measured_cp()
     # the dVRK's tool tip (the large needle driver's, wrist straight as the driver holds it)
-    from rig.psm_arm_kinematics import RIG_TIP_TO_TOOL_TIP
+    from rig.model.psm_arm_kinematics import RIG_TIP_TO_TOOL_TIP
     T = K.tip_pose_rcm(arm.measured_js().position) @ RIG_TIP_TO_TOOL_TIP
     assert np.allclose(cp.position, T[:3, 3], atol=2e-3)  # pose vs newest joints
     assert np.allclose(cp.rotation, T[:3, :3], atol=2e-2)

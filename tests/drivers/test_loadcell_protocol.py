@@ -20,24 +20,10 @@ from pathlib import Path
 import pytest
 
 from drivers.interfaces import ForceSensor
-from drivers.loadcell import (
-    CMD_IDENTIFY,
-    CMD_SET_RATE,
-    ClockMapper,
-    FrameParser,
-    LoadCell,
-    LoadCellCalibration,
-    LoadCellCommandError,
-    LoadCellDisconnected,
-    LoadCellNotCalibrated,
-    RawSample,
-    SequenceTracker,
-    crc16_ccitt_false,
-    decode_sample,
-    encode_frame,
-    load_latest_calibration,
-    sample_frame,
-)
+from drivers.loadcell import (CMD_IDENTIFY, CMD_SET_RATE, ClockMapper, FrameParser, LoadCell, LoadCellCalibration,
+                              LoadCellCommandError, LoadCellDisconnected, LoadCellNotCalibrated, RawSample,
+                              SequenceTracker, crc16_ccitt_false, decode_sample, encode_frame, sample_frame)
+from rig.devices.loadcell_calibrations import load_latest_calibration
 
 DOC = Path(__file__).resolve().parents[2] / "drivers" / "LOADCELL_PROTOCOL.md"
 
@@ -474,7 +460,7 @@ def test_bad_calibration_files_name_the_file_and_field(tmp_path):
 
 
 def test_latest_calibration_is_found_from_the_runs(tmp_path, monkeypatch):
-    from rig.paths import run_dir_name
+    from rig.runs.paths import run_dir_name
 
     monkeypatch.setenv("RIG_LOGS", str(tmp_path))
     with pytest.raises(LoadCellNotCalibrated, match="run `rig loadcell-calibrate` first"):
@@ -493,7 +479,7 @@ def test_latest_calibration_is_found_from_the_runs(tmp_path, monkeypatch):
 def test_each_port_gets_the_calibration_made_on_it(tmp_path, monkeypatch):
     from datetime import datetime, timedelta, timezone
 
-    from rig.paths import run_dir_name
+    from rig.runs.paths import run_dir_name
 
     monkeypatch.setenv("RIG_LOGS", str(tmp_path))
     now = datetime.now(timezone.utc)
@@ -515,9 +501,9 @@ def test_a_calibration_edited_by_hand_or_of_another_usb_cell_is_not_taken(tmp_pa
     now on the same port, makes the procedure refuse it and say why."""
     from datetime import datetime, timedelta, timezone
 
-    import drivers.loadcell as L
-    from rig import provenance
-    from rig.paths import run_dir_name
+    import rig.devices.loadcell_calibrations as L
+    from rig import sealed_json
+    from rig.runs.paths import run_dir_name
 
     monkeypatch.setenv("RIG_LOGS", str(tmp_path))
     now = datetime.now(timezone.utc)
@@ -527,7 +513,7 @@ def test_a_calibration_edited_by_hand_or_of_another_usb_cell_is_not_taken(tmp_pa
         run.mkdir()
         doc = {"status": "completed", "calibration": LoadCellCalibration(k, 5.0, device="/dev/ttyACM0").to_dict(),
                "provenance": {"cell": {"port": "/dev/ttyACM0", "usb_serial": "A1"}, "source": {"run": run.name}}}
-        (run / "result.json").write_text(json.dumps(provenance.seal(doc)))
+        (run / "result.json").write_text(json.dumps(sealed_json.seal(doc)))
     monkeypatch.setattr(L, "usb_serial_number", lambda port: "A1")
     assert load_latest_calibration("/dev/ttyACM0").newtons_per_count == 0.02
     # the newest calibration's gain edited by hand: skipped, the older one taken

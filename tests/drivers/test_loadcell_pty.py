@@ -322,7 +322,7 @@ def test_calibrate_command_on_the_simulated_cell_is_found_by_later_runs(tmp_path
 
     from click.testing import CliRunner
 
-    from drivers.loadcell import load_latest_calibration
+    from rig.devices.loadcell_calibrations import load_latest_calibration
     from procedures.loadcell_calibrate import command
 
     monkeypatch.setenv("RIG_LOGS", str(tmp_path))

@@ -11,8 +11,8 @@ from drivers.mocap_sim import (SimTracker, kabsch, matrix_from_quaternion, quate
 from drivers.motive_csv import read_motive_csv
 from drivers.sim_arm import SimArm
 from rig import config
-from rig.clock import SimClock
-from rig.sim import world_from_config
+from rig.devices.clock import SimClock
+from rig.sim.world import world_from_config
 from scipy.spatial.transform import Rotation
 
 

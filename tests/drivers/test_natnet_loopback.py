@@ -19,9 +19,9 @@ from drivers.natnet import (
     NatNetTracker, UdpTransport, decode_frame, decode_modeldef, decode_server_info, encode_connect, open_natnet_tracker,
     pack_message, split_message)
 from drivers.natnet_server import FakeMotive, SimMotive, check_loopback
-from rig.clock import SimClock
 from rig.config import parse
-from rig.sim import world_from_config
+from rig.devices.clock import SimClock
+from rig.sim.world import world_from_config
 
 NOISE = 0.00025  # m, the simulated marker noise (1 sigma per coordinate)
 

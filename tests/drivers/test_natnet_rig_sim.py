@@ -31,7 +31,7 @@ def natnet_toml(folder, port: int, extra: str = "") -> str:
 def test_calibrate_rcm_and_link_lengths_through_the_fake_motive(tmp_path, free_ports):
     from procedures.link_lengths import nominal_lengths
     from rig import config
-    from rig import psm_kinematics as K
+    from rig.model import psm_kinematics as K
 
     port = free_ports(2)  # NatNet's command and data ports; the domain is claimed by ServedRig
     with ServedRig(tmp_path / "lab", toml=natnet_toml(tmp_path / "lab", port),

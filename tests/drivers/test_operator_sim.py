@@ -8,7 +8,7 @@ import pytest
 from drivers.operator import OperatorError
 from drivers.operator_sim import CellLoad, SimOperator
 from rig import config
-from rig.sim import world_from_config
+from rig.sim.world import world_from_config
 
 
 @pytest.fixture

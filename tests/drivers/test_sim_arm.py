@@ -10,9 +10,9 @@ import pytest
 from drivers.interfaces import Arm
 from drivers.sim_arm import JointTrajectory, SimArm
 from rig import config
-from rig import psm_kinematics as K
-from rig.clock import SimClock, WallClock
-from rig.sim import world_from_config
+from rig.devices.clock import SimClock, WallClock
+from rig.model import psm_kinematics as K
+from rig.sim.world import world_from_config
 
 
 @pytest.fixture
@@ -130,7 +130,7 @@ def test_trajectory_profile_is_smooth_and_limited():
 
 
 class FakeTime:
-    """Stands in for the `time` module inside rig.clock: every sleep() overshoots by
+    """Stands in for the `time` module inside rig.devices.clock: every sleep() overshoots by
     `slack` s, as a real timer does, and nothing else takes any time."""
 
     def __init__(self, slack: float) -> None:
@@ -148,10 +148,10 @@ class FakeTime:
 
 
 def test_wall_clock_boundaries_come_from_the_start_not_from_the_last_wake_up(monkeypatch):
-    import rig.clock
+    import rig.devices.clock
 
     fake = FakeTime(slack=0.3e-3)
-    monkeypatch.setattr(rig.clock, "time", fake)
+    monkeypatch.setattr(rig.devices.clock, "time", fake)
     clock = WallClock(500.0)
     start = fake.t
     for _ in range(100):

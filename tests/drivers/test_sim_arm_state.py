@@ -10,8 +10,8 @@ import pytest
 from drivers.sim_arm import SimArm
 from drivers.sim_arm_state import HOMING, NOT_READY_PERIOD, POWERING, SimArmState
 from rig import config
-from rig.clock import SimClock
-from rig.sim import world_from_config
+from rig.devices.clock import SimClock
+from rig.sim.world import world_from_config
 
 
 class _Rig:

@@ -1,5 +1,5 @@
 """The whole simulated dVRK PSM (drivers.sim_psm) in-process: its control modes against the
-dVRK's semantics and its numbers against the kinematics (rig.psm_arm_kinematics). Over the
+dVRK's semantics and its numbers against the kinematics (rig.model.psm_arm_kinematics). Over the
 wire, with the dVRK's own client: tests/hil/test_dvrk_client.py."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ import pytest
 from drivers.sim_arm_state import SimArmState
 from drivers.sim_psm import Impedance, SimPSM
 from rig import config
-from rig.clock import SimClock
-from rig.psm_arm_kinematics import PSMKinematics
-from rig.sim import world_from_config
+from rig.devices.clock import SimClock
+from rig.model.psm_arm_kinematics import PSMKinematics
+from rig.sim.world import world_from_config
 
 
 class _Rig:
@@ -185,7 +185,7 @@ def test_deadband_and_bias_of_the_impedance(rig):
 
 
 def test_gravity_compensation_adds_the_nominal_gravity_torque(rig):
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model.psm_dynamics import PSMDynamics
 
     rig.do("servo_jf", lambda: rig.psm.servo_jf(np.zeros(6)))
     rig.psm.use_gravity_compensation(True)

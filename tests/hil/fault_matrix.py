@@ -84,7 +84,7 @@ class _Person:
 
     def __init__(self, domain: int):
         from drivers.operator import RosOperator
-        from rig.ros_session import RosSession
+        from drivers.ros_session import RosSession
 
         self._env = ros_environment(domain)
         self._env.__enter__()
@@ -122,7 +122,7 @@ def _inject(rig: ServedRig, fault: str, proc_box: list, person: _Person | None) 
 
 def cell(rig: ServedRig, name: str, fault: str) -> dict:
     """Run one procedure with one fault; what happened."""
-    from rig.records import read_recording
+    from rig.runs.recording import read_recording
 
     p = PROCEDURES[name]
     device, code, _ = FAULTS[fault]

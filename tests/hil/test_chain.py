@@ -120,7 +120,7 @@ def test_link_lengths(served):
 
 
 def test_calibrate_rcm(served):
-    from rig import psm_kinematics as K
+    from rig.model import psm_kinematics as K
 
     doc = completed(served.run("calibrate-rcm", "--arm", "all", "--duration", "6", "--q1-range", "0.5",
                          "--q2-range", "0.4"), "calibrate-rcm")
@@ -148,7 +148,7 @@ def test_identify(identified):
 
 
 def test_friction_ramp(ramped):
-    from rig.psm_dynamics import PSMParameters
+    from rig.model.psm_dynamics import PSMParameters
 
     doc = ramped
     fc_true = PSMParameters().drive.Fc[2]
@@ -185,8 +185,8 @@ def test_cooperative_holds_5_newtons(cooperative_ready, kind):
     run the procedure judges failed (exit 4: an excursion at the end of the move counts as
     not settled within 10 %) passes here if it held within 1 N."""
     from procedures.cooperative import ARM_LOOP_MAX_RATE
-    from rig.exit_codes import EXIT_ABORTED, EXIT_MISSED
-    from rig.records import read_recording
+    from rig.commands.exit_codes import EXIT_ABORTED, EXIT_MISSED
+    from rig.runs.recording import read_recording
 
     served = cooperative_ready
     out = served.run("cooperative", "--force", "5", "--object", kind, "--move", "0.03,0,0", "--duration", "2",
@@ -232,7 +232,7 @@ def _one_clear_line(out, *words: str) -> None:
 
 
 def _stopped_recording(out, reason_words: tuple[str, ...]) -> dict:
-    from rig.records import read_recording
+    from rig.runs.recording import read_recording
 
     assert out.doc is not None and out.doc["status"] == "aborted", out.stderr[-2000:]
     for w in reason_words:
@@ -298,7 +298,7 @@ HOLDING = "hold the tension while moving ["
 
 
 def test_load_cell_unplugged_mid_run(cooperative_ready):
-    from rig.ros_session import RosSession
+    from drivers.ros_session import RosSession
     from drivers.operator import RosOperator
 
     served = cooperative_ready

@@ -6,7 +6,7 @@ discovery, the dVRK's default ROS period of 0.01 s):
 
 * the client's PSM API call by call (tests/hil/dvrk_client_calls.py records every call
   in a subprocess): each CRTK family, its numbers checked against the project's own
-  kinematics (rig.psm_arm_kinematics) at the joints the client itself reads;
+  kinematics (rig.model.psm_arm_kinematics) at the joints the client itself reads;
 * the client's scripts, unmodified, to their end: dvrk_arm_test.py, dvrk_psm_test.py,
   dvrk_move_wait_test.py, crtk_move_cp_example.py, crtk_servo_jp_example.py, with the 2.4
   console names (/system) and with the 2.3 ones (/console).
@@ -74,7 +74,7 @@ def _ok(calls: dict, name: str):
 
 
 def _kin():
-    from rig.psm_arm_kinematics import PSMKinematics
+    from rig.model.psm_arm_kinematics import PSMKinematics
 
     return PSMKinematics()
 
@@ -200,7 +200,7 @@ def test_efforts_and_wrenches_are_applied_through_the_jacobians(calls):
     joints). Each effort command given the effort that holds the arm at rest (as joint
     efforts, as a spatial and as a body wrench through the Jacobians the arm publishes):
     the arm applies it; zero with gravity compensation and free: the nominal model's gravity."""
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model.psm_dynamics import PSMDynamics
 
     kin = _kin()
     for kind, jac in (("spatial", kin.jacobian_spatial), ("body", kin.jacobian_body)):

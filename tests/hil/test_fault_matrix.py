@@ -10,7 +10,7 @@ the documented exit, the arms it moved held, the recording closed with the reaso
 device it no longer uses, completed as if nothing happened. The whole matrix takes about
 half an hour on this 2-core machine, so it runs with `-m slow` (and bench/bench_faults.py
 prints it as a table); the default run keeps one fault of each kind in tests/hil/test_chain.py,
-tests/hil/test_operating_state.py and tests/rig/test_run.py.
+tests/hil/test_operating_state.py and tests/rig/runs/test_run.py.
 """
 
 from __future__ import annotations

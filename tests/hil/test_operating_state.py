@@ -46,7 +46,7 @@ class _Client:
         from crtk_msgs.msg import OperatingState
         from drivers.dvrk_arm import RosArm
         from drivers.operator import RosOperator
-        from rig.ros_session import RosSession
+        from drivers.ros_session import RosSession
 
         self.session = RosSession("state_test")
         node = self.session.node
@@ -252,7 +252,7 @@ def _fault_psm1_mid_run(served: ServedRig):
 
 def test_a_fault_mid_run_aborts_the_procedure_in_one_line(served):
     """It leaves PSM1 in FAULT, past its limit."""
-    from rig.records import read_recording
+    from rig.runs.recording import read_recording
 
     out, injected = _fault_psm1_mid_run(_fresh(served, ("PSM1 faulted",)))
     assert injected, out.stderr[-3000:]

@@ -25,8 +25,8 @@ def _take(tmp_path, units: str, rotation_deg: float = 65.0, occluded: float = 0.
     """A Motive export of the simulated PSM1 tool body pivoting about its RCM."""
     from drivers.mocap_sim import SimTracker, record_to_motive_csv
     from rig import config
-    from rig.clock import SimClock
-    from rig.sim import world_from_config
+    from rig.devices.clock import SimClock
+    from rig.sim.world import world_from_config
 
     world = world_from_config(config.load(), arms=["PSM1"], with_object=False, seed=1)
     tracker = SimTracker(world, SimClock(world), noise=0.00025, bodies=["PSM1_tool"], seed=2,

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from rig import config
 from rig.cli import main
-from rig.records import read_recording
+from rig.runs.recording import read_recording
 
 
 def _invoke(args):
@@ -81,8 +81,8 @@ def _api_run(monkeypatch, patch):
 
 
 def test_effort_ceiling_aborts_and_every_moved_arm_holds(monkeypatch):
-    from rig import safety
-    from rig.run import AbortRun
+    from rig.runs import safety
+    from rig.runs.run import AbortRun
 
     held = []
     from drivers import sim_arm
@@ -103,7 +103,7 @@ def test_effort_ceiling_aborts_and_every_moved_arm_holds(monkeypatch):
 
 
 def _limits_with(**overrides):
-    from rig import safety
+    from rig.runs import safety
 
     original = safety.SafetyLimits.__init__
 
@@ -115,8 +115,8 @@ def _limits_with(**overrides):
 
 
 def test_workspace_box_aborts_at_run_time(monkeypatch):
-    from rig import safety
-    from rig.run import AbortRun
+    from rig.runs import safety
+    from rig.runs.run import AbortRun
 
     calls = {"n": 0}
     original = safety.SafetyLimits.check_arm
@@ -132,8 +132,8 @@ def test_workspace_box_aborts_at_run_time(monkeypatch):
 
 
 def test_joint_velocity_limit_aborts(monkeypatch):
-    from rig import safety
-    from rig.run import AbortRun
+    from rig.runs import safety
+    from rig.runs.run import AbortRun
 
     with pytest.raises(AbortRun, match="velocity .* above"):
         _api_run(monkeypatch, lambda mp: mp.setattr(safety.SafetyLimits, "__init__",
@@ -142,7 +142,7 @@ def test_joint_velocity_limit_aborts(monkeypatch):
 
 def test_stale_load_cell_aborts(monkeypatch):
     from drivers import loadcell_sim
-    from rig.run import AbortRun
+    from rig.runs.run import AbortRun
 
     # the cell goes silent: after 300 of its sample instants it converts nothing more
     original = loadcell_sim.SimForceSensor._on_tick
@@ -225,8 +225,8 @@ def test_a_hold_on_the_first_tick_commands_what_the_starting_tension_does():
     # desired one, commanded 2.4 N m more on PSM1's joint 1 than its PID was applying
     # under a triangle's 1.9 N, and the triangle rang to the effort ceiling.
     from procedures.cooperative import build_controller
-    from rig import psm_kinematics as K
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model import psm_kinematics as K
+    from rig.model.psm_dynamics import PSMDynamics
 
     cfg = config.load(os.path.join(os.path.dirname(__file__), "..", "..", "examples", "three-arms.toml"))
     names = ["PSM1", "PSM2", "PSM3"]
@@ -250,7 +250,7 @@ def test_a_hold_on_the_first_tick_commands_what_the_starting_tension_does():
 
 
 def test_samples_not_reaching_the_loop_for_the_stale_timeout_abort_naming_the_load_cell(monkeypatch):
-    from rig.run import AbortRun
+    from rig.runs.run import AbortRun
 
     with pytest.raises(AbortRun, match="load cell stale: no sample reached the control loop for 50[0-9] ms"):
         _api_run_serial_timeout(monkeypatch, lambda mp: _held_up_reader(mp, 5, 2000))
@@ -337,8 +337,8 @@ def test_user_increments_are_slewed_and_checked_against_their_targets():
     """A live increment is a target: the controller ramps its applied offset toward it at the
     slew rate (no step in one cycle), while a limit check of the plan sees the target."""
     from procedures.cooperative import build_controller
-    from rig import psm_kinematics as K
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model import psm_kinematics as K
+    from rig.model.psm_dynamics import PSMDynamics
 
     cfg = config.load()
     names = ["PSM1", "PSM2"]
@@ -368,7 +368,7 @@ def test_user_increments_are_slewed_and_checked_against_their_targets():
 def test_rotate_turns_the_object_about_its_centroid_and_holds_the_tension():
     """--rotate (eq. 6.3): the tips turn about the object's centroid by the Euler angles
     while the tension is held; read back from the recording's measured joint states."""
-    from rig import psm_kinematics as K
+    from rig.model import psm_kinematics as K
 
     res, data = _invoke(["--move", "0,0,0", "--rotate", "0,0,0.3", "--duration", "3", "--settle", "2",
                          "--hold-after", "1.5"])
@@ -396,9 +396,10 @@ def test_rotate_turns_the_object_about_its_centroid_and_holds_the_tension():
 def test_uses_the_registration_run_and_the_model_file_and_says_which(tmp_path):
     """After `rig register` the arms' RCM frames come from that run, and --model FILE is
     the controllers' model; the result names both."""
-    from rig import config, provenance
-    from rig.model_file import save_model
-    from rig.psm_dynamics import PSMDynamics, standard_parameter_names
+    from rig import config
+    from rig.runs import provenance
+    from rig.model.model_file import save_model
+    from rig.model.psm_dynamics import PSMDynamics, standard_parameter_names
 
     reg = CliRunner().invoke(main, ["register", "--json"])
     assert reg.exit_code == 0, reg.output
@@ -419,8 +420,8 @@ def test_model_file_effects_are_fed_forward_and_the_rest_named(tmp_path):
     """A model file from `rig discrepancy` carries effects: the slaves' feedforward adds
     those it can (here a joint-3 spring and friction profile) and the result names the ones
     it cannot (a play). The simulated arms' plants are that model file too."""
-    from rig.model_file import save_model
-    from rig.psm_dynamics import PSMDynamics, standard_parameter_names
+    from rig.model.model_file import save_model
+    from rig.model.psm_dynamics import PSMDynamics, standard_parameter_names
 
     effects = [{"name": "spring", "joint": 3, "params": {"k": 30.0, "q0": 0.08}},
                {"name": "position_friction", "joint": 3,
@@ -449,8 +450,8 @@ def test_a_run_that_misses_its_tolerance_ends_failed_not_completed():
     """The motion runs to its end, but the tension strays beyond the tolerance it was
     given: status 'failed' with what was missed in result.json, the recording's stop
     record and the last stderr line, and exit code 4 (a safety abort is 3)."""
-    from rig.records import read_recording
-    from rig.run import EXIT_MISSED
+    from rig.runs.recording import read_recording
+    from rig.commands.exit_codes import EXIT_MISSED
 
     res, data = _invoke(["--force", "5", "--duration", "1", "--settle", "1.5", "--hold-after", "0.2",
                          "--tolerance", "0.01"])

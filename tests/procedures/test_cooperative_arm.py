@@ -1,5 +1,5 @@
 """The cooperative loop with the slaves' impedance in the arm (servo_ci): the goal it sends
-(rig.arm_impedance) against the dVRK's semantics, and the loop over a wire emulated in
+(rig.control.arm_impedance) against the dVRK's semantics, and the loop over a wire emulated in
 sim time (tests/procedures/wire_emulation.py) against the simulated object's tension."""
 
 from __future__ import annotations
@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rig import psm_kinematics as K
-from rig.arm_impedance import cartesian_inertia, force_frame, servo_ci_goal
-from rig.psm_arm_kinematics import PSMKinematics
+from rig.control.arm_impedance import cartesian_inertia, force_frame, servo_ci_goal
+from rig.model import psm_kinematics as K
+from rig.model.psm_arm_kinematics import PSMKinematics
 
 
 @pytest.mark.parametrize("u", [(1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.3, -0.5, 0.81)])
@@ -26,7 +26,7 @@ def test_feedforward_reaches_joints_1_to_3_and_nothing_reaches_the_wrist():
     from crtk_msgs.msg import CartesianImpedance
 
     from drivers.dvrk_arm import impedance_message
-    from rig.crtk_bridge import impedance_from_msg
+    from rig.sim_server.crtk_bridge import impedance_from_msg
 
     kin = PSMKinematics()
     q6 = np.array([0.2, -0.15, 0.13, 0.4, -0.3, 0.25])
@@ -53,7 +53,7 @@ def test_goal_moves_the_tool_tip_by_the_shaft_end_error():
 
 
 def test_cartesian_inertia_is_the_mass_a_force_accelerates():
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model.psm_dynamics import PSMDynamics
 
     q = np.array([0.1, -0.2, 0.14])
     M = PSMDynamics().mass_matrix(q)

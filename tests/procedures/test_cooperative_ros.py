@@ -29,8 +29,8 @@ from rclpy.context import Context  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 
 from rig import config  # noqa: E402
-from rig import psm_kinematics as K  # noqa: E402
-from rig.records import read_recording  # noqa: E402
+from rig.model import psm_kinematics as K  # noqa: E402
+from rig.runs.recording import read_recording  # noqa: E402
 
 pytestmark = pytest.mark.ros
 

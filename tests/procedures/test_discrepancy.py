@@ -7,7 +7,7 @@ import pytest
 from click.testing import CliRunner
 
 from rig.cli import main
-from rig.model_file import load_model
+from rig.model.model_file import load_model
 
 # The shared data sit beside the repository (../shared); a clone elsewhere on the lab machine
 # finds them at /work/shared.
@@ -244,8 +244,8 @@ def test_a_run_is_read_as_its_continuous_pieces(tmp_path):
     import numpy as np
 
     from calibration.discrepancy import Settings
-    from calibration.recorded_runs import load_run_pieces
-    from rig.run import Run
+    from rig.runs.recorded_joints import load_run_pieces
+    from rig.runs.run import Run
 
     def q_of(t):
         return np.column_stack([0.1 + 0.5 * t, -0.3 * t, 0.05 + 0.01 * t])

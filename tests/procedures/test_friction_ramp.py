@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rig import config
-from rig.params import resolve
+from rig.commands.parameters import resolve
 
 STICTION = 1.0  # N, the simulated breakaway level of joint 3
 
@@ -26,7 +26,7 @@ def _expected(world_params, effects_offset, comp_dyn, q3):
     + hidden constant load, and tau_cmd = C + ramp with the compensation C = g3_model(q) +
     Fo3_model. So it breaks away at ramp = +Fs + (L - C) and at ramp = -Fs + (L - C).
     """
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model.psm_dynamics import PSMDynamics
 
     q = np.array([0.0, 0.0, q3])
     true = PSMDynamics(world_params)
@@ -39,7 +39,7 @@ def test_breakaway_with_a_compensation_error(tmp_path):
     """A hidden constant load of 0.3 N on joint 3 the nominal model does not know: Fs+ and
     Fs- shift by it, each within 10 % of Fs of what the physics says, and their
     half-difference is Fs itself."""
-    from rig.psm_dynamics import PSMDynamics, PSMParameters
+    from rig.model.psm_dynamics import PSMDynamics, PSMParameters
 
     r = _run(tmp_path, "torque_offset = [0.0, 0.0, 0.3]\n", {"speeds": "0.005,0.02,0.08", "plots": False})
     assert r["status"] == "completed"
@@ -57,8 +57,9 @@ def test_breakaway_with_a_compensation_error(tmp_path):
 def test_friction_ramp_full_and_model_file(tmp_path):
     """Default sweeps: Fs+/Fs- within 10 %, Stribeck fit near the simulated friction law,
     a friction-only model file (no identify run yet) that latest_model() finds."""
-    from rig.model_file import latest_model, load_model
-    from rig.psm_dynamics import DriveParameters
+    from rig.model.model_file import load_model
+    from rig.runs.model_results import latest_model
+    from rig.model.psm_dynamics import DriveParameters
 
     r = _run(tmp_path)
     assert abs(r["Fs_pos"] - r["truth"]["expected_Fs_pos"]) <= 0.1 * STICTION
@@ -129,9 +130,9 @@ def test_stribeck_fit_reports_no_excess_where_friction_dips_below_coulomb_at_low
 
 
 def test_model_file_round_trip_and_errors(tmp_path):
-    from rig.model_file import (ModelFileError, StickSlip, latest_model, load_model, save_model,
-                                with_stick_slip)
-    from rig.psm_dynamics import PSMDynamics, standard_parameter_names
+    from rig.model.model_file import ModelFileError, StickSlip, load_model, save_model, with_stick_slip
+    from rig.runs.model_results import latest_model
+    from rig.model.psm_dynamics import PSMDynamics, standard_parameter_names
 
     pi = PSMDynamics().standard_params() * 1.1
     g = np.array([0.5, -0.2, -9.79])
@@ -182,8 +183,8 @@ def test_model_file_stribeck_term(tmp_path):
     """The identified Stribeck excess travels through the model file into the dynamics; a
     file without it (the earlier format) still loads, with no excess; a malformed one is a
     clear error."""
-    from rig.model_file import ModelFileError, load_model, save_model
-    from rig.psm_dynamics import PSMDynamics, standard_parameter_names
+    from rig.model.model_file import ModelFileError, load_model, save_model
+    from rig.model.psm_dynamics import PSMDynamics, standard_parameter_names
 
     pi = PSMDynamics().standard_params()
     common = dict(standard=pi, names=standard_parameter_names(), slope=400.0, gravity=[0.0, 0.0, -9.81])
@@ -210,9 +211,10 @@ def test_model_file_stribeck_term(tmp_path):
 def test_latest_model_merges_a_newer_friction_ramp_without_rewriting_the_identify_run(tmp_path):
     """The identify run's model.json is its record: a later friction-ramp result is merged
     into the model latest_model() returns, and the earlier file stays byte for byte."""
-    from rig.model_file import STICK_SLIP_FILENAME, StickSlip, latest_model, save_model
-    from rig.paths import runs_root
-    from rig.psm_dynamics import PSMDynamics, standard_parameter_names
+    from rig.model.model_file import STICK_SLIP_FILENAME, StickSlip, save_model
+    from rig.runs.model_results import latest_model
+    from rig.runs.paths import runs_root
+    from rig.model.psm_dynamics import PSMDynamics, standard_parameter_names
 
     root = runs_root()
     ident = root / "20261121T070000Z-identify"
@@ -239,7 +241,7 @@ def test_a_stribeck_fit_that_did_not_converge_is_reported_in_plain_words_and_not
     model file compensates with the viscous + Coulomb fit, not the unconverged curve."""
     import calibration.friction_fit as ff
     from procedures.friction_ramp import report_text
-    from rig.model_file import load_model
+    from rig.model.model_file import load_model
 
     real = ff.fit_stribeck
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from rig import config
-from rig.params import resolve
+from rig.commands.parameters import resolve
 
 # The shared data sit beside the repository (../shared); a clone elsewhere on the lab machine
 # finds them at /work/shared.
@@ -35,7 +35,8 @@ def rig_cli(*args, cwd):
 @pytest.mark.skipif(not REAL.exists(), reason="shared/data/wpi-psm/one_results.csv not available")
 def test_offline_real_csv_json(tmp_path):
     from calibration.datasets import load_csv, processed
-    from rig.model_file import latest_model, load_model
+    from rig.model.model_file import load_model
+    from rig.runs.model_results import latest_model
 
     code, out, err = rig_cli("identify", "--csv", str(REAL), "--json", cwd=tmp_path)
     assert code == 0, err
@@ -74,7 +75,7 @@ def _write(path, rows):
 def _synthetic_rows(n=1200, rate=200.0, seed=0):
     """Exciting 3-joint data in the WPI layout (q | dq | tau), torques from the nominal model."""
     from calibration.excitation import FourierTrajectory, rest_basis
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model.psm_dynamics import PSMDynamics
 
     rng = np.random.default_rng(seed)
     Z = rest_basis(0.2, n / rate)
@@ -162,7 +163,7 @@ def test_excitation_design_is_cached_where_every_later_run_finds_it(tmp_path, mo
     # another setting is another design (every input's part in the key: tests/calibration/test_excitation_design.py)
     from calibration.excitation_design import design_key
     from procedures.identify import design_settings
-    from rig.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+    from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
     other = resolve(PARAMETERS, {"duration": 6.0, "starts": 1, "iterations": 2, "frequency": 0.2})
     assert design_key(design_settings(other), g, plant, Q_MIN, Q_MAX, DQ_MAX)[1] != first["key"]
@@ -180,9 +181,9 @@ def test_stream_aborts_before_the_limit_when_the_arm_tracks_worse_than_its_margi
     from calibration.excitation import FourierTrajectory, rest_basis
     from calibration.excitation_design import Margin, Plant, tracking_error
     from procedures.identify import reach_start, stream_trajectory
-    from rig.devices import open_rig
-    from rig.psm_kinematics import JointLimits
-    from rig.run import AbortRun, Run
+    from rig.devices.factory import open_rig
+    from rig.model.psm_kinematics import JointLimits
+    from rig.runs.run import AbortRun, Run
 
     cfg = _empty_config(tmp_path)
     rng = np.random.default_rng(3)
@@ -240,8 +241,8 @@ def test_live_simulated_short(tmp_path):
     the SDP model must predict the true parameters' torques within 5 % per joint, and the
     measured ones where the joints move."""
     from procedures.friction_ramp import PARAMETERS as RAMP, run_friction_ramp
-    from rig.model_file import latest_model
-    from rig.psm_dynamics import PSMDynamics
+    from rig.runs.model_results import latest_model
+    from rig.model.psm_dynamics import PSMDynamics
 
     # friction-ramp first, then identify: the identified model file carries the ramp's
     # stick-slip terms (either order gives the same model)
@@ -299,7 +300,7 @@ def test_position_friction_of_joint_3_is_identified_where_it_is_and_left_out_whe
     falls; on the same motion without it, no profile beats the plain model and none is
     written."""
     from calibration.effects import CATALOGUE
-    from rig.model_file import load_model
+    from rig.model.model_file import load_model
 
     period = CATALOGUE["position_friction"].grid(3)[4]
     rows = _synthetic_rows(n=3000, seed=2)
@@ -338,7 +339,7 @@ def test_effects_from_a_model_file_are_identified_with_the_rigid_body(tmp_path):
     an offset in M is left out and named (Fo is the model's own term)."""
     from calibration.hidden_effects import HiddenCase, draw_case_parameters, generate
     from calibration.identification import make_model
-    from rig.model_file import load_model, save_model
+    from rig.model.model_file import load_model, save_model
 
     case = HiddenCase((("spring", 3),), 1)
     rec, _ = generate(case)
@@ -369,7 +370,7 @@ def test_effects_from_a_model_file_are_identified_with_the_rigid_body(tmp_path):
 
 def test_effects_from_bad_files_are_one_line(tmp_path):
     from calibration.identification import make_model
-    from rig.model_file import save_model
+    from rig.model.model_file import save_model
 
     rows = _synthetic_rows(n=1500, seed=3)
     data = _write(tmp_path / "d.csv", rows)

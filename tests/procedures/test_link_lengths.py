@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.records import read_recording
+from rig.runs.recording import read_recording
 from tests.procedures._cli import run_cli
 
 
@@ -52,7 +52,7 @@ def test_steps_lists_without_moving(tmp_path):
 def test_fit_refuses_an_occluded_body():
     from calibration.fit_error import FitError
     from procedures.link_lengths import fit_fixed_axis
-    from rig.mocap_capture import Capture
+    from calibration.captures import Capture
 
     n = 200
     ang = np.linspace(-1, 1, n)

@@ -8,9 +8,9 @@ import json
 
 from click.testing import CliRunner
 
-from drivers.loadcell import load_latest_calibration
 from rig.cli import main
-from rig.records import read_recording
+from rig.devices.loadcell_calibrations import load_latest_calibration
+from rig.runs.recording import read_recording
 
 #: the list's width when stdout is not a terminal (the issue's target)
 LIST_WIDTH = 120

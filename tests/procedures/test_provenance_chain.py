@@ -1,5 +1,5 @@
 """Results handed from one procedure to the next are taken only where they belong
-(rig.provenance): the chains a lab runs, with a foreign model, a registration of another
+(rig.runs.provenance): the chains a lab runs, with a foreign model, a registration of another
 rig configuration and a model file edited by hand."""
 
 import json
@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from rig import config, provenance
+from rig import config, sealed_json
 from rig.cli import main
-from rig.run import EXIT_MISSED
+from rig.commands.exit_codes import EXIT_MISSED
+from rig.runs import provenance
 
 WPI = Path(__file__).resolve().parents[3] / "shared" / "data" / "wpi-psm" / "one_results.csv"
 SHORT = ["--duration", "1", "--settle", "1.5", "--hold-after", "0.2"]
@@ -22,8 +23,8 @@ def _json(res) -> dict:
 
 
 def _model_of(path, cfg, arms=("PSM1",), scale=1.0):
-    from rig.model_file import save_model
-    from rig.psm_dynamics import PSMDynamics, standard_parameter_names
+    from rig.model.model_file import save_model
+    from rig.model.psm_dynamics import PSMDynamics, standard_parameter_names
 
     return save_model(path, standard=PSMDynamics().standard_params() * scale, names=standard_parameter_names(),
                       slope=400.0, gravity=np.array([0.0, 0.0, -9.81]),
@@ -142,7 +143,7 @@ def test_a_model_of_another_simulated_plant_is_foreign():
                                                                   "base_rpy": [0, 0, 3.141592653589793]}},
                                    "effects": {"PSM1": {"stiction": [0.0, 0.0, 1.0]}}}, "sticky.toml")
     doc = {"provenance": provenance.live(sticky, ["PSM1"], "run")}
-    provenance.seal(doc)
+    sealed_json.seal(doc)
     assert provenance.mismatch(doc, sticky) is None
     why = provenance.mismatch(doc, nominal)
     assert why is not None and why.startswith("its PSM1 is simulated PSM1 (plant ")
@@ -154,7 +155,7 @@ def test_a_model_of_psm1_still_belongs_when_psm3_joins_but_not_when_psm1_is_move
     """Belonging is per arm: adding an arm to the configuration changes the rig's hash but
     not PSM1's mounting; moving PSM1's base (or changing gravity) does."""
     two = config.load()
-    doc = provenance.seal({"provenance": provenance.live(two, ["PSM1"], "run")})
+    doc = sealed_json.seal({"provenance": provenance.live(two, ["PSM1"], "run")})
     pi = 3.141592653589793
     three = config.parse({"arms": {"PSM1": {}, "PSM2": {"base_xyz": [config.DEFAULT_PSM2_X, 0, 0],
                                                         "base_rpy": [0, 0, pi]},

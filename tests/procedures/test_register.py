@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rig.paths import latest_result
+from rig.runs.paths import latest_result
 from tests.procedures._cli import run_cli
 
 
@@ -21,7 +21,7 @@ def test_register_touch_meets_targets_and_is_found_by_later_runs():
     assert set(frames) == {"PSM1", "PSM2"}
     # PSM2's RCM frame in the common frame is where the configured rig puts it
     from rig import config
-    from rig import psm_kinematics as K
+    from rig.model import psm_kinematics as K
     cfg = config.load()
     true = cfg.base_matrix("PSM2") @ K.RCM_FRAME
     assert np.linalg.norm(frames["PSM2"][:3, 3] - true[:3, 3]) < 0.5e-3
@@ -38,9 +38,10 @@ def test_register_mocap_meets_targets_on_the_rcm_frames():
 
 def test_register_mocap_uses_the_latest_rcm_calibration(monkeypatch):
     # a calibrate-rcm run of this rig with every arm's RCM frame is used without moving anything
-    from rig import config, provenance
-    from rig import psm_kinematics as K
-    from rig.run import Run
+    from rig import config
+    from rig.runs import provenance
+    from rig.model import psm_kinematics as K
+    from rig.runs.run import Run
 
     cfg = config.load()
     arms = {a: {"rcm_frame": (cfg.base_matrix(a) @ K.RCM_FRAME).tolist()} for a in cfg.arms}

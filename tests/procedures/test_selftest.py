@@ -8,7 +8,7 @@ import pytest
 from click.testing import CliRunner
 
 from rig.cli import main
-from rig.run import EXIT_MISSED
+from rig.commands.exit_codes import EXIT_MISSED
 
 
 def selftest(*args, config=None):
@@ -59,8 +59,8 @@ def test_the_sag_before_the_lift_follows_the_joint_loads(tmp_path):
     """The physics behind the explanation: each joint sags against its steady load (gravity
     plus the drives' friction offset Fo), by less than the P term alone would allow; without
     gravity only Fo is left, and the object is loaded far less before the lift."""
-    from rig.psm_dynamics import DriveParameters
-    from rig.sim import PIDGains
+    from rig.model.psm_dynamics import DriveParameters
+    from rig.sim.world import PIDGains
 
     drive, pid = DriveParameters(), PIDGains()
     _, doc = selftest()
@@ -105,7 +105,7 @@ def test_an_arm_that_cannot_hold_its_load_fails(tmp_path):
     assert "PSM2 settled" in res.stderr.strip().splitlines()[-1]
     # the report says why: the insertion's integral term is clamped below the load it carries
     assert 3 in doc["arms"]["PSM2"]["integral_at_limit"]
-    from rig.sim import PIDGains
+    from rig.sim.world import PIDGains
 
     assert f"PSM2 q3: limit {PIDGains().integral_limit[2]:g} N" in res.stderr
 

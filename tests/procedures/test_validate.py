@@ -47,8 +47,8 @@ EFFECTS = [
 
 
 def write_model(path, effects=(), stribeck=STRIBECK, gravity=GRAVITY, standard=None) -> Path:
-    from rig.model_file import save_model
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model.model_file import save_model
+    from rig.model.psm_dynamics import PSMDynamics
 
     dyn = PSMDynamics()
     return save_model(path, standard=dyn.standard_params() if standard is None else standard,
@@ -61,7 +61,7 @@ def model_efforts(model_path, q, dq, ddq) -> np.ndarray:
     body, rotor inertia, friction with the Stribeck excess) plus each effect's torque, in
     the file's order, on the exact state."""
     from calibration.effects import CATALOGUE
-    from rig.model_file import load_model
+    from rig.model.model_file import load_model
 
     m = load_model(model_path)
     dyn = m.dynamics()
@@ -133,7 +133,7 @@ def test_the_stribeck_excess_and_the_gravity_of_the_file_are_used(synthetic, tmp
     model."""
     from calibration.datasets import load_csv
     from calibration.prediction import predict
-    from rig.model_file import load_model
+    from rig.model.model_file import load_model
 
     data = load_csv(synthetic["csv"], RATE, 3)
     from calibration.discrepancy import Settings
@@ -159,7 +159,7 @@ def test_stateful_effects_run_in_time_order_as_the_feedforward(synthetic):
     from calibration.discrepancy import Settings
     from calibration.effects import EffectCompensation, delayed
     from calibration.prediction import predict
-    from rig.model_file import load_model
+    from rig.model.model_file import load_model
 
     data = load_csv(synthetic["csv"], RATE, 3)
     s = Settings(effort_lag=0.0)   # the model's state is then the measured one itself
@@ -192,7 +192,7 @@ def test_heldout_figures_are_the_discrepancy_baseline(tmp_path):
     from calibration.discrepancy_null import sim_model_and_base
     from calibration.hidden_effects import HiddenCase, generate
     from calibration.prediction import predict
-    from rig.model_file import load_model
+    from rig.model.model_file import load_model
 
     rec, _ = generate(HiddenCase((("spring", 1),), 4))
     m = load_model(write_model(tmp_path / "m.json", stribeck=None, gravity=[0.0, 0.0, -9.81]))
@@ -228,7 +228,7 @@ def test_cli_heldout_equals_rig_discrepancy_baseline(tmp_path):
 
 def _record_run(rec, procedure="sim-recording"):
     """The simulated rig's recording as a run folder (/PSM1/measured_js at its rate)."""
-    from rig.run import Run
+    from rig.runs.run import Run
 
     with Run(procedure, progress=False) as run:
         for k in range(len(rec.q)):
@@ -336,8 +336,8 @@ def test_a_bad_model_file_is_one_line_naming_it(option, kind, bad_files, synthet
 
 
 def test_models_that_cannot_predict_are_one_line(tmp_path, synthetic):
-    from rig.model_file import friction_only_model, load_model
-    from rig.model_file import StickSlip
+    from rig.model.model_file import friction_only_model, load_model
+    from rig.model.model_file import StickSlip
 
     friction_only = friction_only_model(tmp_path / "fo.json", StickSlip(3, 1.0, -1.0), [0, 0, -9.81], 400.0, {})
     unknown = write_model(tmp_path / "unknown.json", [{"name": "magic", "joint": 3, "params": {}}])
@@ -398,7 +398,7 @@ def test_the_mass_matrix_of_the_prediction_is_the_model_s():
     regressor's change for unit accelerations, times the parameters, plus the rotor
     inertias) is the model's M(q); its zero-acceleration effort is C(q, dq) dq + g(q)."""
     from calibration.prediction import _rigid_body
-    from rig.psm_dynamics import PSMDynamics
+    from rig.model.psm_dynamics import PSMDynamics
 
     dyn = PSMDynamics(gravity=GRAVITY)
     rng = np.random.default_rng(1)

@@ -7,7 +7,7 @@ the arms' state and the load cell are "published" every ROS period and reach the
 procedure's loop `delay` periods later; the loop's commands (master servo_jp, slaves'
 servo_ci built as the crtk_msgs message `RosArm` sends and read back as rig sim's bridge
 reads it) act from the next servo period. The procedure's own controller
-(`rig.cooperative`, slave_control="arm") runs at the published rate; a held process is
+(`rig.control.cooperative_controller`, slave_control="arm") runs at the published rate; a held process is
 emulated by `hold_every`/`hold` (the loop misses its ticks, then acts on the newest
 sample). Used by tests/procedures/test_cooperative_arm.py and bench/bench_cooperative_arm.py.
 """
@@ -38,11 +38,11 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
     from drivers.sim_psm import SimPSM
     from procedures.cooperative import build_controller
     from rig import config
-    from rig.arm_impedance import servo_ci_goal
-    from rig.clock import SimClock
-    from rig.crtk_bridge import impedance_from_msg
-    from rig.psm_dynamics import PSMDynamics
-    from rig.sim import world_from_config
+    from rig.control.arm_impedance import servo_ci_goal
+    from rig.devices.clock import SimClock
+    from rig.sim_server.crtk_bridge import impedance_from_msg
+    from rig.model.psm_dynamics import PSMDynamics
+    from rig.sim.world import world_from_config
 
     cfg = config.load(config_path)
     cfg.rig["rate"] = rate
@@ -57,7 +57,7 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
     psms = {n: SimPSM(world, n, clock) for n in names}
     for p in psms.values():
         p.homed = True
-    rcm = {n: cfg.base_matrix(n) @ __import__("rig.psm_kinematics", fromlist=["RCM_FRAME"]).RCM_FRAME for n in names}
+    rcm = {n: cfg.base_matrix(n) @ __import__("rig.model.psm_kinematics", fromlist=["RCM_FRAME"]).RCM_FRAME for n in names}
     elements = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
     params = {"force": force, "duration": duration, "settle": settle, "hold_after": hold_after, "deadband": 0.4}
     dyn = PSMDynamics(gravity=np.asarray(cfg.rig["gravity"], float))
@@ -72,7 +72,7 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
     if tweak is not None:
         tweak(controller)
     rng = np.random.default_rng(seed + 1)
-    from rig.psm_arm_kinematics import PSMKinematics
+    from rig.model.psm_arm_kinematics import PSMKinematics
 
     kin = PSMKinematics()
     # let the object settle under the PIDs at the start pose

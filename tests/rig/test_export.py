@@ -11,7 +11,7 @@ from click.testing import CliRunner
 from mcap_ros2.writer import Writer as Ros2Writer
 
 from rig.cli import main
-from rig.records import read_recording
+from rig.runs.recording import read_recording
 from tests.rig.cooperative_runs import SHORT, cooperative_run
 
 

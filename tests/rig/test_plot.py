@@ -12,8 +12,8 @@ from click.testing import CliRunner
 
 from procedures import cooperative_figures as cf
 from rig.cli import main
-from rig.records import read_recording
-from rig.run import Run
+from rig.runs.recording import read_recording
+from rig.runs.run import Run
 from tests.rig.cooperative_runs import ABORTING, SHORT, cooperative_run
 
 PNG = b"\x89PNG\r\n\x1a\n"

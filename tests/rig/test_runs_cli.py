@@ -8,9 +8,9 @@ import pytest
 from click.testing import CliRunner
 
 from rig.cli import main
-from rig.records import Recorder
-from rig.run import AbortRun, Run
 from rig.export_cli import export_csv
+from rig.runs.recording import Recorder
+from rig.runs.run import AbortRun, Run
 
 JOINTS = 7  # like the dVRK PSM and the wpi-psm file
 

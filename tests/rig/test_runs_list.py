@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from rig.cli import main
-from rig.run import AbortRun, Run
+from rig.runs.run import AbortRun, Run
 
 #: the list's width when stdout is not a terminal (the issue's target)
 LIST_WIDTH = 120

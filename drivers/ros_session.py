@@ -1,0 +1,134 @@
+"""One rclpy context, node and executor thread for a procedure's ROS 2 devices.
+
+Every ROS driver of a run (arms, mocap, the simulated operator) shares this node; one
+executor thread spins it. The thread also keeps `executor_time()`: the monotonic time at
+which the executor last came back from waiting for work. Drivers judge staleness on that
+time instead of `time.monotonic()`:
+
+    age = executor_time() - time of the last message
+
+so a stream only counts as stale when the executor has been polling and found nothing for
+longer than the timeout. If the process itself is starved (a fit or a plot holding the
+GIL, other programs holding the CPUs) the executor cannot poll, `executor_time()` stands
+still, and a healthy stream never looks stale. When the publisher really stops (the dVRK
+or `rig sim` killed), the executor keeps waking every `POLL` s and the age grows at once:
+detection takes the timeout plus at most `POLL` plus the watchdog's own period.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+from drivers import ros_exit
+
+#: s, longest wait of the executor before it notes the time again (no message arrived)
+POLL = 0.005
+#: s, longest wait for the executor thread to return when the session stops (a starved
+#: process: the thread must get the CPU once to see the request)
+STOP_WAIT = 10.0
+
+
+def domain_text() -> str:
+    """The ROS 2 domain and discovery range this process uses, for messages."""
+    domain = os.environ.get("ROS_DOMAIN_ID", "0") or "0"
+    scope = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "")
+    return f"ROS_DOMAIN_ID={domain}" + (f", discovery {scope}" if scope else "")
+
+
+def make_executor(kind: str, context):
+    """The rclpy executor of a process: "events" (rclpy's EventsExecutor: its queue is
+    C++, and with two arms at 500 Hz it took 0.12 of a core where the SingleThreadedExecutor
+    took 0.34, and `rig sim` dropped from 0.69 to 0.32) or "single". Spin it with
+    spin_once(timeout) in a loop: the events executor's spin() held `rig sim`'s other threads
+    off (no stream, no exit on SIGTERM)."""
+    if kind == "events":
+        from rclpy.experimental import EventsExecutor
+
+        return EventsExecutor(context=context)
+    if kind == "single":
+        from rclpy.executors import SingleThreadedExecutor
+
+        return SingleThreadedExecutor(context=context)
+    raise ValueError(f"executor must be 'events' or 'single', got {kind!r}")
+
+
+class RosSession:
+    """rclpy context + node + executor thread (see the module docstring).
+
+    name: the node's name; executor: "events" or "single" (`make_executor`). Use `node`
+    to create drivers, then `start()`; `close()` stops the thread and shuts the context down.
+    """
+
+    def __init__(self, name: str = "rig", executor: str = "events"):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.signals import SignalHandlerOptions
+
+        ros_exit.before_init()
+        self.context = Context()
+        # The run engine owns SIGINT/SIGTERM: rclpy's handlers would shut the context
+        # under a procedure instead of letting it hold the arms and close its recording.
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        try:
+            self.node = rclpy.create_node(name, context=self.context)
+            ros_exit.after_node()
+            self.executor = None
+            self.executor_kind = executor
+        except BaseException:
+            rclpy.shutdown(context=self.context)
+            raise
+        self._t = time.monotonic()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, name=f"ros-{name}", daemon=True)
+        self.spins = 0
+        self.stopped = False
+
+    def executor_time(self) -> float:
+        """Monotonic s at which the executor last finished a wait (see the module docstring)."""
+        return self._t
+
+    def start(self) -> None:
+        # made once the drivers' subscriptions exist (the events executor registers what
+        # the node has when the node is added)
+        self.executor = make_executor(self.executor_kind, self.context)
+        self.executor.add_node(self.node)
+        self._t = time.monotonic()
+        self._thread.start()
+
+    def _spin(self) -> None:
+        executor = self.executor
+        while not self._stop.is_set():
+            try:
+                executor.spin_once(timeout_sec=POLL)
+            except Exception:  # noqa: BLE001 - the context is shut down by close()
+                if self._stop.is_set() or not self.context.ok():
+                    return
+                raise
+            self._t = time.monotonic()
+            self.spins += 1
+
+    def stop(self) -> bool:
+        """Stop spinning: the executor thread has returned and the executor is shut down,
+        so the drivers may destroy their endpoints (destroyed under a spinning executor,
+        an endpoint takes the process down with a segmentation fault: rclpy#663, and
+        the EventsExecutor's rclpy#1644). Idempotent. False if the thread did not return
+        within STOP_WAIT s: then nothing may be destroyed (`stopped` stays False)."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=STOP_WAIT)
+        if self._thread.is_alive():
+            return False
+        if self.executor is not None and not self.stopped:
+            self.executor.shutdown(timeout_sec=STOP_WAIT)
+        self.stopped = True
+        return True
+
+    def close(self) -> None:
+        """Stop spinning, then destroy the node and shut the context down (in a `rig`
+        command's process: leave them to its end, `drivers.ros_exit`); a thread that would not
+        stop leaves them to the process's end rather than crash it."""
+        if not self.stop():
+            return
+        ros_exit.teardown(self.node, self.context)

@@ -1,0 +1,1 @@
+"""What every `rig` command shares: exit codes, parameters, --json and --yes, the report, the abort."""

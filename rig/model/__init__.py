@@ -1,0 +1,1 @@
+"""The PSM model: kinematics, dynamics, tools, the wrist plant, plant effects and the identified-model file."""

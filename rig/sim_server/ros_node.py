@@ -1,0 +1,368 @@
+"""The simulated rig served over ROS 2 as whole dVRK PSMs, mocap poses and the operator's channel.
+
+`SimServer` is what `rig sim` runs, in one process, paced to the wall clock:
+
+* every simulated arm as a whole dVRK 2.4 PSM (`drivers.sim_psm.SimPSM` behind its
+  operating state `drivers.sim_arm_state.SimArmState`) on the CRTK topics of
+  `rig.sim_server.crtk_bridge.ArmBridge`: the streams every ROS period (`ros_period`, as
+  `dvrk_system -p`), each while it has a subscriber (looked up at 10 Hz; measured_js
+  always), the events (operating_state, error, warning, status, goal_reached, the
+  trajectory ratio) when they happen;
+* the console under `console` (/console as dVRK 2.3, /system as 2.4): power_on,
+  power_off and home act on every arm through its state machine; set_volume, beep and
+  string_to_speech are accepted and logged; /console/teleop/... (enable, set_scale,
+  select, unselect; scale, selected, unselected published latched) as the dVRK's console;
+* the mocap system as geometry_msgs/PoseStamped on /<prefix>/<body>/pose at the mocap
+  rate, while any body's topic has a subscriber (`drivers.mocap_sim.SimTracker`: noise,
+  occlusion, latency; an occluded body is not published in that frame);
+* the operator's side channel (`drivers.operator_sim.OperatorServer`): the manual steps
+  of a procedure done by the simulation, and the faults a test injects.
+
+Threads: the main thread applies the received commands, runs each arm's servo loop
+(`SimPSM.control`), steps the world and the wrists, publishes and paces (sleeps to
+`start + k / rate`); an executor thread spins the node, whose subscriptions only queue
+(the world has one writer) and whose services answer from kinematics alone. Stream
+stamps are `wall time at start + simulated time`; event stamps are the wall time when
+published, strictly increasing, so that a client sees every event as newer than the one
+before (crtk's client keeps only a newer operating_state).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+
+#: s behind the wall clock beyond which the served rig re-anchors its time instead of catching up
+REANCHOR = 0.05
+#: s, the dVRK console's default ROS publishing period (`dvrk_system -p 0.01`)
+DVRK_ROS_PERIOD = 0.01
+#: s, the ROS period from which every arm stream is published whether watched or not
+ALWAYS_BELOW = 0.004
+
+
+class SimServer:
+    """The simulated rig served on a ROS 2 node (see the module docstring).
+
+    world: a `rig.sim.world.SimWorld` (its own pacing is turned off: the server paces); node: an
+    rclpy Node, spun here on an executor thread; arms: names to serve; ros_period: s
+    between two publications of the arm streams; mocap: a dict with prefix, rate, noise,
+    latency, occlusion (or None for no mocap); console: "/console" or "/system"; cells:
+    the `CellLoad`s of the served load cells, the configured one first; object_spec: what
+    the operator attaches (the world may start without it); tool: the PSMs' tool name.
+    """
+
+    def __init__(self, world, node, arms: list[str], ros_period: float = DVRK_ROS_PERIOD,
+                 mocap: dict | None = None, seed: int = 0, console: str = "/console", cells: list | None = None,
+                 executor: str = "events", object_spec=None, tool: str | None = None):
+        from geometry_msgs.msg import PoseStamped
+        from rclpy.qos import DurabilityPolicy, QoSProfile
+        from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, String
+
+        from drivers.operator_sim import OperatorServer, SimOperator
+        from drivers.sim_arm import SimArm
+        from drivers.sim_arm_state import SimArmState
+        from drivers.sim_psm import SimPSM
+        from rig.devices.clock import SimClock
+        from rig.sim_server.crtk_bridge import ArmBridge
+        from rig.model.psm_tool import tool as tool_named
+
+        self.world = world
+        world.pace = False
+        self.node = node
+        self.clock = SimClock(world)
+        the_tool = tool_named(tool) if tool else None
+        # SimArm: the operator's hands on joints 1-3 (a touch holds a tip); SimPSM: the arm
+        self.sim_arms = {n: SimArm(world, n, self.clock) for n in arms}
+        self.psms = {n: SimPSM(world, n, self.clock, tool=the_tool) for n in arms}
+        self.states = {n: SimArmState(self.psms[n]) for n in arms}
+        self.rate = self.clock.rate
+        self.ros_period = float(ros_period)
+        self.ros_every = max(1, int(round(self.ros_period * self.rate)))
+        self._refresh_every = max(1, int(round(0.1 * self.rate)))  # subscribers looked up at 10 Hz
+        # At the dVRK's periods every stream is published whether or not anyone listens, as
+        # the dVRK does (a client that just connected finds its first sample within a
+        # period); faster than ALWAYS_BELOW s, only the watched ones (the CPU of 14 topics
+        # per arm at 1 kHz would starve the servo loop)
+        self.publish_all = self.ros_period >= ALWAYS_BELOW
+        self._commands: deque = deque()
+        self._last_event = 0
+        qos = QoSProfile(depth=10)
+        self.bridges = {n: ArmBridge(node, self.psms[n], self.states[n], self._queued, self._stamp,
+                                     self._event_stamp) for n in arms}
+        for b in self.bridges.values():
+            b.publish_initial()
+        self.console = "/" + console.strip("/")
+        self._subs = []
+        for what in ("power_on", "power_off", "home"):
+            self._subs.append(node.create_subscription(Empty, f"{self.console}/{what}",
+                                                       self._queued(self._console, what), qos))
+        self.console_log: list[str] = []
+        for what, msg_type in (("set_volume", Float64), ("beep", Float64MultiArray), ("string_to_speech", String)):
+            self._subs.append(node.create_subscription(msg_type, f"{self.console}/{what}",
+                                                       lambda m, what=what: self._console_said(what, m), qos))
+        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.teleop = {"scale": 0.2, "enabled": False, "selected": set()}
+        self._teleop_pub = {k: node.create_publisher(t, f"/console/teleop/{k}", latched)
+                            for k, t in (("scale", Float64), ("selected", String), ("unselected", String))}
+        for what, msg_type in (("enable", Bool), ("set_scale", Float64), ("select", String), ("unselect", String)):
+            self._subs.append(node.create_subscription(msg_type, f"/console/teleop/{what}",
+                                                       lambda m, what=what: self._teleop(what, m), qos))
+        self._teleop_pub["scale"].publish(Float64(data=self.teleop["scale"]))
+        self._String = String
+        self.operator = OperatorServer(SimOperator(world, self.sim_arms, cell=(cells or [None])[0],
+                                                   cells={c.element: c for c in cells or []}, states=self.states,
+                                                   object_spec=object_spec), node)
+        self.cells = list(cells or [])
+        self.operator.operator.cables["mocap"] = self._unplug_mocap
+        self.mocap_unplugged = False
+        self.tracker = None
+        self.natnet = None  # a drivers.natnet_server.SimMotive when serving NatNet (`--natnet`)
+        self._mocap_msg: dict = {}
+        self._mocap_pub: dict = {}
+        self._mocap = mocap
+        self._seed = seed
+        self._Pose = PoseStamped
+        if mocap is not None:
+            from drivers.mocap import pose_topic
+            from rig.sim.world import default_marker_bodies
+
+            bodies = [mb.name for n in world.names for mb in default_marker_bodies(n)] + ["world"]
+            self._mocap_pub = {b: node.create_publisher(PoseStamped, pose_topic(mocap["prefix"], b), qos)
+                               for b in bodies}
+        self._refresh_watched()
+        self.command_errors = 0
+        self.state_commands = 0
+        self.superseded = 0
+        self.max_lag = 0.0  # s, the longest the loop fell behind the wall clock
+        self._last_command: dict[str, int] = {}
+        self.late_ticks = 0
+        self.slips = 0
+        self.stop = threading.Event()
+        self._epoch0 = time.time() - world.t
+        from drivers.ros_session import make_executor
+
+        self._executor = make_executor(executor, node.context)
+        self._executor.add_node(node)
+        self._spin_thread = threading.Thread(target=self._spin, name="sim-executor", daemon=True)
+
+    @property
+    def published(self) -> dict[str, int]:
+        return {n: b.published for n, b in self.bridges.items()}
+
+    # -- subscriptions (executor thread): queue, never touch the world -----------------
+    def _spin(self) -> None:
+        try:
+            while not self.stop.is_set():  # spin_once in a loop: see make_executor
+                self._executor.spin_once(timeout_sec=0.005)
+        except Exception:  # noqa: BLE001 - the context was shut down while stopping
+            if not self.stop.is_set():
+                raise
+
+    def _queued(self, fn, arg):
+        def callback(msg) -> None:
+            self._commands.append((time.perf_counter(), fn, arg, msg))
+        return callback
+
+    def _console(self, what, _msg) -> bool:
+        # the console's buttons act on every arm, through each arm's state machine
+        command = {"power_on": "enable", "power_off": "disable", "home": "home"}[what]
+        for state in self.states.values():
+            state.command(command, self.world.t)
+        return False
+
+    def _console_said(self, what: str, m) -> None:
+        """beep, set_volume, string_to_speech: accepted and logged (a simulated console has no speaker)."""
+        value = list(m.data) if what == "beep" else m.data
+        text = f"{self.console}/{what}: {value}"
+        self.console_log.append(text)
+        self.node.get_logger().info(text)
+
+    def _teleop(self, what: str, m) -> None:
+        """The console's teleoperation topics: no MTM here, so nothing moves; the state is
+        kept and echoed as the dVRK's console does."""
+        from std_msgs.msg import Float64
+
+        if what == "set_scale":
+            self.teleop["scale"] = float(m.data)
+            self._teleop_pub["scale"].publish(Float64(data=float(m.data)))
+        elif what == "enable":
+            self.teleop["enabled"] = bool(m.data)
+        elif what in ("select", "unselect"):
+            (self.teleop["selected"].add if what == "select" else self.teleop["selected"].discard)(str(m.data))
+            self._teleop_pub["selected" if what == "select" else "unselected"].publish(self._String(data=str(m.data)))
+        self.node.get_logger().info(f"/console/teleop/{what}: {m.data} (no MTM on the simulated rig)")
+
+    def _apply_commands(self, until: float = float("inf")) -> None:
+        """Apply the commands received up to perf_counter time `until`: the wall time the
+        next step stands for. When the loop runs behind and catches up step by step, each
+        command then acts at the step of its arrival, as on an arm that never fell behind,
+        instead of the newest of a burst jumping the set-point forward."""
+        from rig.sim_server.crtk_bridge import MOTION
+
+        self.operator.apply()
+        commands = self._commands
+        while commands and commands[0][0] <= until:
+            _, fn, key, msg = commands.popleft()
+            bridge = getattr(fn, "__self__", None)
+            if not hasattr(bridge, "psm"):
+                bridge = None  # the console's buttons
+            if key in MOTION and bridge is not None:
+                # DDS keeps order within a topic only: a servo command sent before a move_jp
+                # (a hold) may arrive after it and would cancel the move. One client stamps
+                # its commands on one clock, so a command older than the arm's last one is
+                # superseded: dropped and counted.
+                header = getattr(msg, "header", None)
+                stamp = 0 if header is None else header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+                last = self._last_command.get(bridge.name, 0)
+                if stamp and stamp < last:
+                    self.superseded += 1
+                    continue
+                if stamp:
+                    self._last_command[bridge.name] = stamp
+            if key == "state_command":
+                self.state_commands += 1
+            try:
+                obeyed = fn(key, msg)
+            except ValueError as exc:  # a malformed command is refused, reported, counted
+                self.command_errors += 1
+                self.node.get_logger().warning(f"command refused: {exc}")
+                continue
+            if obeyed and bridge is not None:
+                self.operator.operator.release(bridge.name)  # the client takes the arm over
+
+    # -- publishing (main thread) ---------------------------------------------------------
+    def _stamp(self, msg, t: float) -> None:
+        ns = int(round((self._epoch0 + t) * 1e9))
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+
+    def _event_stamp(self, msg) -> None:
+        ns = max(time.time_ns(), self._last_event + 1000)
+        self._last_event = ns
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+
+    def _refresh_watched(self) -> None:
+        """Which streams have subscribers; start or stop the mocap system to match."""
+        for b in self.bridges.values():
+            b.refresh_watched(everything=self.publish_all)
+        watched = any(p.get_subscription_count() > 0 for p in self._mocap_pub.values())
+        if watched and self.tracker is None:
+            from drivers.mocap_sim import SimTracker
+
+            m = self._mocap
+            self.tracker = SimTracker(self.world, self.clock, noise=m["noise"], latency=m["latency"],
+                                      occlusion=m["occlusion"], rate=m["rate"], quaternion_order="xyzw",
+                                      seed=self._seed + 1)
+        elif not watched and self.tracker is not None:
+            self.tracker.close()
+            self.tracker = None
+
+    def _unplug_mocap(self) -> None:
+        """The tracker's cable pulled (a fault for tests): no pose is published from now on."""
+        self.mocap_unplugged = True
+
+    def _publish_mocap(self) -> None:
+        frames = self.tracker.frames()
+        if self.mocap_unplugged:
+            return
+        for frame in frames:
+            for body, pose in frame.bodies.items():
+                if pose is None:
+                    continue  # occluded: bridges publish nothing for a lost body
+                pm = self._mocap_msg.get(body)
+                if pm is None:  # one message object per body, refilled (publish copies it)
+                    pm = self._mocap_msg[body] = self._Pose()
+                    pm.header.frame_id = "world"
+                self._stamp(pm, frame.t)
+                pm.pose.position.x, pm.pose.position.y, pm.pose.position.z = pose.position.tolist()
+                q = frame.quaternions[body]  # frame.quaternion_order == "xyzw", as on the wire
+                o = pm.pose.orientation
+                o.x, o.y, o.z, o.w = (float(v) for v in q)
+                self._mocap_pub[body].publish(pm)
+
+    # -- the loop -------------------------------------------------------------------------
+    def _tick(self) -> None:
+        """One servo period: each arm's control, the world's step, the wrists' step, the states."""
+        t = self.world.t
+        for psm in self.psms.values():
+            psm.control(t)
+        self.clock.tick()
+        t = self.world.t
+        for psm in self.psms.values():
+            psm.step_wrist()
+        for cell in self.cells:
+            cell.update()
+        for state in self.states.values():
+            state.step(t)
+
+    def serve(self, duration: float | None = None, on_ready=None) -> dict:
+        """Step, publish and pace until `stop` is set or `duration` s of sim time passed."""
+        self._spin_thread.start()
+        world = self.world
+        # One untimed tick first: loading the compiled physics kernel and the first
+        # publications take a fraction of a second that would count as a stall.
+        self._tick()
+        self._epoch0 = time.time() - world.t
+        for b in self.bridges.values():
+            b.publish_streams(world.t)
+            b.publish_events()
+            b.published = 0
+        if self.tracker is not None:
+            self._publish_mocap()
+        t_start = world.t
+        self._epoch0 = time.time() - t_start
+        perf0 = time.perf_counter() - t_start
+        wall0 = time.perf_counter()
+        if on_ready is not None:
+            on_ready()
+        period = world.dt
+        k = 0
+        while not self.stop.is_set():
+            if duration is not None and world.t - t_start >= duration - 1e-9:
+                break
+            self._apply_commands(perf0 + world.t + period)
+            self.operator.operator.hold_touch()
+            self._tick()
+            t = world.t
+            k += 1
+            for b in self.bridges.values():
+                b.publish_events()
+            if k % self.ros_every == 0:
+                for b in self.bridges.values():
+                    b.publish_streams(t)
+            if k % self._refresh_every == 0:
+                self._refresh_watched()
+            if self.tracker is not None:
+                self._publish_mocap()
+            if self.natnet is not None and not self.mocap_unplugged:
+                self.natnet.pump(self._epoch0)  # Motive's clock is the stamps' timeline
+            lag = time.perf_counter() - (perf0 + t)
+            if lag > self.max_lag:
+                self.max_lag = lag
+            if lag < 0:
+                time.sleep(-lag)
+            else:
+                self.late_ticks += 1
+                if lag > REANCHOR:
+                    # Far behind (the process was stopped, or a debugger held it): re-anchor
+                    # instead of bursting to catch up. Shorter stalls (the CPU shared with
+                    # other programs) are caught up step by step, so that the commands
+                    # received meanwhile act at the steps of their arrival
+                    # (`_apply_commands`): a re-anchor applies them all at once, and the
+                    # arm's PID sees the set-point jump.
+                    perf0 += lag
+                    self._epoch0 += lag
+                    self.slips += 1
+        wall = time.perf_counter() - wall0
+        sim = world.t - t_start
+        return {"wall_s": wall, "sim_s": sim, "ticks": k,
+                "measured_js_hz": {n: c / wall if wall > 0 else 0.0 for n, c in self.published.items()},
+                "late_ticks": self.late_ticks, "slips": self.slips, "command_errors": self.command_errors,
+                "superseded": self.superseded, "max_lag_s": self.max_lag,
+                "dropped": {n: st.dropped for n, st in self.states.items()}}
+
+    def close(self) -> None:
+        self.stop.set()
+        self._executor.shutdown(timeout_sec=1.0)
+        if self._spin_thread.is_alive():
+            self._spin_thread.join(timeout=1.0)

@@ -1,0 +1,83 @@
+"""A `rig` command's process leaves its DDS participant to its end (drivers.ros_exit, issue 37):
+deleting it after a peer died mid-write crashed the procedure in Fast DDS's shared-memory
+teardown. The command's process still ends with its code, its words flushed, its exit
+handlers run and its own shared-memory segment removed; a library's session is torn down."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+pytest.importorskip("rclpy")
+
+pytestmark = pytest.mark.ros
+
+REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+SCRIPT = textwrap.dedent("""
+    import atexit, os, sys
+    from drivers import ros_exit
+    from drivers.ros_session import RosSession
+    ros_exit.end_with_process()
+    atexit.register(lambda: print("exit handler ran", flush=True))
+    session = RosSession("ros_exit_test")
+    from std_msgs.msg import Float64
+    session.node.create_subscription(Float64, "/ros_exit_test/x", lambda m: None, 10)
+    session.start()
+    mine = sorted(ros_exit._own_segments)
+    print("segments", " ".join(mine))
+    print("present", all(os.path.exists(f"/dev/shm/{n}") for n in mine))
+    session.close()
+    print("context ok after close", session.context.ok())
+    sys.stderr.write("rig test: aborted: the last line\\n")
+    import threading, time
+    threading.Thread(target=lambda: (time.sleep(0.5), print("worker done", flush=True))).start()
+    ros_exit.leave(3)
+    print("not reached")
+""")
+
+
+def test_a_commands_process_parks_its_participant_and_ends_with_its_code(ros_env):
+    out = subprocess.run([sys.executable, "-c", SCRIPT], cwd=REPO, env=dict(os.environ), capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 3, out.stderr
+    assert "Traceback" not in out.stderr
+    assert out.stderr.splitlines()[-1] == "rig test: aborted: the last line"
+    lines = out.stdout.splitlines()
+    assert "context ok after close True" in lines  # parked, not shut down
+    assert "exit handler ran" in lines and "not reached" not in lines
+    assert lines.index("worker done") < lines.index("exit handler ran")  # threads end first, as at any exit
+    segments = lines[0].split()[1:]
+    if os.path.isdir("/dev/shm") and segments:  # Fast DDS made one for its participant: it is gone
+        assert "present True" in lines
+        for name in segments:
+            assert not os.path.exists(f"/dev/shm/{name}") and not os.path.exists(f"/dev/shm/{name}_el")
+
+
+def test_a_library_session_is_torn_down(ros_env, monkeypatch):
+    from drivers import ros_exit
+    from drivers.ros_session import RosSession
+
+    monkeypatch.setattr(ros_exit, "_ending", False)
+    session = RosSession("ros_exit_lib")
+    session.start()
+    session.close()
+    assert not session.context.ok()
+    assert not ros_exit._parked
+
+
+def test_leave_without_a_parked_participant_is_sys_exit(monkeypatch):
+    from drivers import ros_exit
+
+    monkeypatch.setattr(ros_exit, "_parked", [])
+    monkeypatch.delitem(sys.modules, "rclpy", raising=False)
+    with pytest.raises(SystemExit) as done:
+        ros_exit.leave(None)
+    assert done.value.code == 0
+    with pytest.raises(SystemExit) as done:
+        ros_exit.leave(4)
+    assert done.value.code == 4

@@ -59,7 +59,8 @@ def _mode_for(effects) -> str:
 def run_case(args):
     """(label, effects, seed, mode) -> figures of one case (runs in a worker)."""
     effects, seed, mode = args
-    from calibration.discrepancy import Discrepancy, Settings
+    from calibration.discrepancy.settings import Settings
+    from calibration.discrepancy.workflow import Discrepancy
     from calibration.discrepancy_null import reference_model, sim_model_and_base
     from calibration.hidden_effects import HiddenCase, generate
 
@@ -112,7 +113,8 @@ def _two_motions(excitation, excitation_seed: int, validation_seed: int, design_
     """``excitation`` streamed on the null plant (noise seed ``excitation_seed``), then `rig
     identify`'s validation trajectory of ``design_seed`` (noise seed ``validation_seed``)."""
     from calibration.hidden_effects import HiddenCase, generate
-    from procedures.identify import PARAMETERS, validation_trajectory
+    from procedures.identify import PARAMETERS
+    from procedures.identify_trajectories import validation_trajectory
     from rig.commands.parameters import resolve
 
     d = resolve(PARAMETERS, {})
@@ -125,7 +127,8 @@ def _two_motions(excitation, excitation_seed: int, validation_seed: int, design_
 def run_two_motion_null(args):
     """(seed, mode, excitation as a dict) -> figures of one two-motion null record (runs in a worker)."""
     seed, mode, excitation = args
-    from calibration.discrepancy import Discrepancy, Settings, identify_on_runs
+    from calibration.discrepancy.settings import Settings
+    from calibration.discrepancy.workflow import Discrepancy, identify_on_runs
     from calibration.discrepancy_null import sim_model_and_base
     from calibration.excitation import FourierTrajectory
 
@@ -274,7 +277,7 @@ def main(argv=None) -> int:
     real = real_data()
     # The bench's 40 null runs are few for a 5 % rate; the calibration's own runs, each tested
     # against thresholds set on the others, are a second estimate of the same rate.
-    from calibration.discrepancy import THRESHOLDS_PATH
+    from calibration.discrepancy.settings import THRESHOLDS_PATH
     from calibration.discrepancy_null import leave_one_out
 
     loo = leave_one_out(json.loads(THRESHOLDS_PATH.read_text()))

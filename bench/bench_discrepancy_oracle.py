@@ -75,7 +75,9 @@ def _fit(w, col_raw: np.ndarray, j: int, scale: float | None) -> tuple[float, fl
 def _identified(model, base, rec, twin, joint: int, column) -> tuple[float, float, float]:
     """(floor, baseline, with the column) held-out RMS on the joint, the thesis model identified
     on the training block with ``column(w)`` (raw per-sample, joint's rows) added."""
-    from calibration.discrepancy import Added, Discrepancy, Settings
+    from calibration.discrepancy.refinement import Added
+    from calibration.discrepancy.settings import Settings
+    from calibration.discrepancy.workflow import Discrepancy
 
     j = joint - 1
     floor = float(Discrepancy(model, base, twin.q, twin.dq, twin.tau, twin.rate, None, Settings()).heldout_rms()[j])
@@ -89,7 +91,8 @@ def _identified(model, base, rec, twin, joint: int, column) -> tuple[float, floa
 
 
 def run_case(effect: str, joint: int, seed: int) -> dict:
-    from calibration.discrepancy import SLOPES, Discrepancy, Settings
+    from calibration.discrepancy.settings import SLOPES, Settings
+    from calibration.discrepancy.workflow import Discrepancy
     from calibration.discrepancy_null import sim_model_and_base
     from calibration.effects import CATALOGUE
     from calibration.hidden_effects import HiddenCase, case_plant, generate

@@ -61,7 +61,7 @@ def _model_file(directory: Path, name: str, standard, names, slope, gravity, str
 
 def _plain(rec, directory: Path, name: str):
     """`rig identify --csv`'s model of the training block of ``rec`` (a model file) and its gravity."""
-    from calibration.discrepancy import Settings
+    from calibration.discrepancy.settings import Settings
     from calibration.generalisation import plain_fit, plain_training_block
 
     train = plain_training_block(rec.q, rec.dq, rec.tau, rec.rate, Settings().heldout)
@@ -76,7 +76,7 @@ def _reference(seed: int, directory: Path):
     bench_discrepancy's given model: an optimised excitation and a multi-sine,
     `calibration.hidden_effects.reference_runs`), as `rig identify` fits them (the two
     recordings as two pieces), as a model file."""
-    from calibration.discrepancy import Settings
+    from calibration.discrepancy.settings import Settings
     from calibration.hidden_effects import reference_runs
     from procedures.discrepancy import identify_plain
 
@@ -90,7 +90,7 @@ def _reference(seed: int, directory: Path):
 
 
 def _test_figures(model, rec) -> dict:
-    from calibration.discrepancy import Settings
+    from calibration.discrepancy.settings import Settings
     from calibration.prediction import predict
 
     f = predict(model, rec.q, rec.dq, rec.tau, rec.rate, Settings(), "test motion").figures("all")
@@ -112,7 +112,8 @@ def run_case(args):
 def _run_case(args):
     effects, seed = args
     from calibration.base_params import base_parameters_of
-    from calibration.discrepancy import Settings, run_workflow
+    from calibration.discrepancy.settings import Settings
+    from calibration.discrepancy.workflow import run_workflow
     from calibration.generalisation import EffectGate, Motion, plain_training_block, workflow_model
     from calibration.hidden_effects import HiddenCase, generate
     from calibration.prediction import extra_effort, standard_parameters
@@ -169,7 +170,8 @@ def _fit_pipeline(q, dq, tau, rate: float, breaks, tmp: Path, name: str):
     """The CLI's pipeline on a record (pieces joined at ``breaks``), one motion only: the
     plain model and the written model (model files)."""
     from calibration.base_params import base_parameters_of
-    from calibration.discrepancy import Settings, run_workflow
+    from calibration.discrepancy.settings import Settings
+    from calibration.discrepancy.workflow import run_workflow
     from calibration.generalisation import EffectGate
     from procedures.discrepancy import estimate_gravity, identify_plain
     from rig.model.psm_dynamics import DriveParameters, PSMDynamics, PSMParameters
@@ -196,7 +198,7 @@ def _identified_with_effects(written, q, dq, tau, rate: float, breaks, tmp: Path
     leaves implausible left out, as the command does (None without an effect that can be)."""
     from dataclasses import replace
 
-    from calibration.discrepancy import Settings
+    from calibration.discrepancy.settings import Settings
     from calibration.generalisation import plain_training_block
     from calibration.identification import DEADBAND, effect_terms, fit_identification, fit_with_effects
 
@@ -219,7 +221,7 @@ def real_data(blocks: int = 5) -> list[tuple[str, str, str, bool]]:
     each of ``blocks`` blocks predicted by the models trained on the others (the blocks before
     and after it joined as two pieces, each filtered on its own)."""
     from calibration.datasets import load_csv
-    from calibration.discrepancy import Settings
+    from calibration.discrepancy.settings import Settings
     from calibration.prediction import predict
     from procedures.discrepancy import PARAMETERS, run
     from rig.commands.parameters import resolve

@@ -25,8 +25,11 @@ import serial
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from drivers.loadcell import FakeLoadCellFirmware, LoadCell, LoadCellCalibration, LoadCellError  # noqa: E402
-from drivers.loadcell_can import CanLoadCell, FakeCanLoadCellFirmware  # noqa: E402
+from drivers.loadcell.can import CanLoadCell, FakeCanLoadCellFirmware  # noqa: E402
+from drivers.loadcell.errors import LoadCellError  # noqa: E402
+from drivers.loadcell.firmware_fake import FakeLoadCellFirmware  # noqa: E402
+from drivers.loadcell.force_calibration import LoadCellCalibration  # noqa: E402
+from drivers.loadcell.serial_driver import LoadCell  # noqa: E402
 
 
 def pct(values: list[float], q: float) -> float:

@@ -46,7 +46,8 @@ CASES = ("spring:1", "spring:3", "hysteresis:3", "position_friction:3", "viscous
 
 def _model_file(effects, seed, directory):
     """Workflow on the case's recording -> its model file (as procedures.discrepancy writes it)."""
-    from calibration.discrepancy import Discrepancy, Settings
+    from calibration.discrepancy.settings import Settings
+    from calibration.discrepancy.workflow import Discrepancy
     from calibration.discrepancy_null import sim_model_and_base
     from calibration.hidden_effects import HiddenCase, generate
     from rig.model.model_file import load_model, save_model

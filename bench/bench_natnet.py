@@ -3,8 +3,8 @@
     .venv/bin/python bench/bench_natnet.py [--seconds 20] [--rates 120,360]
 
 For each mocap rate, a child process steps the simulated rig on the wall clock (1 kHz)
-and streams it through `drivers.natnet_server.SimMotive` (marker noise, 5 ms of camera
-latency, 5 % occlusion) to a `drivers.natnet.NatNetTracker` in this process. Motive's
+and streams it through `drivers.natnet.fake_motive.SimMotive` (marker noise, 5 ms of camera
+latency, 5 % occlusion) to a `drivers.natnet.tracker.NatNetTracker` in this process. Motive's
 clock in the child is `time.monotonic()` (10 MHz ticks), the clock this process reads
 too, and each frame's transmit stamp is taken when the frame is ready to go (as Motive
 stamps it), just before it is encoded and sent:
@@ -43,7 +43,7 @@ def pct(values: list[float], q: float) -> float:
 
 def serve(conn, rate: float, seconds: float) -> None:
     """The Motive side: the simulated rig paced to the wall clock, streamed at `rate`."""
-    from drivers.natnet_server import SimMotive
+    from drivers.natnet.fake_motive import SimMotive
     from rig.devices.clock import SimClock
     from rig.config import parse
     from rig.sim.world import world_from_config
@@ -75,7 +75,8 @@ def serve(conn, rate: float, seconds: float) -> None:
 
 
 def measure(rate: float, seconds: float) -> tuple[list, dict]:
-    from drivers.natnet import NatNetTracker, UdpTransport
+    from drivers.natnet.tracker import NatNetTracker
+    from drivers.natnet.udp import UdpTransport
 
     ctx = multiprocessing.get_context("spawn")
     here, there = ctx.Pipe()

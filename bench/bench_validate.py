@@ -106,7 +106,7 @@ def main() -> int:
     a = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="bench-validate-"))
     os.environ["RIG_LOGS"] = str(tmp / "logs")
-    from calibration.discrepancy import Settings
+    from calibration.discrepancy.settings import Settings
     from calibration.prediction import predict
     from rig.model.model_file import load_model
 

@@ -30,7 +30,8 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-from calibration.discrepancy import THRESHOLDS_PATH, Discrepancy, Settings, identify_on_runs
+from calibration.discrepancy.settings import THRESHOLDS_PATH, Settings
+from calibration.discrepancy.workflow import Discrepancy, identify_on_runs
 
 NULL_SEED_BASE = 1000
 _HUGE = {"ljung_box": [1e12] * 3, "library_r2": [1e12] * 3, "gain": [1e12] * 3, "delta_bic": [1e12] * 3}

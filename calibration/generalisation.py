@@ -54,7 +54,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from calibration.discrepancy import Discrepancy, DiscrepancyError, Settings
+from calibration.discrepancy.settings import DiscrepancyError, Settings
+from calibration.discrepancy.workflow import Discrepancy
 from calibration.effects import CATALOGUE, payload_standard_delta
 from calibration.signals import settling_samples
 
@@ -125,7 +126,7 @@ class EffectGate:
     """Steps 2-4 of the module docstring for one plain model and the workflow's effects.
 
     ``plain``: a `rig.model.model_file.IdentifiedModel`; ``named``: the workflow's added effects
-    (`calibration.discrepancy.Added`); ``motions``: other recordings (empty: cross-validation
+    (`calibration.discrepancy.refinement.Added`); ``motions``: other recordings (empty: cross-validation
     in time); the training arrays and ``settings``/``breaks`` as the workflow had them;
     ``refit``: the workflow's own model (`workflow_model`: its rigid body fitted again with
     all its effects), written instead when another motion is at hand and it predicts that

@@ -5,7 +5,7 @@ The prediction is the one `rig discrepancy` makes of a given model's baseline (t
 steps on the same samples, `calibration.discrepancy`), with what the workflow leaves out of
 that baseline added, so that the whole model file is judged:
 
-1. **Prepare** (`calibration.discrepancy.prepare`): zero-phase Butterworth (order 4, 10 Hz
+1. **Prepare** (`calibration.discrepancy.preparation.prepare`): zero-phase Butterworth (order 4, 10 Hz
    by default) on q and dq, ddq by central differences of the filtered dq; the model's
    friction and effects are built on the measured state ``effort_lag`` (1 ms) before each
    sample, as the dVRK's 1 kHz PID reports the effort it computed a servo cycle earlier. A
@@ -46,7 +46,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calibration.discrepancy import DEADBAND, Prepared, Settings, prepare
+from calibration.discrepancy.preparation import DEADBAND, Prepared, prepare
+from calibration.discrepancy.settings import Settings
 from calibration.effects import CATALOGUE, NOT_COMPENSATED, payload_standard_delta
 from calibration.signals import differentiate, settling_samples
 

@@ -27,7 +27,7 @@ from collections import deque
 
 import numpy as np
 
-from drivers.loadcell import STANDARD_GRAVITY
+from drivers.loadcell.force_calibration import STANDARD_GRAVITY
 from drivers.operator import ACTIONS, REPLY_TOPIC, REQUEST_TOPIC, OperatorError
 
 

@@ -85,7 +85,7 @@ PARAMETERS = [
 def _require_motion(train, source: str, purpose: str) -> None:
     """DiscrepancyError naming the first joint of processed ``train`` that moves faster than
     identification's deadband in under a tenth of its samples: too little motion to ``purpose``."""
-    from calibration.discrepancy import DiscrepancyError
+    from calibration.discrepancy.settings import DiscrepancyError
     from calibration.identification import DEADBAND as ID_DEADBAND
     from calibration.identification import slow_joints
 
@@ -107,7 +107,7 @@ def identify_plain(q, dq, tau, rate: float, settings, source: str = "the data", 
     block is the first share of the pieces' processed samples, as of one record's. ``train``:
     that block, when the caller has it already (`calibration.generalisation.plain_training_block`)."""
     from calibration.base_params import RankDeficientError
-    from calibration.discrepancy import DiscrepancyError
+    from calibration.discrepancy.settings import DiscrepancyError
     from calibration.generalisation import plain_fit, plain_training_block
 
     if train is None:
@@ -128,7 +128,7 @@ def estimate_gravity(q, dq, tau, rate: float, settings, source: str = "the data"
     on its own and the training block is the first share of the pieces' processed samples."""
     from calibration.base_params import RankDeficientError
     from calibration.datasets import JointData, pieces_training_block, processed, split_blocks
-    from calibration.discrepancy import DiscrepancyError
+    from calibration.discrepancy.settings import DiscrepancyError
     from calibration.identification import CUTOFF_HZ, FILTER_ORDER, fit_identification
     from calibration.identification import DEADBAND as ID_DEADBAND
 
@@ -157,7 +157,7 @@ def _save(fig, path_dir: Path, name: str, out: dict) -> None:
     out[name] = str(path_dir / name)
 
 
-#: Units of the workflow's explaining variables (`calibration.discrepancy._variable`), rotary
+#: Units of the workflow's explaining variables (`calibration.discrepancy.detection._variable`), rotary
 #: joints 1-2 and the insertion joint 3.
 _VARIABLE_UNITS = {"q": ("rad", "m"), "dq": ("rad/s", "m/s"), "ddq": ("rad/s^2", "m/s^2"),
                    "u": ("N m", "N"), "travel since reversal ": ("rad", "m")}
@@ -207,7 +207,7 @@ def plot_residuals(pairs: list[dict], structured: list[dict], w, path_dir: Path)
     for d in structured:
         j = d["joint"]
         att = w.attribute(j)
-        from calibration.discrepancy import _variable
+        from calibration.discrepancy.detection import _variable
 
         x = _variable(w, att["variable"])
         r = w.residual()[:, j - 1]
@@ -393,7 +393,8 @@ def _other_motion(parameters: dict, settings, q, dq, tau, breaks, pieces):
 def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: bool = True) -> dict:
     from calibration.base_params import base_parameters_of
     from calibration.datasets import load_csv
-    from calibration.discrepancy import Settings, run_workflow
+    from calibration.discrepancy.settings import Settings
+    from calibration.discrepancy.workflow import run_workflow
     from calibration.effects import describe
     from calibration.generalisation import EffectGate, plain_training_block, workflow_model
     from calibration.prediction import extra_effort, standard_parameters
@@ -553,7 +554,7 @@ def command(run_dir, parameters, list_steps: bool, as_json: bool) -> None:
         raise click.UsageError("give either RUN_DIR or --csv FILE")
     from calibration.base_params import RankDeficientError
     from calibration.datasets import DataError
-    from calibration.discrepancy import DiscrepancyError
+    from calibration.discrepancy.settings import DiscrepancyError
     from calibration.prediction import PredictionError
     from calibration.signals import SignalError
     from rig.model.model_file import ModelFileError

@@ -70,10 +70,8 @@ Units: SI (rad, m, rad/s, m/s, N m, N, s, Hz).
 
 from __future__ import annotations
 
-import bisect
 import math
 import sys
-from pathlib import Path
 
 import click
 import numpy as np
@@ -82,6 +80,10 @@ from calibration.datasets import load_timed_csv
 from calibration.identification import (CUTOFF_HZ, DEADBAND, FILTER_ORDER, FitOutcome, fit_identification,
                                         fit_with_effects, predict,
                                         validation_table)
+from procedures.identify_options import effects_from, parse_gravity, parse_position_friction, parse_slope
+from procedures.identify_plots import plot_torques, plot_trajectory
+from procedures.identify_report import PUBLISHED_7DOF, _fmt3, missed_purpose, report_text, table_5_1
+from procedures.identify_trajectories import design_excitation, plant_of, reach_start, stream_trajectory
 from rig.commands.abort import exit_on_abort
 from rig.commands.exit_codes import InputError
 from rig.commands.options import config_from_context, json_option, yes_option
@@ -98,8 +100,6 @@ STEPS_LIVE = ("design the excitation trajectory", "move to the start", "run the 
 STEPS_CSV = ("load the CSV data", "process the recordings", "fit OLS, WLS and SDP",
              "validate, plot and save the model")
 
-#: The published figure of the WPI package (7-DOF model, SDP, unseen test trajectory).
-PUBLISHED_7DOF = (0.093, 0.178, 0.191)
 
 PARAMETERS = [
     Parameter("arm", "PSM1", "", "Arm to identify (live)", type=str),
@@ -165,61 +165,6 @@ PARAMETERS = [
 ]
 
 
-# ----------------------------------------------------------------------------- model helpers
-def parse_gravity(text: str) -> str | np.ndarray:
-    """'auto', 'config' or three numbers 'gx,gy,gz' (m/s^2)."""
-    t = text.strip().lower()
-    if t in ("auto", "config"):
-        return t
-    try:
-        g = np.array([float(x) for x in t.replace(" ", "").split(",")])
-    except ValueError:
-        g = np.zeros(0)
-    if g.shape != (3,) or not np.all(np.isfinite(g)) or np.linalg.norm(g) == 0:
-        raise click.BadParameter(f"{text!r}: use 'auto', 'config' or three numbers 'gx,gy,gz' in m/s^2",
-                                 param_hint="--gravity")
-    return g
-
-
-def parse_slope(text: str) -> str | float:
-    t = text.strip().lower()
-    if t == "auto":
-        return t
-    try:
-        a = float(t)
-    except ValueError:
-        a = float("nan")
-    if not (math.isfinite(a) and a > 0):
-        raise click.BadParameter(f"{text!r}: use 'auto' or a slope > 0 s/rad", param_hint="--friction-slope")
-    return a
-
-
-# ----------------------------------------------------------------------------- option parsing
-def effects_from(parameters: dict) -> tuple[list, list[str]]:
-    """The EffectTerms of --effects-from (none without it) and the lines of the effects left out."""
-    path = str(parameters.get("effects_from") or "").strip()
-    if not path:
-        return [], []
-    from calibration.identification import effect_terms
-    from rig.model.model_file import ModelFileError, load_model
-
-    try:
-        entries = load_model(path).effects
-    except ModelFileError as exc:
-        raise click.BadParameter(str(exc), param_hint="--effects-from") from None
-    if not entries:
-        raise click.BadParameter(f"{path}: the model file has no effects to identify", param_hint="--effects-from")
-    try:
-        terms, left = effect_terms(entries, path)
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--effects-from") from None
-    if parse_position_friction(parameters["position_friction"]) is not None and \
-            any(t.effect == "position_friction" and t.joint == 3 for t in terms):
-        raise click.BadParameter(f"{path} has a joint-3 position friction and --position-friction is "
-                                 f"{parameters['position_friction']!r}: use one of them", param_hint="--effects-from")
-    return terms, left
-
-
 def _fit(train, gmode, smode, configured_gravity, parameters: dict, terms, say):
     """The identification at the command's options, with --effects-from's effects (those the
     fit can take): the FitOutcome and a line per effect left out."""
@@ -228,310 +173,6 @@ def _fit(train, gmode, smode, configured_gravity, parameters: dict, terms, say):
         deadband=DEADBAND if parameters["fit_deadband"] else None, parallel=parameters["parallel_filter"],
         stribeck=parameters["stribeck"], position_friction=parse_position_friction(parameters["position_friction"]),
         effects=ts), parameters["parallel_filter"])
-
-
-def parse_position_friction(text: str):
-    """'off' -> None, 'auto' -> 'auto', 'P' or 'P,K' -> (P m, K)."""
-    t = str(text).strip().lower()
-    if t in ("off", "", "none"):
-        return None
-    if t == "auto":
-        return "auto"
-    from calibration.effects import FRICTION_HARMONICS
-
-    try:
-        parts = [float(x) for x in t.split(",")]
-    except ValueError:
-        parts = []
-    if len(parts) not in (1, 2) or not parts[0] > 0 or (len(parts) == 2 and parts[1] not in FRICTION_HARMONICS):
-        raise click.BadParameter(f"{text!r}: give off, auto, a period in m (e.g. 0.05) or period,harmonics "
-                                 f"(harmonics {FRICTION_HARMONICS[0]}-{FRICTION_HARMONICS[-1]})",
-                                 param_hint="--position-friction")
-    return (parts[0], int(parts[1]) if len(parts) == 2 else 1)
-
-
-#: The identified model's relative validation error above which a run has not produced a
-#: usable model: at 0.5 the model leaves a quarter of the effort's energy unexplained (the
-#: thesis's own models reach 0.05-0.2 on the real arm, the simulated rig well under 0.1).
-VALIDATION_SANITY = 0.5
-
-
-def missed_purpose(result: dict) -> tuple[str, str | None]:
-    """("completed", None), or ("failed", why) when the identified (SDP) model failed its
-    physical checks or its validation error is not finite or above VALIDATION_SANITY."""
-    problems = []
-    if not result.get("checks", {}).get("sdp"):
-        failed = [k for k, v in result.get("checks", {}).get("sdp_detail", {}).items()
-                  if isinstance(v, dict) and v.get("pass") is False]
-        problems.append("the SDP model fails its physical checks" + (f" ({', '.join(failed)})" if failed else ""))
-    errors = result.get("validation", {}).get("sdp") or []
-    bad = [f"j{j + 1} {e}" for j, e in enumerate(errors) if e is None or not math.isfinite(e)]
-    high = [f"j{j + 1} {e:.3f}" for j, e in enumerate(errors) if e is not None and math.isfinite(e)
-            and e > VALIDATION_SANITY]
-    if not errors:
-        problems.append("no validation error was computed")
-    if bad:
-        problems.append(f"validation error not finite ({', '.join(bad)})")
-    if high:
-        problems.append(f"validation relative error {', '.join(high)} above the sanity bound {VALIDATION_SANITY}")
-    return ("failed", "; ".join(problems)) if problems else ("completed", None)
-
-
-def table_5_1(outcome: FitOutcome, excitation: dict | None) -> dict:
-    f = outcome.fits
-    return {"optimisation_condition": None if excitation is None else excitation.get("condition_objective"),
-            "optimisation_condition_full": None if excitation is None else excitation.get("condition_full"),
-            "ls_condition": f["ols"].condition, "wls_condition": f["wls"].condition,
-            "wls_condition_tau_max": f["wls_tau_max"].condition,
-            "ls_residual": f["ols"].residual_norm, "wls_residual": f["wls"].residual_norm,
-            "sdp_residual": f["sdp"].residual_norm,
-            "note": "residuals are ||tau - W_b beta|| over all samples and joints (mixed N m and N), as Table 5.1"}
-
-
-# ----------------------------------------------------------------------------- plots
-def plot_torques(t, tau, preds: dict, path: Path, title: str) -> None:
-    """Figure 5.2/5.3 style: (a) measured vs predicted torque per joint, (b) absolute errors."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(3, 2, figsize=(12, 8), sharex=True)
-    units = ("N m", "N m", "N")
-    styles = {"ols": ("tab:orange", "--"), "wls": ("tab:green", ":"), "sdp": ("tab:red", "-")}
-    for j in range(3):
-        ax, ae = axes[j, 0], axes[j, 1]
-        ax.plot(t, tau[:, j], color="k", lw=1.2, label="measured")
-        for m, p in preds.items():
-            c, ls = styles[m]
-            ax.plot(t, p[:, j], color=c, ls=ls, lw=1.0, label=m.upper())
-            ae.plot(t, np.abs(tau[:, j] - p[:, j]), color=c, ls=ls, lw=0.8, label=m.upper())
-        ax.set_ylabel(f"joint {j + 1} [{units[j]}]")
-        ae.set_ylabel(f"|error| [{units[j]}]")
-    axes[0, 0].legend(loc="upper right", fontsize=8)
-    axes[0, 1].legend(loc="upper right", fontsize=8)
-    axes[0, 0].set_title("(a) measured vs predicted")
-    axes[0, 1].set_title("(b) absolute error")
-    for ax in axes[2]:
-        ax.set_xlabel("time [s]")
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def plot_trajectory(t, q, dq, path: Path, title: str) -> None:
-    """Figure 5.1 style: position and velocity of the three joints."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
-    for j, lab in enumerate(("q1 [rad]", "q2 [rad]", "q3 [m]")):
-        axes[0].plot(t, q[:, j], label=lab)
-        axes[1].plot(t, dq[:, j], label="d" + lab.replace("]", "/s]"))
-    axes[0].legend(fontsize=8)
-    axes[1].legend(fontsize=8)
-    axes[1].set_xlabel("time [s]")
-    axes[0].set_title(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-# ----------------------------------------------------------------------------- excitation
-def design_settings(parameters: dict) -> dict:
-    """The options the trajectories depend on (calibration.excitation_design.design's settings)."""
-    return {"frequency_hz": parameters["frequency"], "harmonics": parameters["harmonics"],
-            "duration": parameters["duration"], "starts": parameters["starts"], "iterations": parameters["iterations"],
-            "seed": parameters["design_seed"], "velocity_fraction": parameters["velocity_fraction"],
-            "validation_frequency_hz": parameters["validation_frequency"], "fill": parameters["fill"]}
-
-
-def plant_of(cfg, arm_name: str):
-    """The simulated twin of `arm_name` at the rig rate (what the margins are measured on):
-    the configured parameters, effects, PID, effort limit and sensors, whatever its driver."""
-    from calibration.excitation_design import Plant
-    from rig.sim.world import world_from_config
-
-    world = world_from_config(cfg, [arm_name], with_object=False, seed=0)
-    return Plant(world.arms[arm_name].spec, float(cfg.rig["rate"]), np.asarray(cfg.rig["gravity"], float), 0)
-
-
-def design_excitation(parameters: dict, gravity: np.ndarray, plant, progress=None, processes: int | None = None) -> dict:
-    """The optimised excitation and the validation trajectory for these settings, each kept
-    clear of Table 4.2's limits by the margin measured on `plant` (calibration.
-    excitation_design), from the user's cache when designed before (see its docstring)."""
-    from calibration.excitation_design import design
-    from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
-
-    return design(design_settings(parameters), gravity, plant, Q_MIN, Q_MAX, DQ_MAX, progress=progress,
-                  processes=processes)
-
-
-def validation_trajectory(frequency_hz: float, duration: float, harmonics: int, seed: int, fill: float):
-    """The validation trajectory before its margin (calibration.excitation_design.validation_trajectory
-    at Table 4.2's limits)."""
-    from calibration.excitation_design import validation_trajectory as raw
-    from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
-
-    return raw(frequency_hz, duration, harmonics, seed, fill, Q_MIN, Q_MAX, DQ_MAX)
-
-
-#: Close enough to a trajectory's start to begin streaming (rad, rad, m): the first
-#: servo_jp set-points then differ from the measured joints by less than the PID's
-#: usual tracking error (a loaded joint can rest a few mrad short under the dVRK PID).
-START_TOLERANCE = np.array([0.02, 0.02, 0.005])
-
-
-def reach_start(arm, goal, what: str, say) -> None:
-    """move_jp to ``goal``; accept arrival within START_TOLERANCE, else abort the run."""
-    if arm.move_jp(goal, wait=True, timeout=20.0):
-        return
-    q = np.asarray(arm.measured_js().position[:3], float)
-    off = np.abs(q - goal)
-    if np.all(off <= START_TOLERANCE):
-        say(f"start of the {what} trajectory reached within {np.round(off, 4).tolist()} (rad, rad, m)")
-        return
-    raise AbortRun(f"{arm.name} did not reach the start of the {what} trajectory within 20 s "
-                   f"(off by {np.round(off, 4).tolist()} rad, rad, m)")
-
-
-def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits, margin) -> dict:
-    """servo_jp the trajectory (position and velocity feed-forward) at the clock rate,
-    recording measured_js; returns arrays and what the arm met.
-
-    Aborts the run (the engine holds the arm) as soon as a measured joint comes within
-    ABORT_FRACTION of its margin of a position limit, or faster than its velocity limit
-    less that fraction of its velocity margin (calibration.excitation_design): before the
-    limit, where the console would fault. The trajectory's time waits while its set-point
-    leads the arm by more than the margin's lag (calibration.excitation_design.lagging).
-    """
-    from calibration.excitation_design import lagging
-
-    rate = clock.rate
-    n = int(round(traj.duration * rate)) + 1
-    q_cmd, dq_cmd, _ = traj.sample(np.arange(n) / rate)
-    low, high, speed = margin.abort_limits(limits.q_min, limits.q_max, limits.dq_max)
-    samples = []
-    sent, sent_t = [], []
-    rec = run.recorder
-    every = max(1, n // 100)
-    arm.drain_js()  # what arrived before the trajectory starts is not part of it
-    ticks_without = waited = 0
-    q_last = t_last = None
-    silent_after = SILENT * max(1.0 / rate, _stream_period(arm))
-    delay = np.inf  # the least (now - stamp) seen: transport plus any offset of the two clocks
-    k = 0
-    while k < n:
-        arm.servo_jp(q_cmd[k], dq_cmd[k])
-        sent.append((clock.now(), k))
-        sent_t.append(sent[-1][0])
-        rec.joint_state(f"/{arm.name}/servo_jp", sent[-1][0], q_cmd[k], dq_cmd[k])
-        clock.tick()
-        # every sample the arm sent since the last tick: a tick held up by the machine
-        # finds several, and the fit still gets the stream whole
-        new = arm.drain_js()
-        ticks_without += not new
-        for js in new:
-            samples.append((js.t, js.position[:3], js.velocity[:3], js.effort[:3]))
-            rec.joint_state(f"/{arm.name}/measured_js", js.t, js.position, js.velocity, js.effort)
-        if new:
-            t_last = new[-1].t
-            delay = min(delay, clock.now() - t_last)
-            q_last, dq = np.asarray(new[-1].position[:3]), np.asarray(new[-1].velocity[:3])
-            if np.any(q_last < low) or np.any(q_last > high) or np.any(np.abs(dq) > speed):
-                raise AbortRun(f"{arm.name} during the {topic_prefix} trajectory at t = {k / rate:.2f} s: "
-                               f"{_abort_reason(q_last, dq, low, high, speed, limits, margin)}; the arm is held")
-        # The trajectory's time waits while the arm's newest sample is older than usual (it
-        # is silent, or its process fell behind and catches up: over the wire a served arm
-        # held off the CPU for 0.5 s applied the commands queued meanwhile at once), or
-        # while the set-point in force at that sample's stamp leads it by more than the
-        # margin's lag: an arm whose commands stopped arriving then meets, when they
-        # resume, a set-point a lag ahead, not one that ran on by the stall times the speed
-        # (calibration.excitation_design). The set-point of the sample's own time leaves
-        # the transport delay out of the lag.
-        then = sent[max(0, bisect.bisect_right(sent_t, t_last) - 1)][1] if t_last is not None else k
-        if (t_last is not None and clock.now() - t_last - delay > silent_after) or (
-                q_last is not None and lagging(q_last, q_cmd[then], dq_cmd[then], margin.lag)):
-            waited += 1
-        else:
-            k += 1
-            if k % every == 0:
-                step.update(k)
-    step.update(n)
-    if not samples:
-        raise AbortRun(f"{arm.name}: no measured_js during the {topic_prefix} trajectory")
-    T = np.array([s[0] for s in samples])
-    Q, DQ, TAU = (np.array([s[i] for s in samples], float) for i in (1, 2, 3))
-    sent_k = np.array([x[1] for x in sent])
-    met = tracking_met(T, Q, DQ, np.array(sent_t), q_cmd[sent_k], dq_cmd[sent_k], limits)
-    met["periods_waited_for_the_arm"] = waited
-    # Keep each sample once (time must increase), and put them on a uniform grid of their
-    # own stamps (the arm's sample times), which the filtering and the decimation assume:
-    # over the wire the samples jitter, and a gap (a publisher held up) is interpolated.
-    keep = np.concatenate([[True], np.diff(T) > 0])
-    t, q, dq, tau = T[keep], Q[keep], DQ[keep], TAU[keep]
-    if len(t) > 1 and not np.allclose(np.diff(t), 1.0 / rate, rtol=1e-3, atol=1e-6):
-        grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate)) + 1) / rate
-
-        def on_grid(x):
-            return np.column_stack([np.interp(grid, t, x[:, j]) for j in range(x.shape[1])])
-
-        t, q, dq, tau = grid, on_grid(q), on_grid(dq), on_grid(tau)
-    return {"t": t, "q": q, "dq": dq, "tau": tau, "rate": rate, "ticks_without_sample": ticks_without, "met": met}
-
-
-#: Loop or arm periods (the longer) by which the arm's newest sample may be older than the
-#: least delay seen before the trajectory's time waits for the arm (stream_trajectory).
-SILENT = 5.0
-
-
-def _stream_period(arm) -> float:
-    """s between the arm's measured_js messages as it publishes them (0 when it does not say)."""
-    rate = getattr(arm, "published_rate", None)
-    r = rate() if callable(rate) else 0.0
-    return 1.0 / r if r > 0 else 0.0
-
-
-def _abort_reason(q, dq, low, high, speed, limits, margin) -> str:
-    for j in range(3):
-        u = "m" if j == 2 else "rad"
-        if q[j] < low[j] or q[j] > high[j]:
-            edge = limits.q_min[j] if q[j] < low[j] else limits.q_max[j]
-            return (f"joint {j + 1} at {q[j]:.4f} {u}, {abs(q[j] - edge) * (1e3 if j == 2 else 1):.4g} "
-                    f"{'mm' if j == 2 else u} from its limit {edge:g} {u} (the excitation keeps "
-                    f"{margin.position[j] * (1e3 if j == 2 else 1):.4g} {'mm' if j == 2 else u}: the arm tracks worse "
-                    f"than the {margin.tracking_position[j] * (1e3 if j == 2 else 1):.3g} measured on its simulated plant; "
-                    "check its PID gains and load, or lower --velocity-fraction)")
-    for j in range(3):
-        if abs(dq[j]) > speed[j]:
-            u = "m/s" if j == 2 else "rad/s"
-            where = ("above" if abs(dq[j]) > limits.dq_max[j] else
-                     f"within {limits.dq_max[j] - abs(dq[j]):.3g} {u} of")
-            return (f"joint {j + 1} velocity {dq[j]:.3f} {u}, {where} its limit {limits.dq_max[j]:g} {u} "
-                    f"(the excitation keeps {margin.velocity[j]:.3g} {u}: the arm tracks "
-                    f"worse than measured on its simulated plant; lower --velocity-fraction)")
-    return "limit"
-
-
-def tracking_met(T, Q, DQ, sent, q_cmd, dq_cmd, limits) -> dict:
-    """What the arm met during a streamed trajectory, per joint: ``position_tracking`` and
-    ``velocity_tracking``, max |q - q_cmd| and |dq - dq_cmd| against the newest set-point
-    sent before each sample's stamp (over the wire the two clocks are the same machine's
-    or NTP's: a few ms of offset read as dq x offset); ``overshoot`` how far q went beyond
-    the commanded range and ``velocity_excess`` max |dq| - max |dq_cmd| (neither depends on
-    timing); ``closest_to_position_limit`` (rad, rad, m) and ``peak_velocity_fraction`` of
-    Table 4.2's limit."""
-    k = np.clip(np.searchsorted(sent, T, side="right") - 1, 0, len(sent) - 1)
-    over = np.maximum(q_cmd.min(axis=0) - Q.min(axis=0), Q.max(axis=0) - q_cmd.max(axis=0))
-    return {"position_tracking": np.abs(Q - q_cmd[k]).max(axis=0).tolist(),
-            "velocity_tracking": np.abs(DQ - dq_cmd[k]).max(axis=0).tolist(),
-            "overshoot": over.tolist(),
-            "velocity_excess": (np.abs(DQ).max(axis=0) - np.abs(dq_cmd).max(axis=0)).tolist(),
-            "closest_to_position_limit": np.minimum(Q.min(axis=0) - limits.q_min, limits.q_max - Q.max(axis=0)).tolist(),
-            "peak_velocity_fraction": (np.abs(DQ).max(axis=0) / limits.dq_max).tolist()}
 
 
 def block_mean(rec: dict, target_rate: float, source: str):
@@ -553,67 +194,6 @@ def block_mean(rec: dict, target_rate: float, source: str):
 def _sayer(progress: bool):
     """A progress-detail printer (stderr, indented under the step lines)."""
     return (lambda text: click.echo(f"    {text}", err=True)) if progress else (lambda text: None)
-
-
-def _fmt3(v, digits=4) -> str:
-    return " / ".join(f"{x:.{digits}f}" for x in v)
-
-
-def report_text(result: dict) -> str:
-    lines = [f"identify: {result.get('status', '')}"]
-    v = result.get("validation", {})
-    rms = result.get("validation_rms", {})
-    if v:
-        lines.append(f"validation on {result.get('validation_source', '?')} (a trajectory of this run left out "
-                     "of the fit; for a motion the model never saw, `rig validate` another recording)")
-        lines.append("  method  rel. error j1 / j2 / j3        RMS j1 [N m] / j2 [N m] / j3 [N]")
-        for m in ("ols", "wls", "sdp"):
-            lines.append(f"  {m.upper():6s}  {_fmt3(v[m]):28s}  {_fmt3(rms.get(m, [np.nan] * 3))}")
-        mv = result.get("validation_moving", {}).get("sdp")
-        if mv:
-            lines.append(f"  SDP on moving samples only (|dq| above the 7.5.1 deadband): {_fmt3(mv)}")
-        mu = result.get("validation_moving_unfiltered", {}).get("sdp")
-        if mu and result.get("parallel_filter"):
-            lines.append(f"  the same with the model's efforts not low-passed like the torques: {_fmt3(mu)}")
-        if result.get("source") == "csv":
-            lines.append(f"  published 7-DOF (SDP, unseen trajectory): {_fmt3(PUBLISHED_7DOF, 3)} "
-                         "(not like for like: other trajectory, other model)")
-    g = result.get("gravity")
-    if g:
-        lines.append(f"gravity in frame 0: {np.round(g['vector'], 3).tolist()} m/s^2 ({g['source']}"
-                     + (f", {g['tilt_deg']:.1f} deg from {np.round(g['reference'], 3).tolist()}" if 'tilt_deg' in g else "")
-                     + ")")
-    if "friction_slope" in result:
-        lines.append(f"Coulomb sigmoid slope: {result['friction_slope']:g} s/rad")
-    st = result.get("stribeck")
-    if st:
-        lines.append(f"joint 3 Stribeck excess of the smooth-sign law: Fst {st['Fst'][2]:.3f} N, vs "
-                     f"{st['vs'][2] * 1e3:g} mm/s (it includes the sigmoid's shortfall below 1 at low speed; the "
-                     "dry-friction breakaway level is what rig friction-ramp measures)")
-    for e in result.get("effects_identified") or []:
-        lines.append(f"effect {e['name']}@{e['joint']} identified with the rigid body: "
-                     + ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items() if isinstance(v, (int, float))))
-    for line in result.get("effects_left_out") or []:
-        lines.append(f"--effects-from: {line}: left out")
-    t = result.get("table_5_1")
-    if t:
-        oc = t.get("optimisation_condition")
-        lines.append("Table 5.1: " + (f"optimisation cond {oc:.1f}, " if oc else "")
-                     + f"LS cond {t['ls_condition']:.1f}, WLS cond {t['wls_condition']:.1f} "
-                     f"(1/tau_max: {t['wls_condition_tau_max']:.1f}), residuals LS {t['ls_residual']:.2f} / "
-                     f"WLS {t['wls_residual']:.2f} / SDP {t['sdp_residual']:.2f}")
-    c = result.get("checks", {}).get("sdp")
-    if c is not None:
-        lines.append(f"SDP physical checks: {'all pass' if c else 'FAILED'}")
-    if result.get("truth"):
-        tr = result["truth"]
-        lines.append(f"simulated rig truth: SDP model vs true-parameter torques on the validation data, "
-                     f"rel. error {_fmt3(tr['sdp_vs_true_relative_error'])}")
-    if result.get("model"):
-        lines.append(f"model file: {result['model']}")
-    if result.get("run_dir"):
-        lines.append(f"run folder: {result['run_dir']}")
-    return "\n".join(lines)
 
 
 def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: str, data_source: str,

@@ -21,8 +21,11 @@ from pathlib import Path
 
 import click
 
-from drivers.loadcell import (STANDARD_GRAVITY, FakeLoadCellFirmware, LoadCell, LoadCellCalibration, LoadCellError,
-                              usb_serial_number)
+from drivers.loadcell.errors import LoadCellError
+from drivers.loadcell.firmware_fake import FakeLoadCellFirmware
+from drivers.loadcell.force_calibration import STANDARD_GRAVITY, LoadCellCalibration
+from drivers.loadcell.serial_driver import LoadCell
+from drivers.loadcell.serial_port import usb_serial_number
 from drivers.operator import OperatorError
 from rig.commands.abort import exit_on_abort
 from rig.commands.exit_codes import EXIT_MISSED, InputError
@@ -167,7 +170,7 @@ def _calibrate(run: Run, cfg, params: dict, element: int | None) -> dict:
                 fake = FakeLoadCellFirmware(weights, noise=0.005).start()  # 5 mN rms, like a good bridge
                 ser = serial.Serial(fake.port_path, baudrate=baud)
             else:
-                from drivers.loadcell import open_serial_port
+                from drivers.loadcell.serial_port import open_serial_port
                 from rig.devices.factory import open_operator
 
                 if cfg.operator["driver"] == "ros":

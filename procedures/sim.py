@@ -5,7 +5,7 @@ configuration as a whole dVRK 2.4 PSM on its CRTK ROS 2 topics (six joints and t
 the large needle driver unless `--tool` names another, the streams every `--ros-period`
 s as `dvrk_system -p`, operating_state and the other events on change, the kinematics
 services, `/system` or `/console` names), mocap poses on ROS 2 (and Motive's NatNet with
-`--natnet`), each load cell's firmware fake on a pseudo-terminal (`drivers.loadcell_process`;
+`--natnet`), each load cell's firmware fake on a pseudo-terminal (`drivers.loadcell.firmware_process`;
 the configured port becomes a link to it), and the operator's side channel: the manual
 steps of a procedure done by a simulated person, the faults a test injects.
 
@@ -181,7 +181,7 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
     if natnet:
         import socket as _socket
 
-        from drivers.natnet_server import check_loopback
+        from drivers.natnet.fake_motive import check_loopback
 
         try:
             natnet_host = check_loopback(_socket.gethostbyname(cfg.mocap["server"]))
@@ -203,13 +203,13 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
 
     firmwares, cells, links = [], [], []
     if loadcell and cfg.loadcell["driver"] != "none" and object_spec is not None:
-        from drivers.loadcell_process import FirmwareProcess
+        from drivers.loadcell.firmware_process import FirmwareProcess
 
         first = min(cfg.loadcell["element"], len(elements) - 1)
         order = [first] + [k for k in range(len(elements)) if k != first]
         for k in order:
             # each "Arduino" in its own process: its samples keep their pace whatever this
-            # loop is doing (see drivers.loadcell_process)
+            # loop is doing (see drivers.loadcell.firmware_process)
             fw = FirmwareProcess(noise=cfg.loadcell["noise"], rate_hz=int(round(cfg.loadcell["rate"])),
                                  seed=world.seed + 7 * k)
             firmwares.append(fw)
@@ -255,7 +255,7 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
                            tool=tool)
         server.stop = stop
         if natnet:
-            from drivers.natnet_server import SimMotive, parse_version
+            from drivers.natnet.fake_motive import SimMotive, parse_version
 
             m = cfg.mocap
             try:

@@ -207,7 +207,7 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
     """Validate; the named files are checked first (a missing or unreadable model file, CSV
     or run folder records no run), then the run is recorded. Returns the result."""
     from calibration.datasets import DataError
-    from calibration.discrepancy import Settings
+    from calibration.discrepancy.settings import Settings
     from calibration.prediction import predict
     from rig.model.model_file import load_model
     from rig.runs.recorded_run import resolve_run
@@ -285,7 +285,7 @@ def command(run_dir, parameters, list_steps: bool, as_json: bool) -> None:
     if bool(run_dir) == bool(parameters["csv"]):
         usage("give either RUN_DIR or --csv FILE, not both" if run_dir else "give either RUN_DIR or --csv FILE")
     from calibration.datasets import DataError
-    from calibration.discrepancy import DiscrepancyError
+    from calibration.discrepancy.settings import DiscrepancyError
     from calibration.prediction import PredictionError
     from calibration.signals import SignalError
     from rig.model.model_file import ModelFileError

@@ -52,7 +52,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from drivers.loadcell import BAUDRATE as LOADCELL_BAUDRATE
+from drivers.loadcell.protocol import BAUDRATE as LOADCELL_BAUDRATE
 
 
 class ConfigError(ValueError):

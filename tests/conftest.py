@@ -14,7 +14,7 @@ from tests.ros_domains import claim_domain, claim_ports, ros_environment
 #: so the two workers end together instead of one starting a long file when the other is
 #: done. Only the order changes: a file missing here runs all the same, after these.
 LONG_FIRST = (
-    "tests/calibration/test_discrepancy.py",
+    "tests/calibration/discrepancy/test_discrepancy.py",
     "tests/hil/test_chain.py",
     "tests/procedures/test_cooperative.py",
     "tests/procedures/test_identify.py",

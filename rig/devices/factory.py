@@ -6,7 +6,7 @@ procedure or driver needs an `if simulated:` branch.
 * Simulated arms (driver "sim"): one `SimWorld` from `world_from_config`, a `SimClock`
   stepping it (faster than real time unless `rig.pace`), `SimArm`s, the load cell as
   `SimForceSensor` (the firmware's device model and byte framing on simulated time; see
-  `drivers.loadcell_sim` for why not the pty fake) and mocap as `SimTracker`.
+  `drivers.loadcell.sim` for why not the pty fake) and mocap as `SimTracker`.
 * Real arms (driver "ros"): a `StreamClock` at `rig.rate` (each tick waits for a fresh
   measured_js of every arm), one rclpy context and node owned
   by the Rig and spun by one executor thread, `RosArm`s on it (watchdog from each arm's
@@ -127,7 +127,7 @@ def _stderr(line: str) -> None:
 
 
 def _open_simulated(cfg, names: list[str], seed: int | None, uses) -> Rig:
-    from drivers.loadcell_sim import SimForceSensor
+    from drivers.loadcell.sim import SimForceSensor
     from drivers.mocap_sim import SimTracker
     from rig.sim.world import world_from_config
 
@@ -217,7 +217,7 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
                                           polled=session.executor_time)
             rig._closers.append(_once_stopped(session, rig.tracker.close))
         elif "mocap" in uses and m["driver"] == "natnet":
-            from drivers.natnet import open_natnet_tracker
+            from drivers.natnet.tracker import open_natnet_tracker
             from rig.sim.world import default_marker_bodies
 
             # the handshake (server info, model definitions) happens here; frames are awaited in connect()
@@ -391,12 +391,12 @@ def ready_arms(rig: Rig, names: list[str], timeout: float, say) -> None:
 def _open_loadcell(lc: dict, rig: Rig):
     """The configured cell, with the newest calibration of that cell (made on its port;
     rig.devices.loadcell_calibrations.load_latest_calibration)."""
-    from drivers.loadcell import LoadCell
+    from drivers.loadcell.serial_driver import LoadCell
     from rig.devices.loadcell_calibrations import load_latest_calibration
 
     calibration = load_latest_calibration(lc["port"] if lc["driver"] == "serial" else None)
     if lc["driver"] == "serial":
-        from drivers.loadcell import open_serial_port
+        from drivers.loadcell.serial_port import open_serial_port
 
         port = open_serial_port(lc["port"], lc["baudrate"])
         rig._closers.append(port.close)
@@ -406,7 +406,7 @@ def _open_loadcell(lc: dict, rig: Rig):
     else:
         import can
 
-        from drivers.loadcell_can import CanLoadCell
+        from drivers.loadcell.can import CanLoadCell
 
         bus = can.Bus(interface=lc["interface"], channel=lc["channel"])
         rig._closers.append(bus.shutdown)

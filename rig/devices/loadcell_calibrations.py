@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import json
 
-from drivers.loadcell import LoadCellCalibration, LoadCellNotCalibrated, usb_serial_number
+from drivers.loadcell.errors import LoadCellNotCalibrated
+from drivers.loadcell.force_calibration import LoadCellCalibration
+from drivers.loadcell.serial_port import usb_serial_number
 
 CALIBRATION_PROCEDURE = "loadcell-calibrate"
 

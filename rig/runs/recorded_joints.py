@@ -57,7 +57,8 @@ def load_run_pieces(run_dir, arm: str, rate: float, settings) -> RunRecord:
     """A run's /<arm>/measured_js as continuous pieces, each resampled to ``rate`` Hz on its
     own grid (pauses in the stream longer than PAUSE_CUTOFF_PERIODS of the filter's cut-off
     end a piece); pieces too short for the workflow's filter are dropped and listed."""
-    from calibration.discrepancy import MIN_PIECE_TRIMS, DiscrepancyError
+    from calibration.discrepancy.preparation import MIN_PIECE_TRIMS
+    from calibration.discrepancy.settings import DiscrepancyError
     from calibration.signals import settling_samples
     from rig.runs.recording import read_recording
     from rig.runs.recorded_run import joint_arrays, resample, resolve_run

@@ -33,11 +33,12 @@ import time
 from contextlib import contextmanager
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
-from typing import Any, Callable, Iterator, TextIO
+from typing import Any, Iterator, TextIO
 
 from rig.commands.exit_codes import EXIT_BUG
 from rig.faults import DeviceFault
 from rig.runs import run_owner
+from rig.runs.compile_notice import CompileWatch
 from rig.runs.paths import run_dir_name, runs_root
 from rig.runs.recording import Recorder
 from rig.sealed_json import seal_provenance, write_result
@@ -144,7 +145,7 @@ class Run:
         self._old_handlers: dict[int, Any] = {}
         self._finalising = False
         self._deferred_signals: list[str] = []
-        self._compile_listener = None
+        self._compile_watch = CompileWatch(self._compile_note)
 
     # ------------------------------------------------------------------ the run
     def __enter__(self) -> "Run":
@@ -369,33 +370,12 @@ class Run:
 
     # ------------------------------------------------------ first-use compilation
     def _watch_compiles(self) -> None:
-        """Say in the progress lines when numba compiles a kernel during the run.
-
-        The simulated rig's step (rig.sim.kernel) is compiled at its first call, which
-        falls in a procedure's first step that moves the rig ("attach the object" for
-        cooperative): about 20 s on a 2-core machine, once after an install or upgrade
-        (numba caches it), with no progress of its own. numba's event API reports every
-        real compilation (not a load from its cache); without numba loaded there is
-        nothing to watch."""
-        if self._compile_listener is not None or "numba" not in sys.modules or not self.progress:
-            return
-        try:
-            from numba.core import event
-        except ImportError:
-            return
-        self._compile_listener = _compile_listener(event, self._compile_note)
-        event.register("numba:compile", self._compile_listener)
+        """Say in the progress lines when numba compiles a kernel (rig.runs.compile_notice)."""
+        if self.progress:
+            self._compile_watch.start()
 
     def _unwatch_compiles(self) -> None:
-        if self._compile_listener is None:
-            return
-        from numba.core import event
-
-        try:
-            event.unregister("numba:compile", self._compile_listener)
-        except ValueError:
-            pass
-        self._compile_listener = None
+        self._compile_watch.stop()
 
     def _compile_note(self, name: str, seconds: float | None) -> None:
         step = self._current_step
@@ -425,34 +405,6 @@ class Run:
     def _label(self, step: Step) -> str:
         of = f"/{len(self.steps)}" if self.steps else ""
         return f"[{step.index}{of}] {step.name}"
-
-
-def _compile_listener(event, note: Callable[[str, float | None], None]):
-    """A numba event listener calling note(name, None) when the outermost compilation of a
-    kernel starts and note(name, seconds) when it ends (the kernels it calls are compiled
-    inside it and not reported apart)."""
-
-    class CompileListener(event.Listener):
-        def __init__(self):
-            self.depth = 0
-            self.started = 0.0
-            self.name = ""
-
-        def on_start(self, ev):
-            if self.depth == 0:
-                fn = getattr(ev.data.get("dispatcher"), "py_func", None)
-                self.name = (f"{getattr(fn, '__module__', '')}.{getattr(fn, '__qualname__', '')}"
-                             if fn is not None else "a numba kernel")
-                self.started = time.monotonic()
-                note(self.name, None)
-            self.depth += 1
-
-        def on_end(self, ev):
-            self.depth -= 1
-            if self.depth == 0:
-                note(self.name, time.monotonic() - self.started)
-
-    return CompileListener()
 
 
 def _disobeying_state(arm) -> str | None:

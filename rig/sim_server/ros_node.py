@@ -117,7 +117,7 @@ class SimServer:
         self.operator.operator.cables["mocap"] = self._unplug_mocap
         self.mocap_unplugged = False
         self.tracker = None
-        self.natnet = None  # a drivers.natnet_server.SimMotive when serving NatNet (`--natnet`)
+        self.natnet = None  # a drivers.natnet.fake_motive.SimMotive when serving NatNet (`--natnet`)
         self._mocap_msg: dict = {}
         self._mocap_pub: dict = {}
         self._mocap = mocap

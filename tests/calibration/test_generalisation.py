@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from calibration.discrepancy import Settings
+from calibration.discrepancy.settings import Settings
 from calibration.generalisation import NOT_CONFIRMED, EffectGate, Motion, plain_fit, plain_training_block
 from calibration.hidden_effects import HiddenCase, draw_case_parameters, generate
 from calibration.prediction import predict
@@ -97,7 +97,7 @@ def test_a_given_model_is_taken_whole(tmp_path):
     """`rig discrepancy --model M`: the baseline is M's whole effort. A torque offset entry
     in M moves the fixed effort of joint 2 by exactly that offset on every raw sample."""
     from calibration.base_params import base_parameters_of
-    from calibration.discrepancy import Discrepancy
+    from calibration.discrepancy.workflow import Discrepancy
     from calibration.prediction import extra_effort, standard_parameters
     from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 

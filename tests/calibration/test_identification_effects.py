@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calibration.discrepancy import Settings
+from calibration.discrepancy.settings import Settings
 from calibration.generalisation import plain_training_block
 from calibration.hidden_effects import HiddenCase, draw_case_parameters, generate
 from calibration.identification import DEADBAND, EffectTerm, fit_identification

@@ -20,12 +20,13 @@ import time
 import pytest
 
 from drivers.crtk import StaleStream
-from drivers.loadcell import LoadCell, LoadCellDisconnected
+from drivers.loadcell.errors import LoadCellDisconnected
+from drivers.loadcell.serial_driver import LoadCell
 from drivers.mocap import MocapStaleError
 from rig import config
 from rig.faults import rate_of, silence_text
-from tests.drivers.test_loadcell_protocol import CAL, OPENING, ExpectedProtocolPort, frames
-from tests.drivers.test_loadcell_protocol import ManualClock as CellClock
+from tests.drivers.loadcell.test_loadcell_protocol import CAL, OPENING, ExpectedProtocolPort, frames
+from tests.drivers.loadcell.test_loadcell_protocol import ManualClock as CellClock
 
 STARVED = "A starved process (this one or the publisher, held off the CPU) looks the same as a stopped device"
 
@@ -196,9 +197,9 @@ def test_a_stale_mocap_body_says_for_how_long_at_what_rate_and_names_the_key(mon
 
 
 def test_a_stale_natnet_stream_says_for_how_long_at_what_rate():
-    from tests.drivers.test_natnet_protocol import V41, connected, hand_frame
-    from tests.drivers.test_natnet_protocol import ManualClock as MonoClock
-    from tests.drivers.test_natnet_protocol import wait_for
+    from tests.drivers.natnet.test_natnet_protocol import V41, connected, hand_frame
+    from tests.drivers.natnet.test_natnet_protocol import ManualClock as MonoClock
+    from tests.drivers.natnet.test_natnet_protocol import wait_for
 
     mono = MonoClock(50.0)
     t, tr = connected(V41, stale_timeout=0.5, monotonic=mono)
@@ -234,7 +235,7 @@ class _Quiet:
 
 
 def test_the_natnet_tracker_of_a_config_takes_its_stale_limit(tmp_path, monkeypatch):
-    from drivers import natnet
+    from drivers.natnet import tracker as natnet
 
     monkeypatch.setattr(natnet, "UdpTransport", lambda *args: _Quiet())
     monkeypatch.setattr(natnet.NatNetTracker, "connect", lambda self, timeout: None)

@@ -141,7 +141,7 @@ def test_joint_velocity_limit_aborts(monkeypatch):
 
 
 def test_stale_load_cell_aborts(monkeypatch):
-    from drivers import loadcell_sim
+    from drivers.loadcell import sim as loadcell_sim
     from rig.runs.run import AbortRun
 
     # the cell goes silent: after 300 of its sample instants it converts nothing more
@@ -162,7 +162,7 @@ def _held_up_reader(mp, start: int, length: int) -> None:
     from call `start`, then arrive in one burst: the serial driver's reader thread held
     up on a loaded machine. Its stream age (as of the reader's last look) stays small, as
     the driver's does (drivers.loadcell: a starved reader is no silence of the cell)."""
-    from drivers import loadcell_sim
+    from drivers.loadcell import sim as loadcell_sim
 
     original = loadcell_sim.SimForceSensor.samples
     calls = {"n": 0}
@@ -465,7 +465,7 @@ def test_a_run_that_misses_its_tolerance_ends_failed_not_completed():
 
 
 def test_a_tension_that_never_settles_is_missed():
-    from procedures.cooperative import _missed
+    from procedures.cooperative_report import _missed
 
     params = {"tolerance": 0.5, "force": 5.0, "settle": 2.0, "duration": 5.0, "hold_after": 2.0}
     # the issue's string that was never tensioned: max error 5.07 N, settling 9.00 s of 9.00 s

@@ -129,7 +129,7 @@ def test_gravity_is_estimated_on_the_moving_samples_and_its_sign_by_the_consiste
     consistent fit decides the sign."""
     import numpy as np
 
-    from calibration.discrepancy import Settings
+    from calibration.discrepancy.settings import Settings
     from calibration.discrepancy_null import sim_model_and_base
     from calibration.hidden_effects import HiddenCase, generate
     from procedures.discrepancy import estimate_gravity
@@ -243,7 +243,7 @@ def test_a_run_is_read_as_its_continuous_pieces(tmp_path):
     for the filter is left out and listed; a shorter hiccup is bridged."""
     import numpy as np
 
-    from calibration.discrepancy import Settings
+    from calibration.discrepancy.settings import Settings
     from rig.runs.recorded_joints import load_run_pieces
     from rig.runs.run import Run
 

@@ -147,7 +147,8 @@ def _cache(tmp_path, monkeypatch):
 
 
 def test_excitation_design_is_cached_where_every_later_run_finds_it(tmp_path, monkeypatch):
-    from procedures.identify import PARAMETERS, design_excitation, plant_of
+    from procedures.identify import PARAMETERS
+    from procedures.identify_trajectories import design_excitation, plant_of
 
     cfg = _empty_config(tmp_path)
     p = resolve(PARAMETERS, {"duration": 6.0, "starts": 1, "iterations": 2})
@@ -162,7 +163,7 @@ def test_excitation_design_is_cached_where_every_later_run_finds_it(tmp_path, mo
     assert np.allclose(first["excitation"].a, second["excitation"].a)
     # another setting is another design (every input's part in the key: tests/calibration/test_excitation_design.py)
     from calibration.excitation_design import design_key
-    from procedures.identify import design_settings
+    from procedures.identify_trajectories import design_settings
     from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
     other = resolve(PARAMETERS, {"duration": 6.0, "starts": 1, "iterations": 2, "frequency": 0.2})
@@ -180,7 +181,7 @@ def test_stream_aborts_before_the_limit_when_the_arm_tracks_worse_than_its_margi
     its plant says) is stopped and held before the limit, not at the console's fault."""
     from calibration.excitation import FourierTrajectory, rest_basis
     from calibration.excitation_design import Margin, Plant, tracking_error
-    from procedures.identify import reach_start, stream_trajectory
+    from procedures.identify_trajectories import reach_start, stream_trajectory
     from rig.devices.factory import open_rig
     from rig.model.psm_kinematics import JointLimits
     from rig.runs.run import AbortRun, Run

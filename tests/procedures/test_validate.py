@@ -136,7 +136,7 @@ def test_the_stribeck_excess_and_the_gravity_of_the_file_are_used(synthetic, tmp
     from rig.model.model_file import load_model
 
     data = load_csv(synthetic["csv"], RATE, 3)
-    from calibration.discrepancy import Settings
+    from calibration.discrepancy.settings import Settings
 
     s = Settings(effort_lag=0.0)
 
@@ -156,7 +156,7 @@ def test_stateful_effects_run_in_time_order_as_the_feedforward(synthetic):
     rest); the effort delay, which the controller does not feed forward, is in the
     prediction on top."""
     from calibration.datasets import load_csv
-    from calibration.discrepancy import Settings
+    from calibration.discrepancy.settings import Settings
     from calibration.effects import EffectCompensation, delayed
     from calibration.prediction import predict
     from rig.model.model_file import load_model
@@ -188,7 +188,8 @@ def test_heldout_figures_are_the_discrepancy_baseline(tmp_path):
     """Without effects and a Stribeck excess, the held-out block's figures are those the
     discrepancy workflow computes for a given model's baseline (the same samples, filter,
     stuck mask and inertial-term source), on a recording of the simulated rig."""
-    from calibration.discrepancy import Discrepancy, Settings
+    from calibration.discrepancy.settings import Settings
+    from calibration.discrepancy.workflow import Discrepancy
     from calibration.discrepancy_null import sim_model_and_base
     from calibration.hidden_effects import HiddenCase, generate
     from calibration.prediction import predict

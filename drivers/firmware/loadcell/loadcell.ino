@@ -3,8 +3,8 @@
 // Arduino Uno / Nano (ATmega328P, 16 MHz). Streams ADC samples of the load cell between
 // the tool tips at 500 Hz and answers commands, exactly as specified in
 // drivers/LOADCELL_PROTOCOL.md (protocol version 1). The host driver is
-// drivers/loadcell.py (serial) or drivers/loadcell_can.py (CAN); the Python fake
-// FakeLoadCellFirmware in drivers/loadcell.py emulates this sketch.
+// drivers/loadcell/serial_driver.py (serial) or drivers/loadcell/can.py (CAN); the Python fake
+// FakeLoadCellFirmware in drivers/loadcell/firmware_fake.py emulates this sketch.
 //
 // Build options (edit the #defines below):
 //   LOADCELL_ADC = ADC_INA    instrumentation amplifier (e.g. INA125/INA826, gain set for
@@ -26,7 +26,7 @@
 #endif
 // #define LOADCELL_TRANSPORT_CAN
 
-// Serial baud: the host takes it from here (drivers/loadcell.py BAUDRATE, rig.toml's
+// Serial baud: the host takes it from here (drivers/loadcell/protocol.py BAUDRATE, rig.toml's
 // [loadcell] baudrate default); a test fails when they differ. Exact on a 16 MHz AVR.
 #define LOADCELL_BAUD 250000
 

@@ -8,7 +8,9 @@ confusion matrix.
 import numpy as np
 import pytest
 
-from calibration.discrepancy import Discrepancy, Settings, heldout_r2, ljung_box
+from calibration.discrepancy.residual_tests import heldout_r2, ljung_box
+from calibration.discrepancy.settings import Settings
+from calibration.discrepancy.workflow import Discrepancy
 from calibration.discrepancy_null import reference_model, sim_model_and_base
 from calibration.effects import (CATALOGUE, IDS, EffectContext, dahl_state, effects_torque, friction_profile,
                                  gap_crossings, gap_torque)
@@ -183,7 +185,8 @@ def test_leave_one_out_flags_the_run_above_the_others():
 
 
 def test_effort_lag_aligns_the_state_and_refuses_a_lead():
-    from calibration.discrepancy import DiscrepancyError, prepare
+    from calibration.discrepancy.preparation import prepare
+    from calibration.discrepancy.settings import DiscrepancyError
 
     rate, n = 200.0, 3000
     t = np.arange(n) / rate
@@ -420,7 +423,7 @@ def test_reidentification_with_a_given_model_is_validated_on_the_held_out_block(
     # Hysteresis is separable from the rigid-body/friction parameters, so the given model's
     # base parameters are re-identified with it; the effect's parameters then come from that
     # joint fit, and it is kept only if no joint predicts the held-out block >5 % worse.
-    import calibration.discrepancy as D
+    import calibration.discrepancy.refinement as D
 
     res, _, truth = workflow([("hysteresis", 3)], 0, "given_model")
     doc = res["reidentification"]
@@ -555,7 +558,7 @@ def test_inconsistent_fit_is_refitted_consistent_together_with_its_effects(workf
 def test_thresholds_file_records_the_catalogue_it_was_calibrated_with(tmp_path):
     import json
 
-    from calibration.discrepancy import THRESHOLDS_PATH, load_thresholds
+    from calibration.discrepancy.settings import THRESHOLDS_PATH, load_thresholds
     from calibration.effects import CATALOGUE_VERSION
 
     thresholds, source = load_thresholds()

@@ -5,8 +5,10 @@ across a join."""
 import numpy as np
 import pytest
 
-from calibration.discrepancy import (DiscrepancyError, Settings, _effect_columns, _last_reversal_position, pieces_of,
-                                     prepare)
+from calibration.discrepancy.candidates import _effect_columns
+from calibration.discrepancy.detection import _last_reversal_position
+from calibration.discrepancy.preparation import pieces_of, prepare
+from calibration.discrepancy.settings import DiscrepancyError, Settings
 from calibration.effects import CATALOGUE, EffectContext
 from calibration.signals import settling_samples
 

@@ -14,11 +14,14 @@ import time
 import numpy as np
 import pytest
 
-from drivers.natnet import (
-    NAT_DISCONNECT, NAT_FRAMEOFDATA, NAT_KEEPALIVE, NAT_MODELDEF, NAT_REQUEST_MODELDEF, NAT_SERVERINFO,
-    NatNetTracker, UdpTransport, decode_frame, decode_modeldef, decode_server_info, encode_connect, open_natnet_tracker,
-    pack_message, split_message)
-from drivers.natnet_server import FakeMotive, SimMotive, check_loopback
+from drivers.natnet.fake_motive import FakeMotive, SimMotive, check_loopback
+from drivers.natnet.frame_of_data import decode_frame
+from drivers.natnet.messages import decode_server_info, encode_connect, pack_message, split_message
+from drivers.natnet.model_definitions import decode_modeldef
+from drivers.natnet.tracker import NatNetTracker, open_natnet_tracker
+from drivers.natnet.udp import UdpTransport
+from drivers.natnet.wire_format import (NAT_DISCONNECT, NAT_FRAMEOFDATA, NAT_KEEPALIVE, NAT_MODELDEF,
+                                        NAT_REQUEST_MODELDEF, NAT_SERVERINFO)
 from rig.config import parse
 from rig.devices.clock import SimClock
 from rig.sim.world import world_from_config

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from drivers import loadcell
+from drivers.loadcell import errors, protocol, serial_driver
 from rig import config
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 def _firmware_baud() -> int:
@@ -28,7 +28,7 @@ def _firmware_baud() -> int:
 
 def test_the_host_default_is_the_firmwares_rate():
     baud = _firmware_baud()
-    assert loadcell.BAUDRATE == baud
+    assert protocol.BAUDRATE == baud
     assert config.load(None).loadcell["baudrate"] == baud
 
 
@@ -61,10 +61,10 @@ class _WrongBaudPort:
 
 
 def test_a_device_that_never_answers_names_the_baud_rate(monkeypatch):
-    monkeypatch.setattr(loadcell.LoadCell, "connect_timeout", 0.3)
-    with pytest.raises(loadcell.LoadCellCommandError) as info:
-        loadcell.LoadCell(_WrongBaudPort(115200), rate_hz=500)
+    monkeypatch.setattr(serial_driver.LoadCell, "connect_timeout", 0.3)
+    with pytest.raises(errors.LoadCellCommandError) as info:
+        serial_driver.LoadCell(_WrongBaudPort(115200), rate_hz=500)
     text = str(info.value)
     assert "\n" not in text
-    assert "/dev/ttyACM9" in text and "at 115200 baud" in text and f"talks at {loadcell.BAUDRATE}" in text, text
+    assert "/dev/ttyACM9" in text and "at 115200 baud" in text and f"talks at {protocol.BAUDRATE}" in text, text
     assert "[loadcell] baudrate" in text, text

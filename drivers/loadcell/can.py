@@ -4,7 +4,7 @@ See `drivers/LOADCELL_PROTOCOL.md`, "CAN variant". `CanLoadCell` takes an open p
 bus (any interface: socketcan, pcan, ... or `virtual` for tests) and implements
 `drivers.interfaces.ForceSensor`; `FakeCanLoadCellFirmware` is the firmware on a
 python-can virtual bus channel, with the same physics as the serial fake
-(`drivers.loadcell.LoadCellDeviceModel`).
+(`drivers.loadcell.device_model.LoadCellDeviceModel`).
 """
 
 from __future__ import annotations
@@ -18,17 +18,11 @@ from typing import Callable
 import can
 
 from drivers.interfaces import ForceSample
-from drivers.loadcell import (
-    ERR_BAD_LENGTH,
-    ERROR_FMT,
-    SAMPLE_SATURATED,
-    T_ERROR,
-    LoadCellCalibration,
-    LoadCellDeviceModel,
-    LoadCellDisconnected,
-    RawSample,
-    _StreamingLoadCell,
-)
+from drivers.loadcell.device_model import LoadCellDeviceModel
+from drivers.loadcell.errors import LoadCellDisconnected
+from drivers.loadcell.force_calibration import LoadCellCalibration
+from drivers.loadcell.protocol import ERR_BAD_LENGTH, ERROR_FMT, SAMPLE_SATURATED, T_ERROR, RawSample
+from drivers.loadcell.streaming import _StreamingLoadCell
 
 DEFAULT_BASE_ID = 0x300
 SAMPLE_OFFSET, COMMAND_OFFSET, REPLY_OFFSET = 0, 1, 2
@@ -60,7 +54,7 @@ class CanLoadCell(_StreamingLoadCell):
     `bus` is an open python-can bus; the driver never shuts it down. Ids are
     `base_id` + 0 (samples), + 1 (commands), + 2 (replies). CAN has no end-of-file, so a
     dead cable or a powered-off cell shows as no sample for `stale_timeout` (s), or as a
-    CanError from the bus. Other arguments as for `drivers.loadcell.LoadCell`.
+    CanError from the bus. Other arguments as for `drivers.loadcell.serial_driver.LoadCell`.
     """
 
     _seq_bits = 7

@@ -34,12 +34,14 @@ from typing import Sequence
 
 import numpy as np
 
-from drivers.natnet import (
-    MARKER_HAS_MODEL, MARKER_MODEL_SOLVED, MARKER_POINT_CLOUD_SOLVED, NAT_CONNECT, NAT_DISCONNECT, NAT_KEEPALIVE,
-    NAT_REQUEST, NAT_REQUEST_FRAMEOFDATA, NAT_REQUEST_MODELDEF, NAT_RESPONSE, NAT_UNRECOGNIZED_REQUEST,
-    RB_TRACKING_VALID, FrameOfData, LabeledMarker, ModelDefinitions, NatNetDecodeError, RigidBodyData,
-    RigidBodyDescription, ServerInfo, decode_connect, encode_frame, encode_modeldef, encode_server_info,
-    pack_message, split_message, supported, version_text)
+from drivers.natnet.errors import NatNetDecodeError
+from drivers.natnet.frame_of_data import FrameOfData, LabeledMarker, RigidBodyData, encode_frame
+from drivers.natnet.messages import ServerInfo, decode_connect, encode_server_info, pack_message, split_message
+from drivers.natnet.model_definitions import ModelDefinitions, RigidBodyDescription, encode_modeldef
+from drivers.natnet.wire_format import (MARKER_HAS_MODEL, MARKER_MODEL_SOLVED, MARKER_POINT_CLOUD_SOLVED, NAT_CONNECT,
+                                        NAT_DISCONNECT, NAT_KEEPALIVE, NAT_REQUEST, NAT_REQUEST_FRAMEOFDATA,
+                                        NAT_REQUEST_MODELDEF, NAT_RESPONSE, NAT_UNRECOGNIZED_REQUEST, RB_TRACKING_VALID,
+                                        supported, version_text)
 from drivers.quaternion import XYZW, reorder_quaternion
 
 #: Motive releases and the bitstream they stream by default

@@ -17,8 +17,10 @@ import can
 import pytest
 
 from drivers.interfaces import ForceSensor
-from drivers.loadcell import LoadCellCalibration, LoadCellCommandError, LoadCellDisconnected, RawSample
-from drivers.loadcell_can import CanLoadCell, FakeCanLoadCellFirmware, decode_can_sample, encode_can_sample
+from drivers.loadcell.can import CanLoadCell, FakeCanLoadCellFirmware, decode_can_sample, encode_can_sample
+from drivers.loadcell.errors import LoadCellCommandError, LoadCellDisconnected
+from drivers.loadcell.force_calibration import LoadCellCalibration
+from drivers.loadcell.protocol import RawSample
 
 
 class Tension:

@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from calibration.discrepancy import Discrepancy, Settings
+from calibration.discrepancy.settings import Settings
+from calibration.discrepancy.workflow import Discrepancy
 from calibration.discrepancy_null import sim_model_and_base
 from calibration.effects import CATALOGUE
 from calibration.hidden_effects import HiddenCase, generate

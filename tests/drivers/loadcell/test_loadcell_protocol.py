@@ -20,12 +20,16 @@ from pathlib import Path
 import pytest
 
 from drivers.interfaces import ForceSensor
-from drivers.loadcell import (CMD_IDENTIFY, CMD_SET_RATE, ClockMapper, FrameParser, LoadCell, LoadCellCalibration,
-                              LoadCellCommandError, LoadCellDisconnected, LoadCellNotCalibrated, RawSample,
-                              SequenceTracker, crc16_ccitt_false, decode_sample, encode_frame, sample_frame)
+from drivers.loadcell.errors import LoadCellCommandError, LoadCellDisconnected, LoadCellNotCalibrated
+from drivers.loadcell.force_calibration import LoadCellCalibration
+from drivers.loadcell.frame_parser import FrameParser
+from drivers.loadcell.protocol import (CMD_IDENTIFY, CMD_SET_RATE, RawSample, crc16_ccitt_false, decode_sample,
+                                       encode_frame, sample_frame)
+from drivers.loadcell.serial_driver import LoadCell
+from drivers.loadcell.stream_tracking import ClockMapper, SequenceTracker
 from rig.devices.loadcell_calibrations import load_latest_calibration
 
-DOC = Path(__file__).resolve().parents[2] / "drivers" / "LOADCELL_PROTOCOL.md"
+DOC = Path(__file__).resolve().parents[3] / "drivers" / "LOADCELL_PROTOCOL.md"
 
 
 def hx(s: str) -> bytes:
@@ -529,7 +533,7 @@ def test_a_calibration_edited_by_hand_or_of_another_usb_cell_is_not_taken(tmp_pa
 
 # ----------------------------------------------------------------- the sketch itself
 
-SKETCH = Path(__file__).resolve().parents[2] / "drivers" / "firmware" / "loadcell" / "loadcell.ino"
+SKETCH = Path(__file__).resolve().parents[3] / "drivers" / "firmware" / "loadcell" / "loadcell.ino"
 
 ARDUINO_STUB = r"""
 // host stand-in for the Arduino core: just enough to run the sketch's logic

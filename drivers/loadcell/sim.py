@@ -18,8 +18,10 @@ from __future__ import annotations
 from collections import deque
 
 from drivers.interfaces import ForceSample
-from drivers.loadcell import (SAMPLE_FMT, STANDARD_GRAVITY, T_SAMPLE, FrameParser, LoadCellCalibration,
-                              LoadCellDeviceModel, decode_sample, sample_frame)
+from drivers.loadcell.device_model import LoadCellDeviceModel
+from drivers.loadcell.force_calibration import STANDARD_GRAVITY, LoadCellCalibration
+from drivers.loadcell.frame_parser import FrameParser
+from drivers.loadcell.protocol import SAMPLE_FMT, T_SAMPLE, decode_sample, sample_frame
 
 
 class SimForceSensor:

@@ -15,15 +15,11 @@ import time
 import pytest
 import serial
 
-from drivers.loadcell import (
-    ADC_HX711,
-    STANDARD_GRAVITY,
-    FakeLoadCellFirmware,
-    LoadCell,
-    LoadCellCalibration,
-    LoadCellCommandError,
-    LoadCellDisconnected,
-)
+from drivers.loadcell.errors import LoadCellCommandError, LoadCellDisconnected
+from drivers.loadcell.firmware_fake import FakeLoadCellFirmware
+from drivers.loadcell.force_calibration import STANDARD_GRAVITY, LoadCellCalibration
+from drivers.loadcell.protocol import ADC_HX711
+from drivers.loadcell.serial_driver import LoadCell
 
 
 class Tension:

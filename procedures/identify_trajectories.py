@@ -1,0 +1,202 @@
+"""The trajectories of `rig identify`: designed on the arm's simulated twin, reached, streamed and checked."""
+
+from __future__ import annotations
+
+import bisect
+
+import numpy as np
+
+from rig.runs.run import AbortRun
+
+
+def design_settings(parameters: dict) -> dict:
+    """The options the trajectories depend on (calibration.excitation_design.design's settings)."""
+    return {"frequency_hz": parameters["frequency"], "harmonics": parameters["harmonics"],
+            "duration": parameters["duration"], "starts": parameters["starts"], "iterations": parameters["iterations"],
+            "seed": parameters["design_seed"], "velocity_fraction": parameters["velocity_fraction"],
+            "validation_frequency_hz": parameters["validation_frequency"], "fill": parameters["fill"]}
+
+
+def plant_of(cfg, arm_name: str):
+    """The simulated twin of `arm_name` at the rig rate (what the margins are measured on):
+    the configured parameters, effects, PID, effort limit and sensors, whatever its driver."""
+    from calibration.excitation_design import Plant
+    from rig.sim.world import world_from_config
+
+    world = world_from_config(cfg, [arm_name], with_object=False, seed=0)
+    return Plant(world.arms[arm_name].spec, float(cfg.rig["rate"]), np.asarray(cfg.rig["gravity"], float), 0)
+
+
+def design_excitation(parameters: dict, gravity: np.ndarray, plant, progress=None, processes: int | None = None) -> dict:
+    """The optimised excitation and the validation trajectory for these settings, each kept
+    clear of Table 4.2's limits by the margin measured on `plant` (calibration.
+    excitation_design), from the user's cache when designed before (see its docstring)."""
+    from calibration.excitation_design import design
+    from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+
+    return design(design_settings(parameters), gravity, plant, Q_MIN, Q_MAX, DQ_MAX, progress=progress,
+                  processes=processes)
+
+
+def validation_trajectory(frequency_hz: float, duration: float, harmonics: int, seed: int, fill: float):
+    """The validation trajectory before its margin (calibration.excitation_design.validation_trajectory
+    at Table 4.2's limits)."""
+    from calibration.excitation_design import validation_trajectory as raw
+    from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
+
+    return raw(frequency_hz, duration, harmonics, seed, fill, Q_MIN, Q_MAX, DQ_MAX)
+
+
+#: Close enough to a trajectory's start to begin streaming (rad, rad, m): the first
+#: servo_jp set-points then differ from the measured joints by less than the PID's
+#: usual tracking error (a loaded joint can rest a few mrad short under the dVRK PID).
+START_TOLERANCE = np.array([0.02, 0.02, 0.005])
+
+
+def reach_start(arm, goal, what: str, say) -> None:
+    """move_jp to ``goal``; accept arrival within START_TOLERANCE, else abort the run."""
+    if arm.move_jp(goal, wait=True, timeout=20.0):
+        return
+    q = np.asarray(arm.measured_js().position[:3], float)
+    off = np.abs(q - goal)
+    if np.all(off <= START_TOLERANCE):
+        say(f"start of the {what} trajectory reached within {np.round(off, 4).tolist()} (rad, rad, m)")
+        return
+    raise AbortRun(f"{arm.name} did not reach the start of the {what} trajectory within 20 s "
+                   f"(off by {np.round(off, 4).tolist()} rad, rad, m)")
+
+
+def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits, margin) -> dict:
+    """servo_jp the trajectory (position and velocity feed-forward) at the clock rate,
+    recording measured_js; returns arrays and what the arm met.
+
+    Aborts the run (the engine holds the arm) as soon as a measured joint comes within
+    ABORT_FRACTION of its margin of a position limit, or faster than its velocity limit
+    less that fraction of its velocity margin (calibration.excitation_design): before the
+    limit, where the console would fault. The trajectory's time waits while its set-point
+    leads the arm by more than the margin's lag (calibration.excitation_design.lagging).
+    """
+    from calibration.excitation_design import lagging
+
+    rate = clock.rate
+    n = int(round(traj.duration * rate)) + 1
+    q_cmd, dq_cmd, _ = traj.sample(np.arange(n) / rate)
+    low, high, speed = margin.abort_limits(limits.q_min, limits.q_max, limits.dq_max)
+    samples = []
+    sent, sent_t = [], []
+    rec = run.recorder
+    every = max(1, n // 100)
+    arm.drain_js()  # what arrived before the trajectory starts is not part of it
+    ticks_without = waited = 0
+    q_last = t_last = None
+    silent_after = SILENT * max(1.0 / rate, _stream_period(arm))
+    delay = np.inf  # the least (now - stamp) seen: transport plus any offset of the two clocks
+    k = 0
+    while k < n:
+        arm.servo_jp(q_cmd[k], dq_cmd[k])
+        sent.append((clock.now(), k))
+        sent_t.append(sent[-1][0])
+        rec.joint_state(f"/{arm.name}/servo_jp", sent[-1][0], q_cmd[k], dq_cmd[k])
+        clock.tick()
+        # every sample the arm sent since the last tick: a tick held up by the machine
+        # finds several, and the fit still gets the stream whole
+        new = arm.drain_js()
+        ticks_without += not new
+        for js in new:
+            samples.append((js.t, js.position[:3], js.velocity[:3], js.effort[:3]))
+            rec.joint_state(f"/{arm.name}/measured_js", js.t, js.position, js.velocity, js.effort)
+        if new:
+            t_last = new[-1].t
+            delay = min(delay, clock.now() - t_last)
+            q_last, dq = np.asarray(new[-1].position[:3]), np.asarray(new[-1].velocity[:3])
+            if np.any(q_last < low) or np.any(q_last > high) or np.any(np.abs(dq) > speed):
+                raise AbortRun(f"{arm.name} during the {topic_prefix} trajectory at t = {k / rate:.2f} s: "
+                               f"{_abort_reason(q_last, dq, low, high, speed, limits, margin)}; the arm is held")
+        # The trajectory's time waits while the arm's newest sample is older than usual (it
+        # is silent, or its process fell behind and catches up: over the wire a served arm
+        # held off the CPU for 0.5 s applied the commands queued meanwhile at once), or
+        # while the set-point in force at that sample's stamp leads it by more than the
+        # margin's lag: an arm whose commands stopped arriving then meets, when they
+        # resume, a set-point a lag ahead, not one that ran on by the stall times the speed
+        # (calibration.excitation_design). The set-point of the sample's own time leaves
+        # the transport delay out of the lag.
+        then = sent[max(0, bisect.bisect_right(sent_t, t_last) - 1)][1] if t_last is not None else k
+        if (t_last is not None and clock.now() - t_last - delay > silent_after) or (
+                q_last is not None and lagging(q_last, q_cmd[then], dq_cmd[then], margin.lag)):
+            waited += 1
+        else:
+            k += 1
+            if k % every == 0:
+                step.update(k)
+    step.update(n)
+    if not samples:
+        raise AbortRun(f"{arm.name}: no measured_js during the {topic_prefix} trajectory")
+    T = np.array([s[0] for s in samples])
+    Q, DQ, TAU = (np.array([s[i] for s in samples], float) for i in (1, 2, 3))
+    sent_k = np.array([x[1] for x in sent])
+    met = tracking_met(T, Q, DQ, np.array(sent_t), q_cmd[sent_k], dq_cmd[sent_k], limits)
+    met["periods_waited_for_the_arm"] = waited
+    # Keep each sample once (time must increase), and put them on a uniform grid of their
+    # own stamps (the arm's sample times), which the filtering and the decimation assume:
+    # over the wire the samples jitter, and a gap (a publisher held up) is interpolated.
+    keep = np.concatenate([[True], np.diff(T) > 0])
+    t, q, dq, tau = T[keep], Q[keep], DQ[keep], TAU[keep]
+    if len(t) > 1 and not np.allclose(np.diff(t), 1.0 / rate, rtol=1e-3, atol=1e-6):
+        grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate)) + 1) / rate
+
+        def on_grid(x):
+            return np.column_stack([np.interp(grid, t, x[:, j]) for j in range(x.shape[1])])
+
+        t, q, dq, tau = grid, on_grid(q), on_grid(dq), on_grid(tau)
+    return {"t": t, "q": q, "dq": dq, "tau": tau, "rate": rate, "ticks_without_sample": ticks_without, "met": met}
+
+
+#: Loop or arm periods (the longer) by which the arm's newest sample may be older than the
+#: least delay seen before the trajectory's time waits for the arm (stream_trajectory).
+SILENT = 5.0
+
+
+def _stream_period(arm) -> float:
+    """s between the arm's measured_js messages as it publishes them (0 when it does not say)."""
+    rate = getattr(arm, "published_rate", None)
+    r = rate() if callable(rate) else 0.0
+    return 1.0 / r if r > 0 else 0.0
+
+
+def _abort_reason(q, dq, low, high, speed, limits, margin) -> str:
+    for j in range(3):
+        u = "m" if j == 2 else "rad"
+        if q[j] < low[j] or q[j] > high[j]:
+            edge = limits.q_min[j] if q[j] < low[j] else limits.q_max[j]
+            return (f"joint {j + 1} at {q[j]:.4f} {u}, {abs(q[j] - edge) * (1e3 if j == 2 else 1):.4g} "
+                    f"{'mm' if j == 2 else u} from its limit {edge:g} {u} (the excitation keeps "
+                    f"{margin.position[j] * (1e3 if j == 2 else 1):.4g} {'mm' if j == 2 else u}: the arm tracks worse "
+                    f"than the {margin.tracking_position[j] * (1e3 if j == 2 else 1):.3g} measured on its simulated plant; "
+                    "check its PID gains and load, or lower --velocity-fraction)")
+    for j in range(3):
+        if abs(dq[j]) > speed[j]:
+            u = "m/s" if j == 2 else "rad/s"
+            where = ("above" if abs(dq[j]) > limits.dq_max[j] else
+                     f"within {limits.dq_max[j] - abs(dq[j]):.3g} {u} of")
+            return (f"joint {j + 1} velocity {dq[j]:.3f} {u}, {where} its limit {limits.dq_max[j]:g} {u} "
+                    f"(the excitation keeps {margin.velocity[j]:.3g} {u}: the arm tracks "
+                    f"worse than measured on its simulated plant; lower --velocity-fraction)")
+    return "limit"
+
+
+def tracking_met(T, Q, DQ, sent, q_cmd, dq_cmd, limits) -> dict:
+    """What the arm met during a streamed trajectory, per joint: ``position_tracking`` and
+    ``velocity_tracking``, max |q - q_cmd| and |dq - dq_cmd| against the newest set-point
+    sent before each sample's stamp (over the wire the two clocks are the same machine's
+    or NTP's: a few ms of offset read as dq x offset); ``overshoot`` how far q went beyond
+    the commanded range and ``velocity_excess`` max |dq| - max |dq_cmd| (neither depends on
+    timing); ``closest_to_position_limit`` (rad, rad, m) and ``peak_velocity_fraction`` of
+    Table 4.2's limit."""
+    k = np.clip(np.searchsorted(sent, T, side="right") - 1, 0, len(sent) - 1)
+    over = np.maximum(q_cmd.min(axis=0) - Q.min(axis=0), Q.max(axis=0) - q_cmd.max(axis=0))
+    return {"position_tracking": np.abs(Q - q_cmd[k]).max(axis=0).tolist(),
+            "velocity_tracking": np.abs(DQ - dq_cmd[k]).max(axis=0).tolist(),
+            "overshoot": over.tolist(),
+            "velocity_excess": (np.abs(DQ).max(axis=0) - np.abs(dq_cmd).max(axis=0)).tolist(),
+            "closest_to_position_limit": np.minimum(Q.min(axis=0) - limits.q_min, limits.q_max - Q.max(axis=0)).tolist(),
+            "peak_velocity_fraction": (np.abs(DQ).max(axis=0) / limits.dq_max).tolist()}

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import math
-from collections import deque
+
+from drivers.clock_offset import BlockMinima, envelope_line
 
 
 class SequenceTracker:
@@ -80,11 +81,9 @@ class ClockMapper:
 
     def __init__(self, block_s: float = 0.5, blocks: int = 16) -> None:
         self.block_s = block_s
-        self._blocks: deque[tuple[float, float]] = deque(maxlen=blocks)
+        self._minima = BlockMinima(block_s, blocks)
         self._last_us: int | None = None
         self._ext_us = 0
-        self._block_start: float | None = None
-        self._block_min: tuple[float, float] | None = None
         self._global_min = math.inf
         self._last_t = -math.inf
 
@@ -100,17 +99,11 @@ class ClockMapper:
     def map(self, t_us: int, host_rx: float) -> float:
         dev = self.device_seconds(t_us)
         d = host_rx - dev
-        if self._block_start is None:
-            self._block_start = dev
-        if self._block_min is None or d < self._block_min[1]:
-            self._block_min = (dev, d)
+        self._minima.add(dev, d)
         self._global_min = min(self._global_min, d)
-        if dev - self._block_start >= self.block_s:
-            self._blocks.append(self._block_min)
-            self._block_start, self._block_min = dev, None
         offset = self.offset(dev)
-        if self._block_min is not None:
-            offset = min(offset, self._block_min[1])
+        if self._minima.current is not None:
+            offset = min(offset, self._minima.current[1])
         # never after its arrival; never before the previous sample (a new fit may step back)
         t = max(min(dev + offset, host_rx), self._last_t)
         self._last_t = t
@@ -118,14 +111,7 @@ class ClockMapper:
 
     def offset(self, dev: float) -> float:
         """Estimated host - device clock offset (s) at device time `dev` (s)."""
-        pts = self._blocks
+        pts = self._minima.closed
         if len(pts) < 2:
             return self._global_min
-        n = len(pts)
-        mx = sum(p[0] for p in pts) / n
-        my = sum(p[1] for p in pts) / n
-        sxx = sum((p[0] - mx) ** 2 for p in pts)
-        slope = sum((p[0] - mx) * (p[1] - my) for p in pts) / sxx if sxx > 0 else 0.0
-        # the fit runs through the block minima's mean; shift it down onto their envelope
-        resid = min(p[1] - (my + slope * (p[0] - mx)) for p in pts)
-        return my + slope * (dev - mx) + resid
+        return envelope_line(pts, dev)

@@ -37,6 +37,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from drivers.clock_offset import BlockMinima, envelope_line
 from drivers.interfaces import Pose, TrackerFrame
 from drivers.mocap import MocapStaleError
 from drivers.natnet.errors import NatNetConnectError, NatNetDecodeError, NatNetError, NatNetVersionError
@@ -67,9 +68,7 @@ class HostClockMap:
     def __init__(self, clock_hz: int, block_s: float = 0.5, blocks: int = 16):
         self.hz = float(clock_hz)
         self.block_s = block_s
-        self._blocks: deque[tuple[float, float]] = deque(maxlen=blocks)
-        self._block_start: float | None = None
-        self._block_min: tuple[float, float] | None = None
+        self._minima = BlockMinima(block_s, blocks)
         self._origin: int | None = None
 
     def seconds(self, ticks: int) -> float:
@@ -79,30 +78,17 @@ class HostClockMap:
         return (ticks - self._origin) / self.hz
 
     def offset(self, dev: float) -> float:
-        pts = list(self._blocks)
-        if self._block_min is not None:
-            pts.append(self._block_min)
+        pts = list(self._minima.closed)
+        if self._minima.current is not None:
+            pts.append(self._minima.current)
         if len(pts) < 3:
             return min(p[1] for p in pts)
-        n = len(pts)
-        mx = sum(p[0] for p in pts) / n
-        my = sum(p[1] for p in pts) / n
-        sxx = sum((p[0] - mx) ** 2 for p in pts)
-        slope = sum((p[0] - mx) * (p[1] - my) for p in pts) / sxx if sxx > 0 else 0.0
-        resid = min(p[1] - (my + slope * (p[0] - mx)) for p in pts)  # onto the envelope
-        return my + slope * (dev - mx) + resid
+        return envelope_line(pts, dev)
 
     def map(self, transmit_ticks: int, host_rx: float, ticks: int) -> float:
         """Feed a frame's transmit stamp and receipt time; the host time of `ticks`."""
         tx = self.seconds(transmit_ticks)
-        d = host_rx - tx
-        if self._block_start is None:
-            self._block_start = tx
-        if self._block_min is None or d < self._block_min[1]:
-            self._block_min = (tx, d)
-        if tx - self._block_start >= self.block_s:
-            self._blocks.append(self._block_min)
-            self._block_start, self._block_min = tx, None
+        self._minima.add(tx, host_rx - tx)
         dev = self.seconds(ticks)
         return min(dev + self.offset(dev), host_rx)
 

@@ -147,17 +147,6 @@ def calibrate(n_seeds: int = 40, progress=print, workers: int = 2) -> dict:
     return out
 
 
-def rederive(path=THRESHOLDS_PATH) -> dict:
-    """Recompute the thresholds from the per-seed statistics stored in the file (after a
-    change of the rule, without re-running the simulations)."""
-    doc = json.loads(path.read_text())
-    for mode, stats in doc["null_runs"].items():
-        doc["thresholds"][mode] = thresholds_from(stats)
-    doc["method"]["rule"] = __doc__.split("* Ljung-Box")[1].split("Both baselines")[0].strip()
-    path.write_text(json.dumps(doc, indent=1) + "\n")
-    return doc
-
-
 if __name__ == "__main__":
     n = int(sys.argv[1]) if len(sys.argv) > 1 else 40
     doc = calibrate(n, workers=int(sys.argv[2]) if len(sys.argv) > 2 else 2)

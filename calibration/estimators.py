@@ -1,5 +1,6 @@
-"""Estimators of the dynamic parameters (thesis 5.2 and 5.4): OLS, WLS and a physically
-consistent SDP, every solution checked.
+"""Estimators of the dynamic parameters (thesis 5.2 and 5.4): OLS, WLS and a physically consistent SDP.
+
+Every solution is checked.
 
 Notation: ``Wb`` is the stacked base regressor (sample-major: rows nj*k .. nj*k+nj-1 are
 sample k), ``tau`` the measured torques (n, nj), ``base`` the

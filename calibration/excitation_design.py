@@ -318,11 +318,6 @@ def keep_clear(traj: FourierTrajectory, plant: Plant, q_min, q_max, dq_max,
     return traj, margin, {"rounds": len(rounds), "scale": scales.tolist(), "measured": rounds}
 
 
-def _inside(traj, low, high, speed, rate) -> bool:
-    Q, DQ, _ = traj.sample(traj.times(rate))
-    return bool(np.all(Q >= low - 1e-12) and np.all(Q <= high + 1e-12) and np.all(np.abs(DQ) <= speed + 1e-12))
-
-
 def check(traj: FourierTrajectory, margin: Margin, q_min, q_max, dq_max, rate: float, what: str) -> str | None:
     """None when every sample of `traj` keeps the margin from the limits at the rig `rate`
     the margin was measured at, else one line naming the joint and what to do."""

@@ -305,11 +305,6 @@ def generate(case: HiddenCase, n_samples: int = N_SAMPLES, rate: float = RATE,
     return Recorded(out_q, out_dq, out_tau, rate), Truth(case, case_params, out_joint)
 
 
-def catalogue_cases(seeds, joints=(1, 2, 3), effects=CATALOGUE_CASES) -> list[HiddenCase]:
-    """Every catalogue effect on every joint for each seed (the confusion-matrix sweep)."""
-    return [HiddenCase(((e, j),), s) for s in seeds for e in effects for j in joints]
-
-
 def reference_seed(seed: int) -> int:
     """Seed of the reference (model identification) run that goes with a case seed: another
     trajectory on the same plant without effects, as a lab's earlier `rig identify`."""

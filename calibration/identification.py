@@ -1,5 +1,6 @@
-"""Dynamic identification of PSM joints 1-3 on processed recordings (thesis 5.1-5.5): the
-model, the equation rows (parallel filtering), the gravity and friction-slope selection,
+"""Dynamic identification of PSM joints 1-3 on processed recordings (thesis 5.1-5.5).
+
+The model, the equation rows (parallel filtering), the gravity and friction-slope selection,
 OLS, WLS and the physically consistent SDP, joint 3's optional Stribeck excess and
 position-dependent friction profile, and the validation figures.
 

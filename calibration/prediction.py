@@ -1,5 +1,6 @@
-"""A model file's efforts on a recording, effects included, and the figures by which models
-are compared (issue 26): relative error and RMS per joint.
+"""A model file's efforts on a recording, effects included, and the figures that compare models (issue 26).
+
+The figures: relative error and RMS per joint.
 
 The prediction is the one `rig discrepancy` makes of a given model's baseline (the same
 steps on the same samples, `calibration.discrepancy`), with what the workflow leaves out of
@@ -55,8 +56,6 @@ from calibration.signals import differentiate, settling_samples
 INERTIA_SOURCES = ("filtered", "measured")
 #: Moving samples a joint needs in the training and in the held-out block.
 MIN_MOVING = 50
-#: Blocks the figures are given for.
-BLOCKS = ("all", "heldout")
 
 
 class PredictionError(ValueError):

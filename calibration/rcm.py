@@ -1,5 +1,7 @@
-"""Remote centre of motion from mocap (thesis appendix A.2): the pivot fits of a tool body,
-the joints' axis directions, and the dVRK RCM frame they define.
+"""Remote centre of motion from mocap (thesis appendix A.2): pivot fits, joint axes, the dVRK RCM frame.
+
+The pivot fits of a tool body, the joints' axis directions, and the dVRK RCM frame they
+define.
 
 Input: the captures of `procedures.mocap_capture.measure_rcm_phases` (single-joint sweeps of q1 and
 q2 and a Lissajous of both with q3 held), output: the pivot point (the RCM, mocap frame),

@@ -5,8 +5,8 @@ a `Wrench` is what `body/measured_cf` carries. `StaleStream` is the error every 
 driver raises when its measured_js stream stopped (DESIGN.md, "Safety").
 
 The operating state (crtk_msgs/OperatingState on `<arm>/operating_state`): `state` is one
-of `OPERATING_STATES`; a dVRK arm obeys motion commands (servo_jp, servo_jf, move_jp) only
-when ENABLED and homed, and drops the others with a warning. Clients change it with the
+of DISABLED, ENABLED, PAUSED, FAULT; a dVRK arm obeys motion commands (servo_jp, servo_jf,
+move_jp) only when ENABLED and homed, and drops the others with a warning. Clients change it with the
 `STATE_COMMANDS` on `<arm>/state_command` (crtk_msgs/StringStamped). `ArmFault` is the
 error an arm driver raises when an arm it brought to ENABLED and homed leaves that state
 during a run (a FAULT, a disable from the console, a pause).
@@ -57,8 +57,6 @@ class StaleStream(DeviceFault):
                                         "start it there"))
 
 
-#: crtk_msgs/OperatingState.state values
-OPERATING_STATES = ("DISABLED", "ENABLED", "PAUSED", "FAULT")
 #: what <arm>/state_command accepts (crtk_msgs/StringStamped.string)
 STATE_COMMANDS = ("enable", "disable", "home", "unhome", "pause", "resume")
 
@@ -66,7 +64,7 @@ STATE_COMMANDS = ("enable", "disable", "home", "unhome", "pause", "resume")
 @dataclass(frozen=True)
 class OperatingState:
     """One crtk_msgs/OperatingState: `t` its header stamp (s), `state` one of
-    OPERATING_STATES, `is_homed`, `is_busy` (a move_jp or a homing under way)."""
+    DISABLED, ENABLED, PAUSED, FAULT; `is_homed`, `is_busy` (a move_jp or a homing under way)."""
 
     t: float
     state: str

@@ -59,7 +59,7 @@ WRIST_DDQ = np.array([20.0, 20.0, 20.0, 20.0])
 
 JOINT, CARTESIAN = "joint", "cartesian"
 POSITION, TRAJECTORY, EFFORT = "position", "trajectory", "effort"
-BODY, SPATIAL = "body", "spatial"
+BODY = "body"
 
 
 def _vector(values, n: int, what: str, at_least: int | None = None) -> np.ndarray:

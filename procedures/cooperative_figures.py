@@ -1,5 +1,6 @@
-"""The figures of `rig cooperative`, drawn from the run's log in memory or from its
-recording (`rig plot` redraws them, for aborted runs up to where they stopped).
+"""The figures of `rig cooperative`, drawn from the run's log in memory or from its recording.
+
+`rig plot` redraws them, for aborted runs up to where they stopped.
 
 - `cooperative.png` (thesis Figure 7.11): the tool tips' x, y, z in the world frame,
   measured and planned; the tension against its set-point; the tension error F - F_d.

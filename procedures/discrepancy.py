@@ -1,5 +1,6 @@
-"""`rig discrepancy`: where model and measurement disagree, which catalogue effect explains
-it, the model with it added, and the held-out gap before and after.
+"""`rig discrepancy`: where model and measurement disagree, and which catalogue effect explains it.
+
+The model with that effect added, and the held-out gap before and after.
 
     rig discrepancy (RUN_DIR | --csv FILE [--rate 200]) [--validate-csv FILE2] [--model MODEL.json] [--json]
 

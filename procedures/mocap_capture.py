@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 import weakref
 from dataclasses import dataclass
-from typing import Callable, Protocol
+from typing import Callable
 
 import numpy as np
 
@@ -100,15 +100,6 @@ def _marker_index(label: str) -> int:
 
 
 # ------------------------------------------------------------------------------ moving
-
-class Rig(Protocol):
-    """What the calibration procedures need of a rig (see `open_devices`)."""
-
-    clock: object
-    arms: dict
-    tracker: object
-    person: object  # drivers.interfaces.Operator
-
 
 def _record_frames(run, collector: Collector, frames: list[TrackerFrame]) -> None:
     rec = run.recorder

@@ -1,5 +1,6 @@
-"""`rig validate`: how well a model file predicts the efforts of a recording, effects included
-(issue 26). The number by which users compare models.
+"""`rig validate`: how well a model file predicts the efforts of a recording, effects included (issue 26).
+
+The number by which users compare models.
 
     rig validate --model MODEL.json (RUN_DIR | --csv FILE [--rate 200] [--joints 3])
                  [--compare MODEL2.json] [--block all|heldout] [--json]

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import importlib
 import os
-import sys
 
 # One BLAS thread per process, unless the user says otherwise: the rig's matrices are small
 # (3x3 to a few hundred rows), and OpenBLAS's worker threads spin on a core while they wait:

@@ -1,5 +1,7 @@
-"""`rig runs`: list the recorded runs, or show one (`rig export` and `rig plot` take a run
-the way this finds it)."""
+"""`rig runs`: list the recorded runs, or show one.
+
+`rig export` and `rig plot` take a run the way this finds it.
+"""
 
 from __future__ import annotations
 

@@ -163,7 +163,3 @@ def decode_status(payload: bytes) -> Status:
 
 def command_frame(ctype: int, payload: bytes = b"") -> bytes:
     return encode_frame(ctype, payload)
-
-
-def error_frame(offending_type: int, code: int) -> bytes:
-    return encode_frame(T_ERROR, ERROR_FMT.pack(offending_type & 0xFF, code))

@@ -32,15 +32,13 @@ DESC_SKELETON = 2
 DESC_FORCEPLATE = 3
 DESC_DEVICE = 4
 DESC_CAMERA = 5
-DESC_ASSET = 6
 
 RB_TRACKING_VALID = 0x01          # rigid body params bit 0
 MARKER_OCCLUDED = 0x01            # labelled marker params
 MARKER_POINT_CLOUD_SOLVED = 0x02
 MARKER_MODEL_SOLVED = 0x04
 MARKER_HAS_MODEL = 0x08
-FRAME_RECORDING = 0x01            # frame suffix params
-FRAME_MODELS_CHANGED = 0x02
+FRAME_MODELS_CHANGED = 0x02       # frame suffix params
 
 HEADER = struct.Struct("<HH")     # message id, payload bytes
 NAME_FIELD = 256                  # sSender's fixed name field
@@ -48,12 +46,9 @@ SENDER = struct.Struct("<256s4B4B")
 SERVER_EXTRA = struct.Struct("<QH?4B")  # clock Hz, data port, multicast, group address
 CONNECT_OPTIONS = struct.Struct("<B4B")  # subscribed data only, requested bitstream version
 MAX_PAYLOAD = 0xFFFF              # a u16 byte count
-DEFAULT_MULTICAST_GROUP = "239.255.42.99"
 
 _I32 = struct.Struct("<i")
-_U32 = struct.Struct("<I")
 _I16 = struct.Struct("<h")
-_F32 = struct.Struct("<f")
 _V3 = struct.Struct("<3f")
 _RB = struct.Struct("<i3f4ffh")       # id, position, quaternion xyzw, mean error, params
 _LM = struct.Struct("<i3ffhf")        # id, position, size, params, residual (3.0+)

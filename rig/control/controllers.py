@@ -1,5 +1,6 @@
-"""Controllers of thesis chapter 7: feedforward linearisation, computed torque, impedance,
-robust stick-slip friction compensation, and the filters they read through.
+"""Controllers of thesis chapter 7, and the filters they read through.
+
+Feedforward linearisation, impedance and robust stick-slip friction compensation.
 
 All controllers work in joint space for joints 1-3 and in the arm's RCM frame for
 Cartesian quantities (m, N); the cooperative layer converts world-frame targets.
@@ -11,7 +12,7 @@ Cartesian quantities (m, N); the cooperative layer converts world-frame targets.
 * `StickSlipCompensation`: eq. 4.16 friction with velocity deadbands and, on joint 3, the
   robust stick-slip term with a position deadband (thesis 7.5.1).
 * `FeedforwardModel`: M^(q) y + N^(q, dq) + tau_f^ (eq. 7.1-7.2) from a PSMDynamics.
-* `ComputedTorque` (7.2) and `Impedance` (7.3, eq. 7.6-7.9).
+* `Impedance` (7.3, eq. 7.6-7.9).
 """
 
 from __future__ import annotations
@@ -259,20 +260,6 @@ class FeedforwardModel:
 
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
         return self.dyn.mass_matrix(q)
-
-
-@dataclass
-class ComputedTorque:
-    """Thesis 7.2: y = Kp (q_d - q) + Kd (dq_d - dq) (+ ddq_d), u = M^ y + N^ + tau_f^."""
-
-    model: FeedforwardModel
-    friction: StickSlipCompensation
-    kp: np.ndarray = field(default_factory=lambda: np.array([25.0, 20.0, 75.0]))
-    kd: np.ndarray = field(default_factory=lambda: np.array([10.0, 11.0, 15.0]))
-
-    def __call__(self, q, dq, q_d, dq_d, ddq_d=np.zeros(3)) -> np.ndarray:
-        y = ddq_d + self.kp * (q_d - q) + self.kd * (dq_d - dq)
-        return self.model(q, dq, y) + self.friction(dq, q_d[2] - q[2])
 
 
 @dataclass

@@ -85,7 +85,6 @@ from rig.model.psm_tool import DEFAULT_TOOL, PSM_DH, PSM_Q_MAX, PSM_Q_MIN, SAFE_
 
 JOINT_NAMES = ("outer_yaw", "outer_pitch", "outer_insertion", "outer_roll",
                "outer_wrist_pitch", "outer_wrist_yaw")
-JAW_NAME = "outer_jaw"
 
 # rig.model.psm_kinematics' RCM frame -> the dVRK's PSM kinematic base frame (they are the same).
 RCM_FRAME_TO_BASE = np.eye(4)

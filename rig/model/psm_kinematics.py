@@ -57,8 +57,6 @@ DELTA_C2 = 0.8
 Q_MIN = np.array([-1.58, -0.93, 0.0])
 Q_MAX = np.array([1.58, 0.93, 0.24])
 DQ_MAX = np.array([2.0, 2.0, 0.4])
-WRIST_Q_LIMIT = 3.03
-WRIST_DQ_MAX = np.array([6.0, 5.0, 5.0])
 
 
 def _solve_beta() -> float:
@@ -100,9 +98,6 @@ RCM_DISTANCE_FROM_FRAME6, RCM_IN_FRAME2 = _rcm_offset()
 D7_OFFSET = RCM_DISTANCE_FROM_FRAME6 + L_TOOL - L_RCC
 
 T01 = dh(0.0, -np.pi / 2, D1, np.pi / 2)
-
-FRAME_NAMES = ("0", "1", "2", "3", "4", "5", "6", "7", "8", "9", "10", "11",
-               "C1", "C2-int", "C2", "tip")
 
 
 def frames(q: np.ndarray, wrist: np.ndarray | None = None) -> dict[str, np.ndarray]:

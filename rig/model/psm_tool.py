@@ -71,27 +71,21 @@ PSM_DH: tuple[DHRow, DHRow, DHRow] = (
 )
 PSM_Q_MIN = (-1.588, -0.925025, 0.0)        # rad, rad, m
 PSM_Q_MAX = (1.588, 0.925025, 0.24)         # rad, rad, m
-PSM_EFFORT_MAX = (3.316101, 3.316101, 9.877926)  # N m, N m, N ("ftmax")
 
 # mtsIntuitiveResearchKit.h, namespace PSM.
 SAFE_DISTANCE_FROM_RCM = 0.045       # m: the shaft end (frame 4) is kept this far from the RCM
 SAFE_DISTANCE_FROM_RCM_BUFFER = 0.002  # m
-ENGAGE_DEPTH_CANNULA = 0.025         # m: tool tip closer than this to the RCM is in the cannula
 DISK_MAX_TORQUE = 0.343642           # N m at a sterile-adapter disc
-ADAPTER_ACTUATOR_LIMIT = np.deg2rad(172.0)  # rad: disc range without a tool
 
 # dvrk-io-config-generator.py, ClassicPSM, actuators 4-7 (the four discs).
 WRIST_ENCODER_CPT = 4000             # counts per motor turn
 WRIST_GEAR_RATIO = 11.71             # motor turns per disc turn
-WRIST_MOTOR_MAX_CURRENT = 0.67       # A
-WRIST_MOTOR_TORQUE_CONSTANT = 0.0438  # N m / A
 # 0.67 A * 0.0438 N m/A * 11.71 = 0.3436 N m: DISK_MAX_TORQUE above.
 
 # share/pid/sawControllersPID-PSM.json, indices 3-6 ("disc_1" .. "disc_4"): the PID of the
 # wrist runs on the discs (actuator space), i_gain 0, "pid_max_output" disabled.
 WRIST_PID_P_GAIN = (6.0, 6.0, 6.0, 6.0)      # N m / rad
 WRIST_PID_D_GAIN = (0.09, 0.09, 0.09, 0.09)  # N m s / rad
-WRIST_PID_I_GAIN = (0.0, 0.0, 0.0, 0.0)
 WRIST_PID_TOLERANCE = (0.6, 0.6, 0.6, 0.6)   # rad: "p_measured_setpoint_tolerance"
 
 

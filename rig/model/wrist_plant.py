@@ -112,7 +112,6 @@ from rig.model.psm_tool import (
 )
 
 JOINT_NAMES = ("outer_roll", "outer_wrist_pitch", "outer_wrist_yaw", "outer_jaw")
-MODES = ("position", "effort", "off")
 TICK = 0.001  # s: the longest step the PID and the mechanics take at once
 ENCODER_RESOLUTION = 2.0 * math.pi / (WRIST_ENCODER_CPT * WRIST_GEAR_RATIO)  # rad at a disc
 ROTOR_INERTIA = 1.1e-6  # kg m^2, estimate (module doc)

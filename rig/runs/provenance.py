@@ -109,13 +109,6 @@ def recording(csv_path, arm_label: str = "recorded arm") -> dict:
                  {"csv": str(p), "sha256": sha})
 
 
-def from_run(run_dir, recorded: dict) -> dict:
-    """Provenance of a result computed offline from a recorded run: the run's own arms and
-    rig (`recorded`: that run's provenance), the run as source."""
-    out = _base(list(recorded.get("arms", [])), recorded.get("rig"), {"run": Path(run_dir).name})
-    return out
-
-
 # ------------------------------------------------------------------ belonging
 def mismatch(doc: dict, cfg, arm: str | None = None, arms: list[str] | None = None) -> str | None:
     """Why the result `doc` does not belong to arm `arm` (or the arms `arms`) of rig `cfg`,

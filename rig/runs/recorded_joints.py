@@ -1,6 +1,7 @@
-"""A recorded run's joint arrays for the offline procedures (`rig discrepancy`, `rig
-validate`): its /<arm>/measured_js as q, dq, tau at a uniform rate, whole or as the
-continuous pieces between the pauses in its stream.
+"""A recorded run's joint arrays for `rig discrepancy` and `rig validate`, whole or as the pieces between pauses.
+
+Its /<arm>/measured_js as q, dq, tau at a uniform rate, whole or as the continuous pieces
+between the pauses in its stream.
 
 Units: SI (rad, m, rad/s, m/s, N m, N, s, Hz).
 """

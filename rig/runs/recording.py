@@ -37,7 +37,7 @@ import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Sequence
+from typing import Any, Iterable, Sequence
 
 from mcap.records import Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
@@ -482,8 +482,3 @@ def read_recording(path: str | os.PathLike, topics: Iterable[str] | None = None,
     if not rec.finalised and not rec.problem:
         rec.problem = "file has no footer (the recording was not finished)"
     return rec
-
-
-def iter_topic(path: str | os.PathLike, topic: str) -> Iterator[tuple[int, Any]]:
-    """(log_time_ns, decoded message) of one topic, in file order."""
-    yield from read_recording(path, [topic]).messages.get(topic, [])

@@ -35,7 +35,6 @@ from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any, Iterator, TextIO
 
-from rig.commands.exit_codes import EXIT_BUG
 from rig.faults import DeviceFault
 from rig.runs import run_owner
 from rig.runs.compile_notice import CompileWatch
@@ -43,8 +42,6 @@ from rig.runs.paths import run_dir_name, runs_root
 from rig.runs.recording import Recorder
 from rig.sealed_json import seal_provenance, write_result
 
-#: an ending rig did not expect (rig.commands.exit_codes.EXIT_BUG), under the name older code imports
-EXIT_FAILED = EXIT_BUG
 #: statuses a procedure may declare for a run that ended without an exception
 DECLARED_STATUSES = ("completed", "failed", "dry-run")
 

@@ -1,5 +1,7 @@
-"""Who is writing a run folder: the process that owns it, so a run with no stop record can be
-told apart as still running or interrupted (its process killed with no chance to close it).
+"""Who is writing a run folder: the process that owns it.
+
+A run with no stop record can so be told apart as still running or interrupted (its process
+killed with no chance to close it).
 
 `Run` writes `run.owner` (the process id, its start time since boot and the host) when it
 starts and removes it when the run has ended and its files are written. A run folder that

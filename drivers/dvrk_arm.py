@@ -76,8 +76,9 @@ from drivers.quaternion import quat_xyzw_to_matrix
 StaleCallback = Callable[[StaleStream], None]
 
 #: s within which a move_jp's is_busy must rise before the wait falls back to positions
-#: (the command crosses the wire and waits for the arm's next cycle; 100 Hz state updates)
-BUSY_RISE = 0.5
+#: (the command crosses the wire and waits for the arm's next cycle; 100 Hz state updates;
+#: under the test suite's load `rig sim` answered later than 0.5 s)
+BUSY_RISE = 1.0
 #: s between repeats of a state command while `ready()` waits (one sent before the
 #: arm's subscription matched would be lost; enable and home are idempotent on the dVRK)
 RESEND = 1.0

@@ -267,6 +267,19 @@ def _chain(folder: Path, console: str, scripts) -> list:
     return out
 
 
+#: the client's own race at its end, not the server's doing: crtk's ral_ros2 `shutdown()` shuts
+#: rclpy down while its spin thread may be building a wait set, and `_try_spin` catches only
+#: ExternalShutdownException, so an RCLError ("the given context is not valid") escapes that
+#: thread once in a while after the script's last line (seen once in a loaded suite run)
+CLIENT_SHUTDOWN_RACE = ("in _try_spin", "the given context is not valid")
+
+
+def _tracebacks(text: str) -> list[str]:
+    """The tracebacks in a script's output, but for the client's own shutdown race."""
+    blocks = text.split("Traceback (most recent call last):")[1:]
+    return [b for b in blocks if not all(mark in b for mark in CLIENT_SHUTDOWN_RACE)]
+
+
 @pytest.mark.parametrize("console", ["/system", pytest.param("/console", marks=pytest.mark.slow)])
 def test_the_clients_scripts_run_to_their_end(tmp_path, console):
     from concurrent.futures import ThreadPoolExecutor
@@ -279,7 +292,8 @@ def test_the_clients_scripts_run_to_their_end(tmp_path, console):
     for name, last, out in results:
         text = out.stdout + out.stderr
         assert out.returncode == 0, f"{name} exited {out.returncode}:\n{text[-3000:]}"
-        assert "Traceback" not in text, f"{name}:\n{text[-3000:]}"
-        assert "failed to" not in text and "! " not in out.stdout, f"{name}:\n{text[-3000:]}"
+        assert not _tracebacks(text), f"{name}:\n{text[-3000:]}"
+        outside_race = text.split("Traceback (most recent call last):")[0] + "".join(_tracebacks(text))
+        assert "failed to" not in outside_race and "! " not in out.stdout, f"{name}:\n{text[-3000:]}"
         if last:
             assert last in out.stdout, f"{name} did not reach '{last}':\n{out.stdout[-2000:]}"

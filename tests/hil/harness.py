@@ -50,6 +50,16 @@ def lab_toml(folder: Path, *, rate: float | None = None, watchdog: float | None 
     return text + extra
 
 
+def _ctrl_c_reaches_children() -> None:
+    """A procedure started here takes Ctrl-C as a lab's terminal gives it. A process started
+    in the background by a shell (`nohup bench &`) has SIGINT ignored, and its children
+    inherit that: a procedure would then ignore SIGINT, rightly, as any Unix program
+    started that way. Any handler here (not SIG_IGN) makes a child start with the default."""
+    if (threading.current_thread() is threading.main_thread()
+            and signal.getsignal(signal.SIGINT) is signal.SIG_IGN):
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 @dataclass
 class Outcome:
     """How one `rig` process ended: exit code, its --json document (None if none), stderr, wall s."""
@@ -152,6 +162,7 @@ class ServedRig:
         fault lands in the step it is meant for however long connecting took.
         """
         argv = [sys.executable, "-m", "rig.cli", *args] + (["--json"] if json_doc else [])
+        _ctrl_c_reaches_children()
         self.runs_since_start += 1
         t0 = time.monotonic()
         proc = subprocess.Popen(argv, cwd=self.folder, env=env or self.env(), text=True,

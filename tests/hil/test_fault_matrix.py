@@ -3,7 +3,7 @@
 The three-arm triangle runs on a second module `rig sim` (PSM3 too, a cell per element).
 
 A module `rig sim` (tests/hil/fault_matrix.py: the chain's rig.toml, the operator's answer
-limit 5 s) prepared once; a fault that leaves rig sim broken (killed, a cable pulled, an
+limit OPERATOR_TIMEOUT) prepared once; a fault that leaves rig sim broken (killed, a cable pulled, an
 arm in FAULT, the operator gone) gets the next test a fresh one on the same folder and
 domain. Each cell ends cleanly (`fault_matrix.cell`): one line, no traceback, no signal,
 the documented exit, the arms it moved held, the recording closed with the reason; or, a

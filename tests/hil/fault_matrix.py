@@ -194,10 +194,11 @@ def lab(folder, three_arms: bool = False) -> str:
 def prepare(rig: ServedRig, three_arms: bool = False) -> str | None:
     """What the lab's procedures need in its logs; None, or the line of what failed. The
     two-arm lab: the load cell calibrated, the arms registered, PSM1 identified and
-    friction-ramped; the three-arm lab: each element's cell calibrated, the arms registered."""
+    friction-ramped; the three-arm lab: each element's cell calibrated, the arms registered,
+    PSM1 identified (cooperative needs an identified model of the rig's arms)."""
     if three_arms:
         steps = [("loadcell-calibrate", "--seconds", "0.5", "--element", str(k)) for k in range(3)]
-        steps.append(("register", "--points", "6"))
+        steps += [("register", "--points", "6"), tuple(PROCEDURES["identify"].args)]
     else:
         steps = [("loadcell-calibrate", "--seconds", "0.5"), ("register", "--points", "6"),
                  tuple(PROCEDURES["identify"].args), tuple(PROCEDURES["friction-ramp"].args)]

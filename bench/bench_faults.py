@@ -29,14 +29,14 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
 from _table import print_table  # noqa: E402
 
-from tests.hil.fault_matrix import FAULTS, PROCEDURES, cell, lab, prepare  # noqa: E402
+from tests.hil.fault_matrix import FAULTS, PROCEDURES, cell, lab, prepare, sim_args  # noqa: E402
 from tests.hil.harness import ServedRig  # noqa: E402
 
 def _lab(folder: Path, three: bool, names: list[str], faults: list[str], n_burners: int,
          burners: list, results: dict) -> bool:
     """One lab's rig sim, prepared, then its procedures x faults into `results`; the
     burners start once the first lab is prepared. False if preparing failed."""
-    with ServedRig(folder, toml=lab(folder, three), sim_args=("--ros-period", "0.002")) as rig:
+    with ServedRig(folder, toml=lab(folder, three), sim_args=sim_args(three)) as rig:
         problem = prepare(rig, three)
         if problem:
             print(f"preparing: {problem}")

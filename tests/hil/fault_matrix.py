@@ -188,7 +188,14 @@ def cell(rig: ServedRig, name: str, fault: str) -> dict:
 def lab(folder, three_arms: bool = False) -> str:
     """The matrix's rig.toml: the chain's (`three_arms`: with PSM3 and a triangle), the
     operator's answer limit OPERATOR_TIMEOUT."""
-    return lab_toml(folder, three_arms=three_arms) + f"timeout = {OPERATOR_TIMEOUT}\n"  # in its [operator] table
+    return (lab_toml(folder, three_arms=three_arms, rate=500.0 if three_arms else None)
+            + f"timeout = {OPERATOR_TIMEOUT}\n")  # in its [operator] table
+
+
+def sim_args(three_arms: bool = False) -> tuple[str, ...]:
+    """rig sim's options for the lab: 500 Hz streams; three arms at a 500 Hz servo too (its
+    default with three is 250 Hz, and cooperative refuses a triangle below 500 Hz streams)."""
+    return (("--rate", "500") if three_arms else ()) + ("--ros-period", "0.002")
 
 
 def prepare(rig: ServedRig, three_arms: bool = False) -> str | None:

@@ -19,7 +19,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from tests.hil.fault_matrix import FAULTS, PROCEDURES, cell, lab, prepare  # noqa: E402
+from tests.hil.fault_matrix import FAULTS, PROCEDURES, cell, lab, prepare, sim_args  # noqa: E402
 from tests.hil.harness import ServedRig  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.hil, pytest.mark.slow]
@@ -27,7 +27,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.hil, pytest.mark.slow]
 
 def _lab(tmp_path_factory, three_arms: bool):
     folder = tmp_path_factory.mktemp("faults3" if three_arms else "faults")
-    with ServedRig(folder, toml=lab(folder, three_arms), sim_args=("--ros-period", "0.002")) as rig:
+    with ServedRig(folder, toml=lab(folder, three_arms), sim_args=sim_args(three_arms)) as rig:
         problem = prepare(rig, three_arms)
         assert problem is None, problem
         yield rig

@@ -9,7 +9,7 @@ which faults, how they are injected and what a clean ending is. rig sim is resta
 a fault that leaves it broken. `--burners N` starts N CPU-burning processes once the rig is
 prepared.
 
-    .venv/bin/python bench/bench_faults.py [--procedures identify,cooperative] [--faults SIGINT,SIGTERM] [--burners 2]
+    .venv/bin/python bench/bench_faults.py [--procedures identify,cooperative] [--faults SIGINT,SIGTERM] [--burners 2] [--keep DIR]
 
 Prints the table (procedure x fault: green or what failed, the last line, arms held,
 recording status, seconds from the fault to the procedure's end).
@@ -18,6 +18,7 @@ recording status, seconds from the fault to the procedure's end).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import subprocess
 import sys
 import tempfile
@@ -57,11 +58,24 @@ def _lab(folder: Path, three: bool, names: list[str], faults: list[str], n_burne
     return True
 
 
+@contextlib.contextmanager
+def _folder(keep: str | None):
+    """`keep` made if missing (and kept), or a temporary folder removed after."""
+    if keep:
+        Path(keep).mkdir(parents=True, exist_ok=True)
+        yield keep
+        return
+    with tempfile.TemporaryDirectory(prefix="bench-faults-") as tmp:
+        yield tmp
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--procedures", default=",".join(PROCEDURES))
     ap.add_argument("--faults", default=",".join(FAULTS))
     ap.add_argument("--burners", type=int, default=0)
+    ap.add_argument("--keep", metavar="DIR", help="run the labs in DIR (made if missing) and keep them, "
+                    "run folders and recordings included, to read after; default: a temporary folder")
     args = ap.parse_args()
     names = [n.strip() for n in args.procedures.split(",") if n.strip()]
     faults = [f.strip() for f in args.faults.split(",") if f.strip()]
@@ -75,7 +89,7 @@ def main() -> int:
     results: dict[tuple[str, str], dict] = {}
     t0 = time.monotonic()
     try:
-        with tempfile.TemporaryDirectory(prefix="bench-faults-") as tmp:
+        with _folder(args.keep) as tmp:
             for three in (False, True):  # the two-arm lab, then the three-arm one
                 on_lab = [n for n in names if PROCEDURES[n].three_arms == three]
                 if on_lab and not _lab(Path(tmp) / ("lab3" if three else "lab"), three, on_lab, faults,

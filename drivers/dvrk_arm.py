@@ -195,6 +195,7 @@ class RosArm:
         # idle ones (move_jp's wait), and the arm's newest error message
         self._state: OperatingState | None = None
         self._state_count = 0
+        self.state_answers = 0  #: answers of its operating_state service (confirm_state waits on one)
         self._busy_index = 0
         self._idle_index = 0
         self._error: tuple[float, str] | None = None  # (time.monotonic(), text)
@@ -730,16 +731,35 @@ class RosArm:
                 self._cond.wait(min(left, 0.05))
         return True
 
-    def _ask_state(self) -> None:
+    def confirm_state(self, timeout: float) -> OperatingState | None:
+        """Ask the arm's operating_state service and wait up to `timeout` s for its answer;
+        the newest state then (None when none came). The dVRK publishes operating_state on
+        change only, and an event sent just now may still be on its way: a run that ends on
+        another device's fault asks before it says an arm is held."""
+        with self._lock:
+            asked_after = self.state_answers
+        if not self._ask_state():
+            return self.operating_state()
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while self.state_answers == asked_after:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                self._cond.wait(left)
+            return self._state
+
+    def _ask_state(self) -> bool:
         """Ask the arm's operating_state service (asynchronously; the answer is taken as an
-        operating_state message when it comes)."""
+        operating_state message when it comes). False when there is no service to ask."""
         client = self._state_client
         if client is None or not client.service_is_ready():
-            return
+            return False
         from crtk_msgs.srv import TriggerOperatingState
 
         future = client.call_async(TriggerOperatingState.Request())
         future.add_done_callback(self._on_state_answer)
+        return True
 
     def _on_state_answer(self, future) -> None:
         try:
@@ -752,6 +772,9 @@ class RosArm:
             newer = self._state is None or _stamp_seconds(res.operating_state.header) > self._state.t
         if newer:
             self._on_operating_state(res.operating_state)
+        with self._cond:
+            self.state_answers += 1
+            self._cond.notify_all()
 
     def state_command(self, command: str) -> None:
         """Send one of STATE_COMMANDS on state_command (asynchronous, as on the dVRK)."""

@@ -20,7 +20,8 @@ ACTION is one of ACTIONS, with its fields: confirm {message}; detach_object {};
 attach_object {kind (optional): "spring" or "string"}; hang_mass {kg, element (optional:
 which object element's cell)}; touch {arms: [names], index, goal: [x, y, z] m in the
 world}; unplug {device: "loadcell"} (a person pulling a cable: fault injection); fault
-{arm, kind: "joint_limit" (with joint: 1-3) or "servo_watchdog" (with timeout: s, 0: off)}
+{arm, kind: "joint_limit" (with joint: 1-3), "power_loss" or "servo_watchdog" (with timeout:
+s, 0: off)}
 (an arm fault injected for tests, drivers.operator_sim.SimOperator.fault). Both topics are
 reliable with depth 10; the client matches a reply by its id and ignores the others
 (several clients may share the channel).
@@ -161,7 +162,8 @@ class RosOperator:
         self.request("unplug", device=device)
 
     def fault(self, arm: str, kind: str, joint: int = 1, timeout: float = 0.1) -> None:
-        """Inject an arm fault in `rig sim` (tests): kind "joint_limit" or "servo_watchdog"."""
+        """Inject an arm fault in `rig sim` (tests): kind "joint_limit", "power_loss" or
+        "servo_watchdog" (drivers.operator_sim.SimOperator.fault says what each does)."""
         self.request("fault", arm=arm, kind=kind, joint=int(joint), timeout=float(timeout))
 
     def touch(self, arms: dict, point_index: int, goal_world: np.ndarray) -> None:

@@ -132,7 +132,10 @@ class SimOperator:
 
     def fault(self, arm: str, kind: str, joint: int = 1, timeout: float = 0.1) -> None:
         """Inject an arm fault (tests): "joint_limit" pushes `joint` (1-3) past its upper
-        limit; "servo_watchdog" arms the servo-command watchdog with `timeout` s (0: off)."""
+        limit (at once: with an object between the arms its pull can fault the other arm
+        too); "power_loss" takes the power from the arm's amplifiers where it stands (the
+        dVRK's "detected power loss (actuators)", e.g. an amplifier's fault or its controller's
+        e-stop); "servo_watchdog" arms the servo-command watchdog with `timeout` s (0: off)."""
         state = self.states.get(arm)
         if state is None:
             raise OperatorError(f"no arm {arm!r} behind an operating state here; "
@@ -142,12 +145,14 @@ class SimOperator:
                 raise OperatorError(f"joint must be 1, 2 or 3, got {joint!r}")
             self.release(arm)  # a person pushing the joint no longer holds the tip on a touch point
             state.push_past_limit(joint)
+        elif kind == "power_loss":
+            state.lose_power()
         elif kind == "servo_watchdog":
             if not (np.isfinite(timeout) and timeout >= 0):
                 raise OperatorError(f"the watchdog timeout must be >= 0 s (0: off), got {timeout!r}")
             state.servo_watchdog = float(timeout) if timeout > 0 else None
         else:
-            raise OperatorError(f"unknown fault {kind!r}; known: joint_limit, servo_watchdog")
+            raise OperatorError(f"unknown fault {kind!r}; known: joint_limit, power_loss, servo_watchdog")
 
     def touch(self, arms, point_index: int, goal_world) -> None:
         from rig.model import psm_kinematics as K

@@ -23,8 +23,9 @@ documentation and messages describe it), on the simulated clock:
   (the dVRK publishes operating_state as events, not periodically).
 * Faults: a joint past its Table 4.2 limit (beyond LIMIT_MARGIN) while the arm is powered;
   and, once armed (`servo_watchdog`, s), servo commands that stop arriving: an arm in
-  servo mode (its last command servo_jp or servo_jf) with none for longer than that. The
-  arm goes to FAULT, not busy, with its reason on <arm>/error.
+  servo mode (its last command servo_jp or servo_jf) with none for longer than that; and a
+  power loss of its amplifiers (`lose_power`, injected by a test). The arm goes to FAULT,
+  not busy, with its reason on <arm>/error.
 
 Without power (DISABLED, FAULT) and PAUSED the simulated arm's joints are held where they
 are. The simulated world has no hard stops: a PSM without power would fall through them,
@@ -253,6 +254,13 @@ class SimArmState:
         self.fault_reason = reason
         self._say("error", reason)
         self._set(state="FAULT", busy=False)
+
+    def lose_power(self) -> None:
+        """The arm's amplifiers lose power where it stands: FAULT with the dVRK's "detected
+        power loss (actuators)". Only a powered arm notices (the dVRK checks the amplifiers'
+        status while powered); a DISABLED or FAULT arm is left as it is."""
+        if self.state in ("ENABLED", "PAUSED") or self._powering_until is not None:
+            self.fault(f"{self.name}: detected power loss (actuators)")
 
     def push_past_limit(self, joint: int = 1) -> None:
         """A person pushes joint `joint` (1-3) of the arm past its upper limit (2 margins

@@ -26,6 +26,7 @@ reported and deferred, so a second Ctrl-C cannot cut the file short.
 
 from __future__ import annotations
 
+import functools
 import signal
 import sys
 import threading
@@ -302,7 +303,7 @@ class Run:
         An arm whose operating state says it obeys no command (a dVRK arm in FAULT,
         DISABLED or PAUSED: its drives are off or its commands ignored) takes the hold
         command without an error but is not held: it goes to the errors with its state."""
-        held, errors = [], []
+        held, errors, commanded = [], [], []
         for arm in self._claimed:
             name = str(getattr(arm, "name", type(arm).__name__))
             try:
@@ -310,6 +311,8 @@ class Run:
             except BaseException as err:  # noqa: BLE001 - one arm failing must not spare the rest
                 errors.append({"arm": name, "error": f"{type(err).__name__}: {err}"})
                 continue
+            commanded.append((name, arm))
+        for name, arm in commanded:
             state = _disobeying_state(arm)
             if state is None:
                 held.append(name)
@@ -404,10 +407,22 @@ class Run:
         return f"[{step.index}{of}] {step.name}"
 
 
+#: how long the end of a run waits for an arm's answer to "what is your operating state?"
+#: (s). The dVRK publishes the state on change only; a FAULT an instant before another
+#: device's fault ended the run may still be on its way, and a held arm must be one that
+#: obeys. rig sim answers within a few ms; a dead console does not answer at all.
+CONFIRM_STATE_WAIT = 0.3
+
+
 def _disobeying_state(arm) -> str | None:
     """The operating state of an arm that obeys no command (not ENABLED and homed), as
-    "FAULT, homed"; None when it obeys, or it reports no state (the in-process arms)."""
-    get = getattr(arm, "operating_state", None)
+    "FAULT, homed", asked of the arm when it can be (`confirm_state`); None when it obeys,
+    or it reports no state (the in-process arms)."""
+    get = getattr(arm, "confirm_state", None)
+    if callable(get):
+        get = functools.partial(get, CONFIRM_STATE_WAIT)
+    else:
+        get = getattr(arm, "operating_state", None)
     if not callable(get):
         return None
     try:

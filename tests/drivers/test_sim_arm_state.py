@@ -122,6 +122,22 @@ def test_a_joint_past_its_limit_faults_and_only_disable_leads_out(rig):
     assert s.state == "FAULT"  # still past its limit: it faults again once powered
 
 
+def test_a_power_loss_faults_a_powered_arm_where_it_stands(rig):
+    rig.ready()
+    s = rig.state
+    q = rig.q().copy()
+    s.lose_power()
+    assert (s.state, s.is_busy) == ("FAULT", False)
+    assert s.messages[-1] == ("error", "PSM1: detected power loss (actuators)")
+    rig.run(0.5)
+    np.testing.assert_allclose(rig.q(), q, atol=1e-4)  # it stays where it was
+    assert s.servo_jp(q + 0.1, None, rig.t) is False
+    s.command("disable", rig.t)
+    n = len(s.messages)
+    s.lose_power()  # a disabled arm has no power to lose
+    assert s.state == "DISABLED" and len(s.messages) == n
+
+
 def test_the_servo_watchdog_faults_an_arm_whose_servo_commands_stop(rig):
     rig.ready()
     s = rig.state

@@ -5,7 +5,11 @@ each procedure as a lab runs it, the faults a rig meets, how each is injected in
 * server killed: rig sim SIGKILLed (the arms' console, its load cell and mocap die with it)
 * load-cell pty closed, mocap stopped: the simulated person pulls that cable
 * operator gone: the simulated person walks away (requests go unanswered)
-* arm FAULT: PSM1 pushed past its joint-1 limit (the arm faults, as a dVRK's does)
+* arm FAULT: PSM1's amplifiers lose power where it stands (the dVRK's "detected power loss
+  (actuators)": an amplifier's fault, its controller's e-stop). Not a push past a joint
+  limit: rig sim's push is a jump, and with a spring or string between the arms its pull
+  (hundreds of N at 2450 N/m) drags the other arm into a fault of its own, sometimes after
+  the procedure has ended; what a run reports is then judged against a moving truth
 * SIGINT, SIGTERM: sent to the procedure
 
 A fault that cannot reach the procedure (it does not use that device after the fault)
@@ -93,6 +97,40 @@ class _Person:
         self.session.start()
         self.operator = RosOperator(self.session.node, timeout=10.0)
         self.operator.wait_for_server(10.0)
+        #: every arm's error messages while the person watched: (arm, text)
+        self.errors: list[tuple[str, str]] = []
+
+    def watch_errors(self, arms) -> None:
+        """Hear each arm's <arm>/error (why an arm faulted, for the table)."""
+        from std_msgs.msg import String
+
+        for arm in arms:
+            self.session.node.create_subscription(
+                String, f"/{arm}/error", lambda m, a=arm: self.errors.append((a, m.data)), 10)
+
+    def states(self, arms, timeout: float = 5.0) -> dict[str, str]:
+        """Each arm's operating state as rig sim answers it now ("FAULT, homed", ...; "?"
+        when it did not answer): the truth a run's "held" is judged against."""
+        from crtk_msgs.srv import TriggerOperatingState
+
+        from drivers.crtk import OperatingState
+
+        out = {}
+        for arm in arms:
+            client = self.session.node.create_client(TriggerOperatingState, f"/{arm}/operating_state")
+            try:
+                if not client.wait_for_service(timeout_sec=timeout):
+                    out[arm] = "?"
+                    continue
+                future = client.call_async(TriggerOperatingState.Request())
+                deadline = time.monotonic() + timeout
+                while not future.done() and time.monotonic() < deadline:
+                    time.sleep(0.01)
+                m = future.result().operating_state if future.done() else None
+                out[arm] = "?" if m is None else OperatingState(0.0, m.state, m.is_homed, False).describe()
+            finally:
+                self.session.node.destroy_client(client)
+        return out
 
     def close(self) -> None:
         try:
@@ -106,7 +144,7 @@ _BY_PERSON = {
     "load-cell pty closed": lambda op: op.unplug("loadcell"),
     "mocap stopped": lambda op: op.unplug("mocap"),
     "operator gone": lambda op: op.unplug("operator"),
-    "arm FAULT": lambda op: op.fault("PSM1", "joint_limit", joint=1),
+    "arm FAULT": lambda op: op.fault("PSM1", "power_loss"),
 }
 
 
@@ -131,6 +169,8 @@ def cell(rig: ServedRig, name: str, fault: str) -> dict:
     t_fault: list[float] = []
 
     person = _Person(rig.domain) if fault in _BY_PERSON else None
+    if fault == "arm FAULT":
+        person.watch_errors(p.arms)
 
     def fire() -> None:
         t_fault.append(time.monotonic())
@@ -140,8 +180,11 @@ def cell(rig: ServedRig, name: str, fault: str) -> dict:
             t_fault.append(-1.0)
             print(f"    injecting {fault}: {type(exc).__name__}: {exc}", flush=True)
 
+    truth: dict[str, str] = {}
     try:
         out = rig.run(*p.args, on_start=lambda proc: box.__setitem__(0, proc), when=(p.step, fire))
+        if fault == "arm FAULT":
+            truth = person.states(p.arms)
     finally:
         if person is not None:
             person.close()
@@ -166,9 +209,18 @@ def cell(rig: ServedRig, name: str, fault: str) -> dict:
         if not out.last_line.startswith(f"rig {p.args[0]}: aborted: "):
             problems.append("last line")
         held = sorted(doc.get("held") or [])
-        moved = sorted(a for a in p.arms if not (fault == "arm FAULT" and a == "PSM1"))
+        # an arm in FAULT obeys nothing: PSM1 here, and an arm the object dragged into a
+        # fault of its own (a string's pull past a limit). Judged by rig sim's own answer
+        # after the run: those must be reported not held, with their state; the rest held.
+        faulted = {a for a, st in truth.items() if not st.startswith("ENABLED, homed")}
+        moved = sorted(a for a in p.arms if a not in faulted)
         if held != moved:
-            problems.append(f"held {held}, moved {moved}")
+            problems.append(f"held {held}, moved and obeying {moved}" + (f" (rig sim: {truth})" if truth else ""))
+            problems += [f"{a} said: {text}" for a, text in person.errors] if person else []
+        reported = {e.get("arm"): e.get("state", "") for e in doc.get("hold_errors") or []}
+        for a in sorted(faulted):
+            if not reported.get(a, "").startswith(truth[a].split(",")[0]):
+                problems.append(f"{a} is {truth[a]} in rig sim, reported {reported.get(a) or 'nothing'}")
     rec_status = "-"
     if doc.get("run_dir"):
         rec = read_recording(os.path.join(doc["run_dir"], "run.mcap"))

@@ -219,6 +219,10 @@ def test_servo_watchdog_faults_an_arm_whose_servo_commands_stop(served):
         assert "/PSM2/operating_state: PSM2 went to FAULT during the run" in line, line
         assert "watchdog: no servo command for" in line, line
         assert arm.operating_state().state == "FAULT"
+        # asked, the arm's operating_state service answers the same
+        answers = arm.state_answers
+        assert arm.confirm_state(5.0).state == "FAULT"
+        assert arm.state_answers == answers + 1
         # a FAULT is not cleared behind a person's back: ready() names it
         with pytest.raises(ArmFault, match="PSM2 is FAULT"):
             arm.ready(timeout=5.0)

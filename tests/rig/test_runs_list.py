@@ -175,6 +175,44 @@ def test_an_arm_in_fault_is_not_held(monkeypatch, tmp_path, capsys):
     assert any(line.startswith("not held PSM1 is FAULT, homed: it obeys no command") for line in detail), detail
 
 
+class _ArmWhoseFaultIsOnItsWay:
+    """A dVRK arm that went to FAULT an instant before another device ended the run: its
+    FAULT event is not in yet (operating_state still says ENABLED), its operating_state
+    service answers FAULT."""
+
+    def __init__(self, name: str):
+        from drivers.crtk import OperatingState
+
+        self.name = name
+        self.asked = []
+        self.last = OperatingState(t=1.0, state="ENABLED", is_homed=True, is_busy=False)
+        self.now = OperatingState(t=1.002, state="FAULT", is_homed=True, is_busy=False)
+
+    def hold(self):
+        pass
+
+    def operating_state(self):
+        return self.last
+
+    def confirm_state(self, timeout):
+        self.asked.append(timeout)
+        return self.now
+
+
+def test_an_arm_is_asked_its_state_before_it_is_listed_held(monkeypatch, tmp_path, capsys):
+    faulted, fine = _ArmWhoseFaultIsOnItsWay("PSM1"), _ArmWhoseFaultIsOnItsWay("PSM2")
+    fine.now = fine.last
+    with pytest.raises(AbortRun):
+        with Run("cooperative", progress=False) as run:
+            run.claim(faulted)
+            run.claim(fine)
+            raise AbortRun("tension 24.5 N above the ceiling 15.00 N")
+    assert faulted.asked and fine.asked and all(0 < t <= 1.0 for t in faulted.asked + fine.asked)
+    saved = json.loads((run.dir / "result.json").read_text())
+    assert saved["held"] == ["PSM2"]
+    assert [e["arm"] for e in saved["hold_errors"]] == ["PSM1"] and saved["hold_errors"][0]["state"] == "FAULT, homed"
+
+
 def test_a_run_recorded_before_says_the_faulted_arm_was_not_held(monkeypatch, tmp_path):
     """The run engine used to list an arm in FAULT as held; its error names the fault."""
     run = tmp_path / "logs" / "20261126T120000000000Z-friction-ramp"

@@ -153,13 +153,16 @@ class RosArm:
     one (None: up to now, for an executor that is never starved); states: read
     operating_state and send state_command (False: neither, as on a controller without
     the CRTK state machine); setting: the rig.toml key of `watchdog`, named by a stale
-    stream's line (default `[arms.<name>] watchdog`, the name from the namespace).
+    stream's line (default `[arms.<name>] watchdog`, the name from the namespace);
+    control_node: the node of the operating_state and error events, the operating_state
+    service and state_command (`drivers.ros_session.RosSession.control`: they must not
+    queue behind the streams; default `node`).
     """
 
     def __init__(self, node, namespace: str, watchdog: float = 0.05, *, spin: bool = True,
                  on_stale: StaleCallback | None = None, console: str = "/console", qos_depth: int = 10,
                  streams: tuple[str, ...] = ALL_STREAMS, polled: Callable[[], float] | None = None,
-                 states: bool = True, setting: str | None = None):
+                 states: bool = True, setting: str | None = None, control_node=None):
         from geometry_msgs.msg import PoseStamped, WrenchStamped
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState as JointStateMsg
@@ -168,6 +171,7 @@ class RosArm:
         if watchdog <= 0:
             raise ValueError(f"watchdog must be > 0 s, got {watchdog}")
         self.node = node
+        self.control_node = node if control_node is None else control_node
         self.namespace = "/" + namespace.strip("/")
         self.name = self.namespace.strip("/").split("/")[-1]
         self.watchdog = float(watchdog)
@@ -214,6 +218,8 @@ class RosArm:
         self._full: tuple[np.ndarray, np.ndarray] | None = None  # all joints' (q, dq), newest
         self.wrist_hold: np.ndarray | None = None
         self._state_client = None
+        self._state_command = None  # its publisher, on the control node
+        self._control_subs: list = []  # operating_state and error, on the control node
         self._impedance_type = None
         self._stamps: deque[float] = deque(maxlen=64)  # header stamps of the newest measured_js
         self._console = console if console == "auto" else "/" + console.strip("/")
@@ -249,17 +255,19 @@ class RosArm:
                 self.states_error = str(exc).splitlines()[0]
             else:
                 self._StringStamped = StringStamped
-                self._subs.append(node.create_subscription(OperatingStateMsg, t["operating_state"],
-                                                           self._on_operating_state, sensor_qos))
-                self._subs.append(node.create_subscription(String, t["error"], self._on_error, sensor_qos))
-                self._pubs["state_command"] = node.create_publisher(StringStamped, t["state_command"], command_qos)
+                control = self.control_node
+                self._control_subs = [
+                    control.create_subscription(OperatingStateMsg, t["operating_state"], self._on_operating_state,
+                                                sensor_qos),
+                    control.create_subscription(String, t["error"], self._on_error, sensor_qos)]
+                self._state_command = control.create_publisher(StringStamped, t["state_command"], command_qos)
                 try:
                     from crtk_msgs.msg import CartesianImpedance
                     from crtk_msgs.srv import TriggerOperatingState
                 except ImportError:
                     pass
                 else:
-                    self._state_client = node.create_client(TriggerOperatingState, t["operating_state"])
+                    self._state_client = control.create_client(TriggerOperatingState, t["operating_state"])
                     # made with the others, so that discovery has matched it before a first servo_ci
                     self._impedance_type = CartesianImpedance
                     self._pubs["servo_ci"] = node.create_publisher(CartesianImpedance, f"{self.namespace}/servo_ci",
@@ -278,6 +286,8 @@ class RosArm:
 
             self._executor = SingleThreadedExecutor(context=node.context)
             self._executor.add_node(node)
+            if self.control_node is not node:
+                self._executor.add_node(self.control_node)
             self._spin_thread = threading.Thread(target=self._spin, name=f"ros-{self.name}", daemon=True)
             self._spin_thread.start()
         self._watchdog_thread = threading.Thread(target=self._watch, name=f"watchdog-{self.name}", daemon=True)
@@ -785,7 +795,7 @@ class RosArm:
         m = self._StringStamped()
         m.header.stamp = self.node.get_clock().now().to_msg()
         m.string = command
-        self._pubs["state_command"].publish(m)
+        self._state_command.publish(m)
 
     def ready(self, timeout: float = 20.0, say=None) -> OperatingState:
         """Enable and home the arm (state_command `enable`, then `home`, each repeated every
@@ -939,9 +949,14 @@ class RosArm:
                 return  # still in the executor: its endpoints are left to the process's end
         for s in self._subs:
             self.node.destroy_subscription(s)
+        for s in self._control_subs:
+            self.control_node.destroy_subscription(s)
         if self._state_client is not None:
-            self.node.destroy_client(self._state_client)
+            self.control_node.destroy_client(self._state_client)
             self._state_client = None
+        if self._state_command is not None:
+            self.control_node.destroy_publisher(self._state_command)
+            self._state_command = None
         for p in self._pubs.values():
             self.node.destroy_publisher(p)
-        self._subs, self._pubs = [], {}
+        self._subs, self._pubs, self._control_subs = [], {}, []

@@ -114,6 +114,10 @@ class SimOperator:
         if not (np.isfinite(kg) and kg >= 0):
             raise OperatorError(f"a mass must be >= 0 kg, got {kg}")
         cell.kg = float(kg)
+        # the mass hangs when the person says so: the cell feels it now, not at the world's
+        # next step (on a loaded machine rig sim's loop runs late, and a calibration that
+        # starts averaging on the reply would mix in the old load)
+        cell.update()
 
     def unplug(self, device: str) -> None:
         """Pull a cable out (a fault a person can cause): "loadcell" (its pty closes),

@@ -91,16 +91,18 @@ def after_node() -> None:
 
 
 def teardown(node, context) -> None:
-    """Destroy `node` and shut `context` down, or, in a command's process, park them for
-    `leave` (see the module docstring). The executor spinning them must have stopped."""
+    """Destroy `node` (a node, a tuple of the context's nodes, or None) and shut `context`
+    down, or, in a command's process, park them for `leave` (see the module docstring).
+    The executors spinning them must have stopped."""
     import rclpy
 
     if _ending:
         _parked.append((node, context))
         return
     try:
-        if node is not None:
-            node.destroy_node()
+        for n in node if isinstance(node, tuple) else (node,):
+            if n is not None:
+                n.destroy_node()
     finally:
         if context.ok():
             rclpy.shutdown(context=context)

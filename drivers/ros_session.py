@@ -1,7 +1,15 @@
-"""One rclpy context, node and executor thread for a procedure's ROS 2 devices.
+"""One rclpy context, its nodes and executor threads for a procedure's ROS 2 devices.
 
-Every ROS driver of a run (arms, mocap, the simulated operator) shares this node; one
-executor thread spins it. The thread also keeps `executor_time()`: the monotonic time at
+Two nodes in one context (one DDS participant): `node` carries the streams (the arms'
+joints at up to 500 Hz each, the mocap bodies), `control` the rare messages a run must see
+at once: the simulated operator's replies, the arms' operating_state and error events,
+their operating_state service and state commands. Each has its own executor thread. An
+executor takes events in the order they came; when a starved process (two CPU burners,
+three arms at 500 Hz and 16 mocap bodies) handles its streams slower than they arrive,
+its queue grows, and an operator's reply queued behind it came more than 15 s late while
+`rig sim` answered another client in 3 ms. On the control node it waits for nothing.
+
+The streams' executor thread also keeps `executor_time()`: the monotonic time at
 which the executor last came back from waiting for work. Drivers judge staleness on that
 time instead of `time.monotonic()`:
 
@@ -25,6 +33,8 @@ from drivers import ros_exit
 
 #: s, longest wait of the executor before it notes the time again (no message arrived)
 POLL = 0.005
+#: s, longest wait of the control executor (it only needs to see the session stop)
+CONTROL_POLL = 0.05
 #: s, longest wait for the executor thread to return when the session stops (a starved
 #: process: the thread must get the CPU once to see the request)
 STOP_WAIT = 10.0
@@ -74,7 +84,9 @@ class RosSession:
         try:
             self.node = rclpy.create_node(name, context=self.context)
             ros_exit.after_node()
-            self.executor = None
+            #: the node of the rare messages that must not queue behind the streams
+            self.control = rclpy.create_node(f"{name}_control", context=self.context)
+            self.executor = self.control_executor = None
             self.executor_kind = executor
         except BaseException:
             rclpy.shutdown(context=self.context)
@@ -82,6 +94,7 @@ class RosSession:
         self._t = time.monotonic()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._spin, name=f"ros-{name}", daemon=True)
+        self._control_thread = threading.Thread(target=self._spin_control, name=f"ros-{name}-control", daemon=True)
         self.spins = 0
         self.stopped = False
 
@@ -94,8 +107,13 @@ class RosSession:
         # the node has when the node is added)
         self.executor = make_executor(self.executor_kind, self.context)
         self.executor.add_node(self.node)
+        # a SingleThreadedExecutor: its node's traffic is rare, and a second EventsExecutor
+        # in the context was seen to lose the first one's messages (replies never taken)
+        self.control_executor = make_executor("single", self.context)
+        self.control_executor.add_node(self.control)
         self._t = time.monotonic()
         self._thread.start()
+        self._control_thread.start()
 
     def _spin(self) -> None:
         executor = self.executor
@@ -109,6 +127,16 @@ class RosSession:
             self._t = time.monotonic()
             self.spins += 1
 
+    def _spin_control(self) -> None:
+        executor = self.control_executor
+        while not self._stop.is_set():
+            try:
+                executor.spin_once(timeout_sec=CONTROL_POLL)
+            except Exception:  # noqa: BLE001 - the context is shut down by close()
+                if self._stop.is_set() or not self.context.ok():
+                    return
+                raise
+
     def stop(self) -> bool:
         """Stop spinning: the executor thread has returned and the executor is shut down,
         so the drivers may destroy their endpoints (destroyed under a spinning executor,
@@ -116,12 +144,16 @@ class RosSession:
         the EventsExecutor's rclpy#1644). Idempotent. False if the thread did not return
         within STOP_WAIT s: then nothing may be destroyed (`stopped` stays False)."""
         self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=STOP_WAIT)
-        if self._thread.is_alive():
+        deadline = time.monotonic() + STOP_WAIT
+        for thread in (self._thread, self._control_thread):
+            if thread.is_alive():
+                thread.join(timeout=max(0.0, deadline - time.monotonic()))
+        if self._thread.is_alive() or self._control_thread.is_alive():
             return False
-        if self.executor is not None and not self.stopped:
-            self.executor.shutdown(timeout_sec=STOP_WAIT)
+        if not self.stopped:
+            for executor in (self.executor, self.control_executor):
+                if executor is not None:
+                    executor.shutdown(timeout_sec=STOP_WAIT)
         self.stopped = True
         return True
 
@@ -131,4 +163,4 @@ class RosSession:
         stop leaves them to the process's end rather than crash it."""
         if not self.stop():
             return
-        ros_exit.teardown(self.node, self.context)
+        ros_exit.teardown((self.control, self.node), self.context)

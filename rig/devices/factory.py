@@ -157,13 +157,13 @@ def _open_simulated(cfg, names: list[str], seed: int | None, uses) -> Rig:
 
 def open_operator(cfg, session=None):
     """The operator of a rig with real (or `rig sim`) devices: `rig sim`'s over ROS 2 when
-    `[operator] driver = "ros"` (on `session`'s node), else the person at the console."""
+    `[operator] driver = "ros"` (on `session`'s control node), else the person at the console."""
     from drivers.operator import ConsoleOperator, RosOperator
 
     if cfg.operator["driver"] == "ros":
         if session is None:
             raise ValueError("the ROS operator needs a ROS session")
-        return RosOperator(session.node, timeout=cfg.operator["timeout"])
+        return RosOperator(session.control, timeout=cfg.operator["timeout"])
     return ConsoleOperator(yes=cfg.operator["yes"])
 
 
@@ -190,7 +190,8 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
         for n in names:
             a = cfg.arms[n]
             arm = RosArm(session.node, a["namespace"], watchdog=a["watchdog"], spin=False, setting=f"[arms.{n}] watchdog",
-                         console=cfg.ros["console"], streams=arm_streams, polled=session.executor_time)
+                         console=cfg.ros["console"], streams=arm_streams, polled=session.executor_time,
+                         control_node=session.control)
             rig.arms[n] = arm
             rig.clock.add_source(arm)
             rig._closers.append(_once_stopped(session, arm.close))

@@ -35,3 +35,14 @@ def test_an_unknown_cable_is_refused_naming_those_there_are(world):
 def test_no_load_cell_to_unplug_is_said(world):
     with pytest.raises(OperatorError, match="no load cell to unplug"):
         SimOperator(world).unplug("loadcell")
+
+
+def test_a_hung_mass_reaches_the_cell_before_the_operator_answers(world):
+    """rig sim's world loop writes the cell's load each step; on a loaded machine that step
+    comes late. The mass is on the cell when the person says it hangs."""
+    from drivers.loadcell.force_calibration import STANDARD_GRAVITY
+
+    felt = []
+    op = SimOperator(world, cell=CellLoad(world, sink=felt.append))
+    op.hang_mass(0.5)
+    assert felt == [0.5 * STANDARD_GRAVITY]

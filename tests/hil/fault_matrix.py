@@ -95,7 +95,7 @@ class _Person:
         self._env.__enter__()
         self.session = RosSession("bench_person")
         self.session.start()
-        self.operator = RosOperator(self.session.node, timeout=10.0)
+        self.operator = RosOperator(self.session.control, timeout=10.0)
         self.operator.wait_for_server(10.0)
         #: every arm's error messages while the person watched: (arm, text)
         self.errors: list[tuple[str, str]] = []
@@ -105,7 +105,7 @@ class _Person:
         from std_msgs.msg import String
 
         for arm in arms:
-            self.session.node.create_subscription(
+            self.session.control.create_subscription(
                 String, f"/{arm}/error", lambda m, a=arm: self.errors.append((a, m.data)), 10)
 
     def states(self, arms, timeout: float = 5.0) -> dict[str, str]:
@@ -117,7 +117,7 @@ class _Person:
 
         out = {}
         for arm in arms:
-            client = self.session.node.create_client(TriggerOperatingState, f"/{arm}/operating_state")
+            client = self.session.control.create_client(TriggerOperatingState, f"/{arm}/operating_state")
             try:
                 if not client.wait_for_service(timeout_sec=timeout):
                     out[arm] = "?"
@@ -129,7 +129,7 @@ class _Person:
                 m = future.result().operating_state if future.done() else None
                 out[arm] = "?" if m is None else OperatingState(0.0, m.state, m.is_homed, False).describe()
             finally:
-                self.session.node.destroy_client(client)
+                self.session.control.destroy_client(client)
         return out
 
     def close(self) -> None:

@@ -307,7 +307,7 @@ def test_load_cell_unplugged_mid_run(cooperative_ready):
         with ros_environment(served.domain):
             session = RosSession("test_person")
             session.start()
-            RosOperator(session.node, timeout=10.0).unplug("loadcell")
+            RosOperator(session.control, timeout=10.0).unplug("loadcell")
             session.close()
 
     try:

@@ -50,14 +50,18 @@ class _Client:
 
         self.session = RosSession("state_test")
         node = self.session.node
-        self.arm = RosArm(node, "/PSM2", watchdog=1.0, spin=False, polled=self.session.executor_time)
-        self.operator = RosOperator(node, timeout=20.0)
+        self.arm = RosArm(node, "/PSM2", watchdog=1.0, spin=False, polled=self.session.executor_time,
+                          control_node=self.session.control)
+        self.operator = RosOperator(self.session.control, timeout=20.0)
         self.states: list[tuple[float, str, bool, bool]] = []  # (monotonic, state, homed, busy)
         self.warnings: list[tuple[float, str]] = []
-        node.create_subscription(OperatingState, "/PSM2/operating_state",
-                                 lambda m: self.states.append((time.monotonic(), m.state, m.is_homed, m.is_busy)), 100)
-        node.create_subscription(String, "/PSM2/warning", lambda m: self.warnings.append((time.monotonic(), m.data)),
-                                 100)
+        # on the arm's control node (events as the arm hears them, on the same executor)
+        control = self.session.control
+        control.create_subscription(OperatingState, "/PSM2/operating_state",
+                                    lambda m: self.states.append((time.monotonic(), m.state, m.is_homed, m.is_busy)),
+                                    100)
+        control.create_subscription(String, "/PSM2/warning",
+                                    lambda m: self.warnings.append((time.monotonic(), m.data)), 100)
         self.session.start()
 
     def close(self) -> None:
@@ -161,6 +165,10 @@ def test_enable_and_home_through_rosarm_within_the_timeout(served):
     st = c.arm.ready(timeout=30.0)
     took = time.monotonic() - t0
     assert (st.state, st.is_homed, st.is_busy) == ("ENABLED", True, False)
+    deadline = time.monotonic() + 5.0  # this test's own subscription may take the last event after the arm's
+    while ("ENABLED", True, False) not in [(s, h, b) for t, s, h, b in c.states if t >= t0]:
+        assert time.monotonic() < deadline, c.states
+        time.sleep(0.01)
     seen = [(s, h, b) for t, s, h, b in c.states if t >= t0]
     # powering (DISABLED, busy), ENABLED, homing (ENABLED, not homed, busy), homed
     assert ("DISABLED", False, True) in seen and ("ENABLED", False, True) in seen, sorted(set(seen))

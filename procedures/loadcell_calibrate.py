@@ -205,16 +205,12 @@ def _calibrate(run: Run, cfg, params: dict, element: int | None) -> dict:
             lc.calibration = cal
 
         with run.step(STEPS[5]):
-            # through the new calibration from the raw counts: samples queued before it was
-            # set carry no force
-            lc.raw_samples()
+            # through the new calibration from the raw counts of the samples converted from
+            # now on, by their conversion time (a pty on a loaded machine delivers them late)
             forces: list[float] = []
-            end = time.monotonic() + min(seconds, 0.5)
-            while time.monotonic() < end:
-                time.sleep(0.01)
-                for sample in lc.raw_samples():
-                    forces.append(cal.newtons(sample.raw))
-                    run.recorder.tension("/loadcell/force", sample.t, forces[-1])
+            for sample in lc.collect_samples(min(seconds, 0.5)):
+                forces.append(cal.newtons(sample.raw))
+                run.recorder.tension("/loadcell/force", sample.t, forces[-1])
             if len(forces) < 2:
                 raise LoadCellError(f"only {len(forces)} samples in the check with {mass2} kg; is the cell streaming?")
             measured = statistics.fmean(forces)

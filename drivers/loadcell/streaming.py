@@ -226,20 +226,25 @@ class _StreamingLoadCell(abc.ABC):
             return replace(self._stats)
 
     def collect_counts(self, seconds: float) -> list[int]:
-        """Raw counts of the samples converted during the next `seconds` (s).
+        """Raw counts of the samples converted during the next `seconds` (s)
+        (`collect_samples`)."""
+        return [s.raw for s in self.collect_samples(seconds)]
+
+    def collect_samples(self, seconds: float) -> list:
+        """The raw samples converted during the next `seconds` (s).
 
         Selected by their (mapped) conversion time, so a sample taken before the call but
         delivered late is not mixed in. The window is complete when a sample converted
-        after its end has arrived (on a loaded host the last ones come tens of ms late), or
-        at the latest a stale timeout after its end.
+        after its end has arrived (on a loaded host the last ones come tens of ms late, or
+        hundreds), or at the latest a stale timeout after its end.
         """
         start = self.clock()
         end = start + seconds
-        out: list[int] = []
+        out: list = []
         while True:
             late = self.clock() >= end + max(0.02, self.stale_timeout)
             new = self.raw_samples()
-            out.extend(s.raw for s in new if start <= s.t < end)
+            out.extend(s for s in new if start <= s.t < end)
             if late or any(s.t >= end for s in new):
                 return out
             time.sleep(0.005)

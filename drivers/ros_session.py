@@ -7,7 +7,7 @@ their operating_state service and state commands. Each has its own executor thre
 executor takes events in the order they came; when a starved process (two CPU burners,
 three arms at 500 Hz and 16 mocap bodies) handles its streams slower than they arrive,
 its queue grows, and an operator's reply queued behind it came more than 15 s late while
-`rig sim` answered another client in 3 ms. On the control node it waits for nothing.
+`rig sim` answered another client in 2-12 ms. On the control node it waits for nothing.
 
 The streams' executor thread also keeps `executor_time()`: the monotonic time at
 which the executor last came back from waiting for work. Drivers judge staleness on that
@@ -107,8 +107,9 @@ class RosSession:
         # the node has when the node is added)
         self.executor = make_executor(self.executor_kind, self.context)
         self.executor.add_node(self.node)
-        # a SingleThreadedExecutor: its node's traffic is rare, and a second EventsExecutor
-        # in the context was seen to lose the first one's messages (replies never taken)
+        # a SingleThreadedExecutor: its node's traffic is rare, and it takes endpoints made
+        # after it started (a person's side channel subscribes on demand); the events
+        # executor registers only what the node has when the node is added
         self.control_executor = make_executor("single", self.context)
         self.control_executor.add_node(self.control)
         self._t = time.monotonic()

@@ -82,6 +82,10 @@ class ConsoleOperator:
                   "point of the fixture (hand-guide or jog them) and hold still")
 
 
+#: s, how often a waiting request calls `RosOperator.watch`
+WATCH_EVERY = 0.1
+
+
 class RosOperator:
     """`rig sim`'s simulated operator over the side channel (see the module docstring).
 
@@ -96,6 +100,10 @@ class RosOperator:
 
         self.node = node
         self.timeout = float(timeout)
+        #: called every WATCH_EVERY s while a request waits for its reply; it raises the
+        #: rig's device fault (an arm's stale stream or FAULT) to end the wait at once.
+        #: None: the wait ends only on the reply or the timeout.
+        self.watch = None
         self._String = String
         self._lock = threading.Lock()
         self._cond = threading.Condition(self._lock)
@@ -133,14 +141,19 @@ class RosOperator:
         key = f"{os.getpid()}-{next(self._ids)}"
         self._pub.publish(self._String(data=json.dumps({"id": key, "action": action, **fields})))
         deadline = time.monotonic() + self.timeout
-        with self._cond:
-            while key not in self._replies:
+        while True:
+            with self._cond:
                 left = deadline - time.monotonic()
-                if left <= 0:
+                if key not in self._replies and left > 0:
+                    self._cond.wait(min(left, WATCH_EVERY) if self.watch is not None else left)
+                if key in self._replies:
+                    doc = self._replies.pop(key)
+                    break
+                if deadline - time.monotonic() <= 0:
                     raise OperatorError(f"the simulated operator did not answer {action!r} within "
                                         f"{self.timeout:g} s on {REPLY_TOPIC}; is `rig sim` still running?")
-                self._cond.wait(left)
-            doc = self._replies.pop(key)
+            if self.watch is not None:
+                self.watch()  # a device fault meanwhile (rig sim killed: the arms' streams stop) ends it
         if not doc.get("ok"):
             raise OperatorError(f"the simulated operator could not {action.replace('_', ' ')}: "
                                 f"{doc.get('detail', 'no reason given')}")

@@ -226,6 +226,11 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
             rig.tracker = open_natnet_tracker(m, bodies, timeout=cfg.ros["connect_timeout"])
             rig._closers.append(rig.tracker.close)
         rig.operator = open_operator(cfg, session)
+        if rig.arms and getattr(rig.operator, "watch", "absent") is None:
+            # a request waiting for rig sim's person ends on the arms' stale stream or FAULT
+            # (rig sim killed is seen in the arms' watchdog, not the operator's timeout)
+            arms = list(rig.arms.values())
+            rig.operator.watch = lambda: [arm.measured_js() for arm in arms]
         session.start()
         # closed first (the closers run newest first): the executor stops before any driver
         # destroys its endpoints on the node it spins (RosSession.stop)

@@ -117,26 +117,23 @@ class RosSession:
         self._control_thread.start()
 
     def _spin(self) -> None:
-        executor = self.executor
-        while not self._stop.is_set():
-            try:
-                executor.spin_once(timeout_sec=POLL)
-            except Exception:  # noqa: BLE001 - the context is shut down by close()
-                if self._stop.is_set() or not self.context.ok():
-                    return
-                raise
-            self._t = time.monotonic()
-            self.spins += 1
+        self._spin_loop(self.executor, POLL, streams=True)
 
     def _spin_control(self) -> None:
-        executor = self.control_executor
+        self._spin_loop(self.control_executor, CONTROL_POLL, streams=False)
+
+    def _spin_loop(self, executor, poll: float, streams: bool) -> None:
+        """Spin `executor` until the session stops; the streams' loop notes executor_time."""
         while not self._stop.is_set():
             try:
-                executor.spin_once(timeout_sec=CONTROL_POLL)
+                executor.spin_once(timeout_sec=poll)
             except Exception:  # noqa: BLE001 - the context is shut down by close()
                 if self._stop.is_set() or not self.context.ok():
                     return
                 raise
+            if streams:
+                self._t = time.monotonic()
+                self.spins += 1
 
     def stop(self) -> bool:
         """Stop spinning: the executor thread has returned and the executor is shut down,

@@ -144,7 +144,8 @@ def test_stale_stream_raises_naming_body_and_keeps_frames(ros):
     pubs = publishers(pub_node, ["/mocap/a/pose"])
     for k in range(1, 6):
         pubs["/mocap/a/pose"].publish(msg(k * 10_000_000, [k, 0, 0], [0, 0, 0, 1]))
-    wait(lambda: tr.stats.frames >= 2)  # incomplete frames emitted once the window passes
+    # incomplete frames leave once 'ghost' has been silent for the window (on a read)
+    assert tr.wait_for_frames(2, timeout=30)
     time.sleep(0.3)
     # 'ghost' has been silent since the tracker was made: 0.3 s or more (seconds on a loaded
     # machine, where matching the publishers takes longer), past the 0.2 s timeout
@@ -159,3 +160,38 @@ def test_stale_stream_raises_naming_body_and_keeps_frames(ros):
     frames = tr.frames()
     assert len(frames) == 5 and all(f.bodies["ghost"] is None for f in frames)
     assert tr.stats.missing["ghost"] == 5
+
+
+def test_a_body_taken_late_still_joins_its_frames_and_a_silent_one_is_given_up(ros):
+    """A process that takes its messages late may take one topic's backlog before
+    another's: frames wait for a body that is still sending, whatever the stamps' distance,
+    and leave without it once it has been silent for the window (receive time, here a
+    clock the test moves). A message whose quaternion is zero is counted and dropped."""
+    pub_node, sub_node = ros
+    now = [100.0]
+    tr = RosMocapTracker(sub_node, ["a", "b"], reliable=True, assembly_window=0.25,
+                         stale_timeout=60.0, clock=lambda: now[0])
+    pubs = publishers(pub_node, tr.topics.values())
+    pa, pb = pubs["/mocap/a/pose"], pubs["/mocap/b/pose"]
+    for k in range(1, 31):   # a's 30 frames (0.29 s of stamps) before any of b's
+        pa.publish(msg(k * 10_000_000, [k, 0, 0], [0, 0, 0, 1]))
+    wait(lambda: tr.stats.received["a"] == 30)
+    assert tr.frames() == []   # b has sent nothing, but the clock has not moved: wait for it
+    for k in range(1, 31):
+        pb.publish(msg(k * 10_000_000, [0, k, 0], [0, 0, 0, 1]))
+    assert tr.wait_for_frames(30, timeout=30)
+    frames = tr.frames()
+    assert len(frames) == 30 and tr.stats.incomplete == 0
+    assert [f.bodies["b"].position[1] for f in frames] == list(range(1, 31))
+    # b stops; a goes on: a's frames wait for b until b has been silent for the window
+    for k in range(31, 36):
+        pa.publish(msg(k * 10_000_000, [k, 0, 0], [0, 0, 0, 1]))
+    wait(lambda: tr.stats.received["a"] == 35)
+    now[0] += 0.2
+    assert tr.frames() == []
+    now[0] += 0.1
+    frames = tr.frames()
+    assert [f.bodies["b"] for f in frames] == [None] * 5 and tr.stats.missing == {"a": 0, "b": 5}
+    pa.publish(msg(36 * 10_000_000, [1, 0, 0], [0, 0, 0, 0]))   # not a rotation
+    wait(lambda: tr.stats.malformed == 1)
+    assert tr.stats.received["a"] == 35

@@ -197,7 +197,10 @@ class RosMocapTracker:
     def _flush(self, force: bool = False) -> bool:
         """Emit pending frames that can no longer change, oldest first (lock held)."""
         emitted = False
-        silent_since = self._clock() - self.assembly_window
+        now = self._clock()
+        if self._polled is not None:  # silence counts only while the executor was looking
+            now = min(now, self._polled())
+        silent_since = now - self.assembly_window
         for stamp in sorted(self._pending):
             slot = self._pending[stamp]
             complete = len(slot) == len(self.bodies)
@@ -267,7 +270,8 @@ class RosMocapTracker:
         """
         self.check_stale()
         with self._lock:
-            self._flush()  # frames waiting only for a body that has gone silent since
+            if self._flush():  # frames waiting only for a body that has gone silent since
+                self._cond.notify_all()
             out = list(self._buffer)
             self._buffer.clear()
         return out

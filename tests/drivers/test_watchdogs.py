@@ -136,14 +136,17 @@ def test_a_stale_load_cell_says_for_how_long_at_what_rate_and_that_a_starved_pro
 
 
 class _FakeNode:
-    """The two things RosMocapTracker asks of its node: subscriptions (the test calls their
-    callbacks, as an executor would) and the node's clock (for the latency figure)."""
+    """The two things RosMocapTracker asks of its node: subscriptions (the test delivers
+    messages to their callbacks, as an executor would: serialized for a raw one) and the
+    node's clock (for the latency figure)."""
 
     def __init__(self) -> None:
         self.callbacks: dict[str, object] = {}
 
-    def create_subscription(self, msg_type, topic, callback, qos):
-        self.callbacks[topic] = callback
+    def create_subscription(self, msg_type, topic, callback, qos, raw=False):
+        from rclpy.serialization import serialize_message
+
+        self.callbacks[topic] = (lambda m: callback(serialize_message(m))) if raw else callback
         return topic
 
     def destroy_subscription(self, sub) -> None:

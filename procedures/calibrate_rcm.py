@@ -34,7 +34,7 @@ from calibration.fit_error import FitError
 from calibration.pivot import PivotFit
 from calibration.rcm import DEFAULTS, METHODS, arm_bodies, calibrate_arm, pivot_all
 from calibration.registration import pose_error
-from procedures.mocap_capture import RCM_PHASES, lissajous, measure_rcm_phases, open_devices
+from procedures.mocap_capture import RCM_PHASES, lissajous, measure_rcm_phases, open_devices, tracker_stats
 from rig.commands.abort import exit_on_abort
 from rig.commands.exit_codes import EXIT_INPUT, EXIT_MISSED, InputError
 from rig.commands.options import config_from_context, json_option, yes_option
@@ -179,7 +179,7 @@ def run_calibrate_rcm(cfg, parameters: dict, run_root=None, progress: bool = Tru
                 first = results[arms[0]]
                 result = {"rcm": first["rcm"], "tip_offset": first["tip_offset"], "rms": first["rms"],
                           "arm": arms[0], "frame": "mocap", "arms": results,
-                          "plot": str(run.dir / "rcm.png"),
+                          "plot": str(run.dir / "rcm.png"), "tracker": tracker_stats(dev.tracker),
                           "summary": {f"{a} rcm (m)": r["rcm"] for a, r in results.items()}
                           | {f"{a} rms (m)": r["rms"] for a, r in results.items()}}
                 result["provenance"] = provenance.live(cfg, arms, run.dir)

@@ -65,7 +65,7 @@ from calibration.captures import Capture, body_points
 from calibration.fit_error import FitError
 from calibration.joint_axis import JointAxisFit, fit_joint_axis_sara, joint_sign
 from calibration.registration import invert, mean_pose
-from procedures.mocap_capture import Collector, move_capture, open_devices, settle
+from procedures.mocap_capture import Collector, move_capture, open_devices, settle, tracker_stats
 from rig.commands.abort import exit_on_abort
 from rig.commands.exit_codes import InputError
 from rig.commands.options import config_from_context, json_option, yes_option
@@ -583,7 +583,7 @@ def run_link_lengths(cfg, parameters: dict, run_root=None, progress: bool = True
                           "nominal": {"lengths": nominal_lengths(), "dh": nominal_dh()},
                           "frames": {c.name: c.n for c in phases.values()},
                           "bodies": bodies, "world_body": world_body,
-                          "tracker": _tracker_stats(dev.tracker)}
+                          "tracker": tracker_stats(dev.tracker)}
                 if dev.world is not None:
                     truth = true_geometry(dev.world, arm_name, q3h)
                     result["truth"] = {"lengths": truth["lengths"],
@@ -599,13 +599,6 @@ def run_link_lengths(cfg, parameters: dict, run_root=None, progress: bool = True
     finally:
         dev.close()
     return run.result
-
-
-def _tracker_stats(tracker) -> dict:
-    st = getattr(tracker, "stats", None)
-    if st is None:
-        return {}
-    return {k: v for k, v in vars(st).items() if isinstance(v, (int, float, dict))}
 
 
 @click.command(name=PROCEDURE)

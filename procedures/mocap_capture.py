@@ -248,6 +248,15 @@ class Devices:
             self.rig.close()
 
 
+def tracker_stats(tracker) -> dict:
+    """The tracker's counters (frames, incomplete, late, dropped...; drivers.mocap.MocapStats)
+    for a run's result: frames lost on the way are reported, never hidden (DESIGN.md)."""
+    st = getattr(tracker, "stats", None)
+    if st is None:
+        return {}
+    return {k: v for k, v in vars(st).items() if isinstance(v, (int, float, dict))}
+
+
 def open_devices(cfg, seed: int | None = None, arms: list[str] | None = None) -> Devices:
     """The configuration's clock, arms, tracker and operator (`rig.devices.factory.open_rig`; no
     load cell): the operator does the manual steps (the simulation itself on the simulated

@@ -92,3 +92,62 @@ def test_truncated_or_foreign_bytes_are_refused():
     bad[12:16] = struct.pack("<I", 10_000)   # frame_id longer than the message
     with pytest.raises(cdr.CdrError, match="frame_id"):
         cdr.pose_stamped(bytes(bad))
+
+
+@pytest.mark.ros
+def test_the_arm_driver_counts_and_drops_bytes_that_are_not_a_joint_state(ros_env):
+    """Over the wire in one process: a publisher of raw bytes on measured_js. A truncated
+    message is counted as malformed and dropped; the next whole one is the arm's state."""
+    import threading
+    import time
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from drivers.dvrk_arm import RosArm
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    pub_node = rclpy.create_node("fake_console", context=ctx)
+    sub_node = rclpy.create_node("rig_arm", context=ctx)
+    arm = RosArm(sub_node, "PSM1", watchdog=30.0, spin=False, states=False, streams=("measured_js",))
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(pub_node)
+    ex.add_node(sub_node)
+    th = threading.Thread(target=ex.spin, daemon=True)
+    th.start()
+    try:
+        pub = pub_node.create_publisher(JointState, "/PSM1/measured_js",
+                                        QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        deadline = time.monotonic() + 30  # a guard against a hang: discovery is slow on a busy machine
+        while pub.get_subscription_count() == 0:
+            assert time.monotonic() < deadline, "the arm's subscription never matched"
+            time.sleep(0.01)
+        m = JointState()
+        m.header.stamp.sec, m.header.stamp.nanosec = 1_795_846_937, 500_000_000
+        m.name = ["outer_yaw", "outer_pitch", "outer_insertion"]
+        m.position, m.velocity, m.effort = [0.1, -0.2, 0.12], [0.0, 0.0, 0.0], [0.3, 0.4, 1.5]
+        whole = serialize_message(m)
+        pub.publish(whole[:30])   # cut inside the names
+        while arm.malformed == 0:
+            assert time.monotonic() < deadline, "the truncated message never arrived"
+            time.sleep(0.005)
+        assert arm.received == 0
+        pub.publish(whole)
+        while arm.received == 0:
+            assert time.monotonic() < deadline, "the whole message never arrived"
+            time.sleep(0.005)
+        js = arm.measured_js()
+        assert js.t == pytest.approx(1_795_846_937.5)
+        np.testing.assert_allclose(js.position, [0.1, -0.2, 0.12])
+        np.testing.assert_allclose(js.effort, [0.3, 0.4, 1.5])
+        assert arm.malformed == 1
+    finally:
+        ex.shutdown()
+        arm.close()
+        pub_node.destroy_node()
+        sub_node.destroy_node()
+        rclpy.shutdown(context=ctx)
+        th.join(timeout=2)

@@ -232,14 +232,21 @@ class SimServer:
                 self.operator.operator.release(bridge.name)  # the client takes the arm over
 
     # -- publishing (main thread) ---------------------------------------------------------
-    def _stamp(self, msg, t: float) -> None:
-        ns = int(round((self._epoch0 + t) * 1e9))
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+    def _stamp_ns(self, t: float) -> int:
+        """The header stamp, in ns, of a stream sample at world time `t` s."""
+        return int(round((self._epoch0 + t) * 1e9))
 
-    def _event_stamp(self, msg) -> None:
+    def _event_stamp_ns(self) -> int:
+        """The header stamp, in ns, of an event published now (strictly increasing)."""
         ns = max(time.time_ns(), self._last_event + 1000)
         self._last_event = ns
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+        return ns
+
+    def _stamp(self, msg, t: float) -> None:
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(self._stamp_ns(t), 1_000_000_000)
+
+    def _event_stamp(self, msg) -> None:
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(self._event_stamp_ns(), 1_000_000_000)
 
     def _refresh_watched(self) -> None:
         """Which streams have subscribers; start or stop the mocap system to match."""

@@ -77,9 +77,10 @@ from drivers.quaternion import quat_xyzw_to_matrix
 StaleCallback = Callable[[StaleStream], None]
 
 #: s within which a move_jp's is_busy must rise before the wait falls back to positions
-#: (the command crosses the wire and waits for the arm's next cycle; 100 Hz state updates;
-#: under the test suite's load `rig sim` answered later than 0.5 s)
-BUSY_RISE = 1.0
+#: (the command crosses the wire and waits for the arm's next cycle; a dVRK raises it
+#: within a cycle or two). On the wall clock a starved `rig sim` raised it later than that
+#: under the test suite's load: the wait then falls back to positions, which is no fault.
+BUSY_RISE = 0.5
 #: s between repeats of a state command while `ready()` waits (one sent before the
 #: arm's subscription matched would be lost; enable and home are idempotent on the dVRK)
 RESEND = 1.0
@@ -157,13 +158,15 @@ class RosArm:
     stream's line (default `[arms.<name>] watchdog`, the name from the namespace);
     control_node: the node of the operating_state and error events, the operating_state
     service and state_command (`drivers.ros_session.RosSession.control`: they must not
-    queue behind the streams; default `node`).
+    queue behind the streams; default `node`); time_base: the clock every wait, timeout
+    and stream age is on (`drivers.time_base`: the wall clock by default, or a simulator's
+    /clock in lockstep, whose waits free the world and whose commands are counted).
     """
 
     def __init__(self, node, namespace: str, watchdog: float = 0.05, *, spin: bool = True,
                  on_stale: StaleCallback | None = None, console: str = "/console", qos_depth: int = 10,
                  streams: tuple[str, ...] = ALL_STREAMS, polled: Callable[[], float] | None = None,
-                 states: bool = True, setting: str | None = None, control_node=None):
+                 states: bool = True, setting: str | None = None, control_node=None, time_base=None):
         from geometry_msgs.msg import PoseStamped, WrenchStamped
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState as JointStateMsg
@@ -179,6 +182,9 @@ class RosArm:
         #: the rig.toml key of the watchdog, for the stale stream's line
         self.setting = setting or f"[arms.{self.name}] watchdog"
         self._polled = polled
+        from drivers.time_base import WallTime
+
+        self._time = time_base if time_base is not None else WallTime()
         self._JointState = JointStateMsg
         self._Empty = Empty
         self._lock = threading.Lock()
@@ -186,7 +192,7 @@ class RosArm:
         # every measured_js since the last drain_js() (a few seconds at the dVRK's rates)
         self._js_log: deque[JointState] = deque(maxlen=4096)
         self._js: JointState | None = None
-        self._js_rx: float | None = None  # time.monotonic() of the last measured_js
+        self._js_rx: float | None = None  # time_base.now() of the last measured_js
         self._latest: dict[str, object] = {}
         self._stale_callbacks: list[StaleCallback] = [on_stale] if on_stale else []
         self._stale_fired = False
@@ -204,7 +210,7 @@ class RosArm:
         self.state_answers = 0  #: answers of its operating_state service (confirm_state waits on one)
         self._busy_index = 0
         self._idle_index = 0
-        self._error: tuple[float, str] | None = None  # (time.monotonic(), text)
+        self._error: tuple[float, str] | None = None  # (time_base.now(), text)
         self._in_control = False  # ready() succeeded: leaving ENABLED and homed is a fault
         self._fault: OperatingState | None = None
         self._fault_error: ArmFault | None = None
@@ -364,10 +370,11 @@ class RosArm:
             self._full = (full.position, full.velocity)
             self._js = js
             self._js_log.append(js)
-            self._js_rx = time.monotonic()
+            self._js_rx = self._time.now()
             self._stale_fired = False
             self.received += 1
             self._cond.notify_all()
+        self._time.notify()
 
     def _store(self, key: str, value) -> None:
         with self._lock:
@@ -388,7 +395,7 @@ class RosArm:
 
     def _on_error(self, m) -> None:
         with self._cond:
-            self._error = (time.monotonic(), str(m.data))
+            self._error = (self._time.now(), str(m.data))
             self._cond.notify_all()
 
     # -- watchdog thread ----------------------------------------------------------------
@@ -399,12 +406,13 @@ class RosArm:
             if rx is None or fired:
                 continue  # not armed before the first sample; once per outage
             age = self._age(rx)
-            if age <= self.watchdog:
+            err = self._time.stalled()  # on simulated time: the clock itself stopped
+            if age <= self.watchdog and err is None:
                 continue
             with self._lock:
                 self._stale_fired = True
             self.stale_events += 1
-            err = self._stale(age)
+            err = err or self._stale(age)
             try:
                 with self._lock:
                     full = self._full
@@ -424,9 +432,10 @@ class RosArm:
                            setting=self.setting)
 
     def _age(self, rx: float) -> float:
-        """Seconds the executor has been looking for measured_js since the last one came."""
-        now = time.monotonic()
-        if self._polled is not None:
+        """Seconds the executor has been looking for measured_js since the last one came (on
+        simulated time: simulated seconds since it came, which a starved process never adds)."""
+        now = self._time.now()
+        if self._polled is not None and not self._time.simulated:
             now = min(now, self._polled())
         return max(0.0, now - rx)
 
@@ -453,25 +462,32 @@ class RosArm:
 
     def wait_for_data(self, timeout: float = 5.0) -> bool:
         """Block until a measured_js arrived (True) or `timeout` s passed (False)."""
-        deadline = time.monotonic() + timeout
+        tb = self._time
+        deadline = tb.now() + timeout
         with self._cond:
             while self._js is None:
-                left = deadline - time.monotonic()
+                left = deadline - tb.now()
                 if left <= 0:
                     return False
-                self._cond.wait(left)
+                tb.wait(self._cond, left)
         return True
 
     def wait_newer(self, count: int, timeout: float) -> bool:
         """Block until more than `count` measured_js have arrived (True) or `timeout` s passed."""
-        deadline = time.monotonic() + timeout
+        tb = self._time
+        deadline = tb.now() + timeout
         with self._cond:
             while self.received <= count:
-                left = deadline - time.monotonic()
+                left = deadline - tb.now()
                 if left <= 0:
                     return False
-                self._cond.wait(left)
+                tb.wait(self._cond, left)
         return True
+
+    def last_stamp(self) -> float:
+        """The header stamp (s) of the newest measured_js (-inf before the first)."""
+        with self._lock:
+            return self._stamps[-1] if self._stamps else float("-inf")
 
     def measured_js(self) -> JointState:
         """The newest measured joint state, every joint the message carries.
@@ -483,6 +499,7 @@ class RosArm:
             js, rx, fault = self._js, self._js_rx, self._fault
         if fault is not None:
             raise self._fault_raised(fault)
+        self._time.check()
         age = float("inf") if rx is None else self._age(rx)
         if js is None or age > self.watchdog:
             raise self._stale(age)
@@ -520,16 +537,29 @@ class RosArm:
         return self._get("body/measured_cf")
 
     # -- commanding ---------------------------------------------------------------------
+    def _stamp(self, header) -> None:
+        """Stamp a command on this process's ROS clock (simulated time when it follows one)."""
+        ns = self._time.now_ns() if self._time.simulated else None
+        if ns is None:
+            header.stamp = self.node.get_clock().now().to_msg()
+        else:
+            header.stamp.sec, header.stamp.nanosec = divmod(ns, 1_000_000_000)
+
+    def _send(self, publisher, msg) -> None:
+        """Publish a command, counted for the lockstep answers (`drivers.time_base`)."""
+        self._time.sent()
+        publisher.publish(msg)
+
     def _publish(self, key: str, position=None, velocity=None, effort=None) -> None:
         m = self._JointState()
-        m.header.stamp = self.node.get_clock().now().to_msg()
+        self._stamp(m.header)
         if position is not None:
             m.position = _vector(position, key)
         if velocity is not None:
             m.velocity = _vector(velocity, key)
         if effort is not None:
             m.effort = _vector(effort, key)
-        self._pubs[key].publish(m)
+        self._send(self._pubs[key], m)
 
     def _whole(self, values, fill: np.ndarray | None) -> list[float] | None:
         """`values` for joints 1-3 (or the whole arm) as a command of every joint the arm has:
@@ -618,8 +648,8 @@ class RosArm:
             raise RuntimeError(f"{self.namespace}/servo_ci: crtk_msgs are not available ({self.states_error})")
         m = impedance_message(self._impedance_type(), position, orientation, stiffness, damping, bias, deadband,
                               torque_stiffness, torque_damping, force_orientation, torque_bias)
-        m.header.stamp = self.node.get_clock().now().to_msg()
-        self._pubs["servo_ci"].publish(m)
+        self._stamp(m.header)
+        self._send(self._pubs["servo_ci"], m)
 
     def use_gravity_compensation(self, on: bool) -> None:
         """Ask the arm to add its model's gravity torque to effort commands (servo_jf,
@@ -629,7 +659,7 @@ class RosArm:
         if "use_gravity_compensation" not in self._pubs:
             self._pubs["use_gravity_compensation"] = self.node.create_publisher(
                 Bool, f"{self.namespace}/use_gravity_compensation", self._command_qos)
-        self._pubs["use_gravity_compensation"].publish(Bool(data=bool(on)))
+        self._send(self._pubs["use_gravity_compensation"], Bool(data=bool(on)))
 
     def move_jp(self, position, wait: bool = True, timeout: float = 10.0) -> bool:
         """Start the dVRK's trajectory to `position`; with wait, block until it is done.
@@ -653,7 +683,7 @@ class RosArm:
         self.move_wait = self.move_end = None
         if not wait:
             return True
-        deadline = time.monotonic() + timeout
+        deadline = self._time.now() + timeout
         if states:
             busy = self._wait_busy(since, deadline)
             if busy is not None:
@@ -688,7 +718,7 @@ class RosArm:
         and fall again. "fell"; "timeout": the timeout passed; "dropped": it did not rise
         and the arm is not ready (the command was dropped); None: it did not rise on a
         ready arm (wait on positions instead)."""
-        rise_by = min(deadline, time.monotonic() + BUSY_RISE)
+        rise_by = min(deadline, self._time.now() + BUSY_RISE)
         rose = None
         while True:
             self.measured_js()  # stale stream or a fault: raise
@@ -697,7 +727,7 @@ class RosArm:
                     rose = self._busy_index
                 if rose is not None and self._idle_index > rose:
                     return "fell"
-                now = time.monotonic()
+                now = self._time.now()
                 if rose is None and now >= rise_by:
                     st = self._state
                     return None if (st is not None and st.ready) else "dropped"
@@ -705,17 +735,17 @@ class RosArm:
                     return "timeout"
                 # wake at least five times per watchdog interval (a stream that stops is
                 # then seen within the watchdog plus a fifth of it)
-                self._cond.wait(min((rise_by if rose is None else deadline) - now, self.watchdog / 5.0))
+                self._time.wait(self._cond, min((rise_by if rose is None else deadline) - now, self.watchdog / 5.0))
 
     def _wait_arrived(self, goal: np.ndarray, deadline: float, rest: bool = True) -> bool:
         while True:
             if self._at(goal, self.measured_js(), rest):
                 return True
-            left = deadline - time.monotonic()
+            left = deadline - self._time.now()
             if left <= 0:
                 return False
             with self._cond:
-                self._cond.wait(min(left, self.watchdog / 5.0))
+                self._time.wait(self._cond, min(left, self.watchdog / 5.0))
 
     def hold(self) -> None:
         """Hold the last measured position (servo_jp there). Works while merely stale."""
@@ -734,11 +764,12 @@ class RosArm:
     def wait_for_state(self, timeout: float) -> bool:
         """Block until an operating_state arrived (True) or `timeout` s passed (False). The
         dVRK publishes it on change only: the arm's operating_state service is asked too."""
-        deadline = time.monotonic() + timeout
+        tb = self._time
+        deadline = tb.now() + timeout
         asked = -1.0
         with self._cond:
             while self._state is None:
-                now = time.monotonic()
+                now = tb.now()
                 left = deadline - now
                 if left <= 0 or self._StringStamped is None:
                     return False
@@ -750,7 +781,7 @@ class RosArm:
                     finally:
                         self._cond.acquire()
                     continue
-                self._cond.wait(min(left, 0.05))
+                tb.wait(self._cond, min(left, 0.05))
         return True
 
     def confirm_state(self, timeout: float) -> OperatingState | None:
@@ -762,13 +793,14 @@ class RosArm:
             asked_after = self.state_answers
         if not self._ask_state():
             return self.operating_state()
-        deadline = time.monotonic() + timeout
+        tb = self._time
+        deadline = tb.now() + timeout
         with self._cond:
             while self.state_answers == asked_after:
-                left = deadline - time.monotonic()
+                left = deadline - tb.now()
                 if left <= 0:
                     break
-                self._cond.wait(left)
+                tb.wait(self._cond, left)
             return self._state
 
     def _ask_state(self) -> bool:
@@ -805,9 +837,9 @@ class RosArm:
         if self._StringStamped is None:
             raise RuntimeError(f"{self.topic['state_command']}: operating states are off ({self.states_error})")
         m = self._StringStamped()
-        m.header.stamp = self.node.get_clock().now().to_msg()
+        self._stamp(m.header)
         m.string = command
-        self._state_command.publish(m)
+        self._send(self._state_command, m)
 
     def ready(self, timeout: float = 20.0, say=None) -> OperatingState:
         """Enable and home the arm (state_command `enable`, then `home`, each repeated every
@@ -818,7 +850,8 @@ class RosArm:
         Raises ArmFault (one line: the state seen and the arm's last error) on FAULT,
         PAUSED or when `timeout` s pass. `say(line)`, if given, hears each command sent.
         """
-        deadline = time.monotonic() + timeout
+        tb = self._time
+        deadline = tb.now() + timeout
         with self._lock:
             self._in_control = False
             self._fault = self._fault_error = None
@@ -847,21 +880,21 @@ class RosArm:
                     want = "enable"
                 elif st.state == "ENABLED" and not st.is_homed and not st.is_busy:
                     want = "home"
-                if want is not None and time.monotonic() - sent.get(want, -RESEND) >= RESEND:
+                if want is not None and tb.now() - sent.get(want, -RESEND) >= RESEND:
                     if say is not None and want not in sent:
                         say(f"{self.name}: {want}")
                     self.state_command(want)
-                    sent[want] = time.monotonic()
-            elif time.monotonic() - sent.get("ask", -RESEND) >= 0.25:
+                    sent[want] = tb.now()
+            elif tb.now() - sent.get("ask", -RESEND) >= 0.25:
                 self._ask_state()  # events only: ask what the state is
-                sent["ask"] = time.monotonic()
-            now = time.monotonic()
+                sent["ask"] = tb.now()
+            now = tb.now()
             if now >= deadline:
                 raise self._not_ready(st, f"not ENABLED and homed within {timeout:g} s"
                                       + ("" if st is None else f" ({st.describe()})")
                                       + "; check the dVRK console (power, e-stop, homing) or `rig sim`")
             with self._cond:
-                self._cond.wait(min(deadline - now, 0.05))
+                tb.wait(self._cond, min(deadline - now, 0.05))
 
     def _last_error(self, within: float = 2.0, locked: bool = False) -> str:
         """The arm's newest error message if it came within `within` s, else ""."""
@@ -870,7 +903,7 @@ class RosArm:
         else:
             with self._lock:
                 err = self._error
-        return err[1] if err is not None and time.monotonic() - err[0] <= within else ""
+        return err[1] if err is not None and self._time.now() - err[0] <= within else ""
 
     def _not_ready(self, st: OperatingState | None, what: str) -> ArmFault:
         error = self._last_error()
@@ -887,10 +920,11 @@ class RosArm:
         if self._fault_error is not None:
             return self._fault_error
         if st.state == "FAULT":  # its error message may come just after the state
-            until = time.monotonic() + 0.25
+            tb = self._time
+            until = tb.now() + 0.25
             with self._cond:
-                while not self._last_error(locked=True) and time.monotonic() < until:
-                    self._cond.wait(until - time.monotonic())
+                while not self._last_error(locked=True) and tb.now() < until:
+                    tb.wait(self._cond, until - tb.now())
         error = self._last_error()
         what = {"FAULT": "went to FAULT", "DISABLED": "was disabled", "PAUSED": "was paused"}.get(
             st.state, f"went to {st.state}") if st.state != "ENABLED" else "was unhomed"
@@ -929,12 +963,12 @@ class RosArm:
 
     def power_on(self) -> None:
         self.console_namespace()
-        self._pubs["power_on"].publish(self._Empty())
+        self._send(self._pubs["power_on"], self._Empty())
 
     def home(self) -> None:
         """Ask the console to home the arms (asynchronous, as on the dVRK)."""
         self.console_namespace()
-        self._pubs["home"].publish(self._Empty())
+        self._send(self._pubs["home"], self._Empty())
 
     def wait_for_subscribers(self, timeout: float = 5.0) -> bool:
         """Block until every command topic has a subscriber (the controller is there);

@@ -92,6 +92,8 @@ class RosMocapTracker:
     clock: monotonic seconds for the stale check (injectable for tests); polled: when the
     executor last looked for messages (`drivers.ros_session.RosSession.executor_time`): ages
     are counted up to then, so a starved process does not take healthy streams for stale.
+    time_base: the clock of the waits and ages when it is not the wall's (`drivers.time_base.SimTime`:
+    simulated time; `clock` and `polled` are then its own).
     Times in TrackerFrame.t are the header stamps in s; positions in m.
     """
 
@@ -99,7 +101,7 @@ class RosMocapTracker:
                  stale_timeout: float = 2.0, assembly_window: float = 0.25,
                  max_buffer: int = 100_000, qos_depth: int = 100, reliable: bool = False,
                  clock: Callable[[], float] = time.monotonic, polled: Callable[[], float] | None = None,
-                 setting: str = "[mocap] stale_timeout"):
+                 setting: str = "[mocap] stale_timeout", time_base=None):
         from geometry_msgs.msg import PoseStamped
         from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy
 
@@ -117,6 +119,11 @@ class RosMocapTracker:
         self.stale_timeout = float(stale_timeout)
         self.setting = setting
         self.assembly_window = float(assembly_window)
+        from drivers.time_base import WallTime
+
+        self._time = time_base if time_base is not None else WallTime()
+        if self._time.simulated:
+            clock, polled = self._time.now, None
         self._clock = clock
         self._polled = polled
         self._lock = threading.Lock()
@@ -246,7 +253,9 @@ class RosMocapTracker:
             return rate_of(self._stamps[body])
 
     def check_stale(self) -> None:
-        """Raise MocapStaleError if any body's stream is older than stale_timeout."""
+        """Raise MocapStaleError if any body's stream is older than stale_timeout (ClockStopped
+        on simulated time that stood still)."""
+        self._time.check()
         ages = self.stale_ages()
         stale = {b: a for b, a in ages.items() if a > self.stale_timeout}
         if stale:
@@ -288,17 +297,18 @@ class RosMocapTracker:
 
     def wait_for_frames(self, count: int, timeout: float) -> bool:
         """Block until `count` frames are buffered (needs the node spun elsewhere)."""
-        deadline = time.monotonic() + timeout
+        tb = self._time
+        deadline = tb.now() + timeout
         with self._cond:
             while True:
                 self._flush()
                 if len(self._buffer) >= count:
                     return True
-                left = deadline - time.monotonic()
+                left = deadline - tb.now()
                 if left <= 0:
                     return False
                 # a silent body's frames leave by time, not by a message: look again then
-                self._cond.wait(min(left, self.assembly_window))
+                tb.wait(self._cond, min(left, self.assembly_window))
 
     def flush_pending(self) -> None:
         """Emit every pending (incomplete) frame now, e.g. at the end of a recording."""

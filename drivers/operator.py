@@ -94,12 +94,17 @@ class RosOperator:
 
     _ids = itertools.count(1)
 
-    def __init__(self, node, timeout: float = 30.0):
+    def __init__(self, node, timeout: float = 30.0, time_base=None):
         from rclpy.qos import QoSProfile
         from std_msgs.msg import String
 
+        from drivers.time_base import WallTime
+
         self.node = node
         self.timeout = float(timeout)
+        #: the clock of `timeout` (`drivers.time_base`): simulated time when the rig follows one,
+        #: so a person's steps take what they take in the world, however busy the machine
+        self.time = time_base if time_base is not None else WallTime()
         #: called every WATCH_EVERY s while a request waits for its reply; it raises the
         #: rig's device fault (an arm's stale stream or FAULT) to end the wait at once.
         #: None: the wait ends only on the reply or the timeout.
@@ -140,16 +145,17 @@ class RosOperator:
                                 "[operator] driver = 'console' in rig.toml")
         key = f"{os.getpid()}-{next(self._ids)}"
         self._pub.publish(self._String(data=json.dumps({"id": key, "action": action, **fields})))
-        deadline = time.monotonic() + self.timeout
+        tb = self.time
+        deadline = tb.now() + self.timeout
         while True:
             with self._cond:
-                left = deadline - time.monotonic()
+                left = deadline - tb.now()
                 if key not in self._replies and left > 0:
-                    self._cond.wait(min(left, WATCH_EVERY) if self.watch is not None else left)
+                    tb.wait(self._cond, min(left, WATCH_EVERY) if self.watch is not None else left)
                 if key in self._replies:
                     doc = self._replies.pop(key)
                     break
-                if deadline - time.monotonic() <= 0:
+                if deadline - tb.now() <= 0:
                     raise OperatorError(f"the simulated operator did not answer {action!r} within "
                                         f"{self.timeout:g} s on {REPLY_TOPIC}; is `rig sim` still running?")
             if self.watch is not None:

@@ -38,19 +38,23 @@ OBJECT_STIFFNESS = {"spring": 2450.0, "string": 20000.0}
 class CellLoad:
     """What pulls on a simulated load cell: the object's tension on `element`, or, once a
     mass hangs from it, that mass's weight (N). `sink(newtons)`, if given, is where
-    `update()` delivers it (the firmware process's shared tension); `cable`, if given, is
-    pulled by the operator's unplug."""
+    `update()` delivers it (the firmware process's shared tension); `pump`, if given, is
+    called by `update()` too (a firmware stepped on simulated time, which reads the tension
+    itself); `cable`, if given, is pulled by the operator's unplug."""
 
-    def __init__(self, world, element: int = 0, sink=None, cable=None):
+    def __init__(self, world, element: int = 0, sink=None, cable=None, pump=None):
         self.world = world
         self.element = element
         self.kg: float | None = None
         self.sink = sink
         self.cable = cable
+        self.pump = pump
 
     def update(self) -> None:
         if self.sink is not None:
             self.sink(self())
+        if self.pump is not None:
+            self.pump()
 
     def __call__(self) -> float:
         if self.kg is not None:

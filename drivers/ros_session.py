@@ -97,6 +97,11 @@ class RosSession:
         self._control_thread = threading.Thread(target=self._spin_control, name=f"ros-{name}-control", daemon=True)
         self.spins = 0
         self.stopped = False
+        from drivers.time_base import WallTime
+
+        #: the clock the session's drivers wait on (`drivers.time_base`): the wall clock, or
+        #: the simulator's /clock (set before `start()`, `rig.devices.factory`)
+        self.time = WallTime()
 
     def executor_time(self) -> float:
         """Monotonic s at which the executor last finished a wait (see the module docstring)."""

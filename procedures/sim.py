@@ -119,10 +119,24 @@ def _ask_priority(nice: int) -> None:
               help="Scheduling priority (nice value) rig sim asks for: a dVRK console runs its servo loops at "
                    "real-time priority and never falls behind; below 0 needs root or CAP_SYS_NICE (if refused, "
                    "rig sim says so and runs at the priority it has).")
+@click.option("--sim-time/--wall-time", "sim_time", default=False, show_default=True,
+              help="Run on simulated time: publish the world's time on /clock and stamp every message with it, as "
+                   "Gazebo does; procedures follow it with [ros] use_sim_time = true. A loaded machine then runs "
+                   "the world slower than real time, and the procedures with it. The default, the wall clock, is "
+                   "what a real dVRK console keeps.")
+@click.option("--lockstep/--no-lockstep", default=True, show_default=True,
+              help="With --sim-time: the world does not step past a ROS period until every procedure that follows "
+                   "its clock has answered it, so nothing a procedure computes depends on how fast the machine is; "
+                   "with no procedure following, the world runs in real time. --no-lockstep: the world runs in real "
+                   "time always (a simulated clock only).")
+@click.option("--lockstep-timeout", type=click.FloatRange(min=0.1), default=5.0, show_default=True,
+              help="With --lockstep: seconds of wall time a procedure may leave the world waiting for its answer "
+                   "before the world steps on without it (a killed procedure never freezes rig sim; it rejoins "
+                   "with its next answer).")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit.")
 @click.pass_context
 def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, natnet, natnet_version, console,
-            plant_model, nice, list_steps):
+            plant_model, nice, sim_time, lockstep, lockstep_timeout, list_steps):
     """Serve the simulated rig as whole dVRK PSMs on their ROS 2 topics (/<ARM>/measured_js ...
     every ROS_PERIOD s), mocap poses on /mocap/<body>/pose and the load cell on a pty, paced
     to the wall clock. The dVRK's own Python client (dvrk_python, crtk) drives it unmodified.
@@ -208,12 +222,22 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
         first = min(cfg.loadcell["element"], len(elements) - 1)
         order = [first] + [k for k in range(len(elements)) if k != first]
         for k in order:
-            # each "Arduino" in its own process: its samples keep their pace whatever this
-            # loop is doing (see drivers.loadcell.firmware_process)
-            fw = FirmwareProcess(noise=cfg.loadcell["noise"], rate_hz=int(round(cfg.loadcell["rate"])),
-                                 seed=world.seed + 7 * k)
+            fw_kwargs = dict(noise=cfg.loadcell["noise"], rate_hz=int(round(cfg.loadcell["rate"])),
+                             seed=world.seed + 7 * k)
+            if sim_time:
+                # on simulated time the "Arduino" converts on the world's clock, stepped by the
+                # world's loop: its samples are where the world is, however fast that runs
+                from drivers.loadcell.firmware_fake import FakeLoadCellFirmware
+
+                cell = CellLoad(world, k)
+                fw = FakeLoadCellFirmware(cell, clock=lambda: world.t, **fw_kwargs)
+                cell.pump, cell.cable = fw.pump, fw.unplug
+            else:
+                # each "Arduino" in its own process: its samples keep their pace whatever this
+                # loop is doing (see drivers.loadcell.firmware_process)
+                fw = FirmwareProcess(**fw_kwargs)
+                cell = CellLoad(world, k, sink=fw.set_tension, cable=fw.unplug)
             firmwares.append(fw)
-            cell = CellLoad(world, k, sink=fw.set_tension, cable=fw.unplug)
             cell.update()
             cells.append(cell)
             a, b = elements[k]
@@ -252,7 +276,7 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
             cell.update()
         server = SimServer(world, node, list(world.names), ros_period=ros_period, mocap=mocap_cfg, seed=world.seed,
                            console=console, cells=cells, executor=cfg.ros["executor"], object_spec=object_spec,
-                           tool=tool)
+                           tool=tool, sim_time=sim_time, lockstep=lockstep, lockstep_timeout=lockstep_timeout)
         server.stop = stop
         if natnet:
             from drivers.natnet.fake_motive import SimMotive, parse_version
@@ -277,7 +301,9 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
         signal.signal(signal.SIGINT, on_signal)
         signal.signal(signal.SIGTERM, on_signal)
         print(f"rig sim: serving {', '.join(world.names)} ({server.psms[world.names[0]].tool.name}; servo "
-              f"{rate:g} Hz, ROS period {server.ros_every / rate:g} s) on ROS_DOMAIN_ID="
+              f"{rate:g} Hz, ROS period {server.ros_every / rate:g} s; "
+              + ("the wall clock" if not sim_time else "simulated time on /clock" + (", lockstep" if lockstep else ""))
+              + ") on ROS_DOMAIN_ID="
               f"{os.environ.get('ROS_DOMAIN_ID', '0')}, console {console}, operator on /rig_sim/operator",
               file=sys.stderr, flush=True)
         stats = server.serve(duration, on_ready=lambda: _say("ready"))
@@ -294,13 +320,23 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
             except OSError:
                 pass
         ros_exit.teardown(node, context)
+    target = 1.0 / (server.ros_every / rate)
+    common = (f"refused commands {stats['command_errors']}, superseded {stats['superseded']}, dropped (arm not "
+              f"ready) {sum(stats['dropped'].values())}, operator requests {sum(server.operator.served.values())}")
+    if sim_time:
+        # per simulated second: the streams keep their period on the world's clock
+        sim = stats["sim_s"]
+        rates = ", ".join(f"{n} {c / sim if sim > 0 else 0.0:.1f} Hz" for n, c in server.published.items())
+        ls = stats.get("lockstep")
+        _say(f"measured_js published: {rates} of simulated time (target {target:g} Hz); {sim:.3f} s simulated in "
+             f"{stats['wall_s']:.3f} s wall (real-time factor {stats['real_time_factor']:.2f})"
+             + ("" if ls is None else f"; lockstep: waited {ls['wait_s']:.1f} s for answers, let go of "
+                f"{ls['lost']} silent procedure(s), {ls['late_commands']} period(s) with commands late")
+             + f"; {common}")
+        return
     hz = stats["measured_js_hz"]
     rates = ", ".join(f"{n} {v:.1f} Hz" for n, v in hz.items())
-    target = 1.0 / (server.ros_every / rate)
     held = all(v >= 0.98 * target for v in hz.values())
     _say(f"measured_js achieved: {rates} (target {target:g} Hz{'' if held else ', NOT held'}); "
          f"{stats['sim_s']:.3f} s simulated in {stats['wall_s']:.3f} s wall; late ticks {stats['late_ticks']} (longest "
-         f"{stats['max_lag_s'] * 1e3:.1f} ms behind), "
-         f"re-anchored {stats['slips']}, refused commands {stats['command_errors']}, superseded "
-         f"{stats['superseded']}, dropped (arm not ready) {sum(stats['dropped'].values())}, "
-         f"operator requests {sum(server.operator.served.values())}")
+         f"{stats['max_lag_s'] * 1e3:.1f} ms behind), re-anchored {stats['slips']}, {common}")

@@ -143,6 +143,12 @@ SERIAL_STALE_FLOOR = 0.5
 #: s: floor of an in-process simulated device's: it runs on the simulated clock, which a
 #: busy machine slows but never makes skip, so only the periods count (and 50 ms at least)
 SIM_STALE_FLOOR = 0.05
+#: s: floor of a ROS 2 stream's stale limit on simulated time ([ros] use_sim_time): the age
+#: is counted on the simulator's clock, which a starved process (this one or `rig sim`)
+#: slows but never outruns (lockstep: the world waits for this process's answers), so the
+#: floor covers only the periods the world may run ahead of a free process's last answer
+#: and the messages' order between topics
+SIM_TIME_STALE_FLOOR = 0.25
 #: s: the dVRK console's publishing period unless started with another `dvrk_system -p`
 DVRK_DEFAULT_PERIOD = 0.01
 
@@ -232,6 +238,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
                                _positive, "an interval > 0 s"),
         "executor": Key("str", "events", "rclpy executor of the ROS 2 devices: 'events' (rclpy's EventsExecutor, about "
                         "a third of the CPU) or 'single' (SingleThreadedExecutor)", *_choice("events", "single")),
+        "use_sim_time": Key("bool", False, "follow the simulator's /clock (`rig sim --sim-time`), as ROS's parameter of "
+                            "that name: every loop, watchdog, timeout and recording stamp on simulated time (the ROS "
+                            "streams' stale limits then default to 10 periods or 0.25 s). False: the wall clock, as "
+                            "against a real dVRK console"),
+        "lockstep": Key("bool", True, "with use_sim_time: answer every period of the simulator's clock, so that the "
+                        "world waits for this process's control loop (`rig sim --lockstep`)"),
     },
     "operator": {
         "driver": Key("str", "console", "who does the manual steps (mount bodies, hang masses, attach the object): "
@@ -430,10 +442,11 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
     if "rate" not in document.get("rig", {}) and n_ros:
         rig["rate"] = ROS_DEFAULT_RATE if n_ros < 3 else ROS_DEFAULT_RATE_MANY_ARMS
     ros = _section(source, "ros", SCHEMA["ros"], document.get("ros", {}))
+    ros_floor = SIM_TIME_STALE_FLOOR if ros["use_sim_time"] else ROS_STALE_FLOOR
     for name, a in arms.items():
         if "watchdog" not in arms_doc[name]:
             # a ROS arm's stream comes at the console's period; a simulated one's at the rig's
-            a["watchdog"] = (stale_default(ros["period"], ROS_STALE_FLOOR) if a["driver"] == "ros"
+            a["watchdog"] = (stale_default(ros["period"], ros_floor) if a["driver"] == "ros"
                              else stale_default(1.0 / rig["rate"], SIM_STALE_FLOOR))
     for name, a in arms.items():
         if not a["namespace"]:
@@ -458,7 +471,8 @@ def parse(document: dict[str, Any], source: str) -> RigConfig:
         raise ConfigError(f"{source}: loadcell.port: required when loadcell.driver = 'serial' (e.g. '/dev/ttyACM0')")
     mocap = _section(source, "mocap", SCHEMA["mocap"], document.get("mocap", {}))
     if "stale_timeout" not in document.get("mocap", {}):
-        mocap["stale_timeout"] = stale_default(1.0 / mocap["rate"], ROS_STALE_FLOOR if mocap["driver"]
+        mocap["stale_timeout"] = stale_default(1.0 / mocap["rate"], (ros_floor if mocap["driver"] == "ros" else
+                                                                     ROS_STALE_FLOOR) if mocap["driver"]
                                                in ("ros", "natnet") else SIM_STALE_FLOOR)
     obj = _section(source, "object", SCHEMA["object"], document.get("object", {}))
     if "arms" not in document.get("object", {}):

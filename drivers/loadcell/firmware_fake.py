@@ -56,6 +56,7 @@ class FakeLoadCellFirmware:
         self._thread: threading.Thread | None = None
         self._fd_lock = threading.Lock()
         self.unplugged = False
+        self._next_t: float | None = None  # model time of the next conversion (`pump`)
 
     # settable faults, forwarded to the model for convenience
     noise = property(lambda self: self.model.noise, lambda self, v: setattr(self.model, "noise", v))
@@ -140,6 +141,32 @@ class FakeLoadCellFirmware:
             if self.record_write_times:
                 self.write_times[s.seq] = time.monotonic()
 
+    def _receive(self, now: float) -> None:
+        """Take the command bytes that came (non-blocking) and queue the replies."""
+        m = self.model
+        try:
+            data = os.read(self._master, 256)
+        except BlockingIOError:
+            data = b""
+        if data:
+            self._rx_last = now
+            for f in self._parser.feed(data):
+                for rtype, payload in m.handle(f.type, f.payload):
+                    self._queue(encode_frame(rtype, payload), is_sample=False)
+        elif self._parser.pending and now - self._rx_last > 0.05:
+            self._parser.flush()  # a command that stopped half-way (reported via _on_reject)
+
+    def _convert(self) -> None:
+        """One conversion period of the sketch's loop: the sample and any tare reply."""
+        m = self.model
+        sample, replies = m.tick()
+        for rtype, payload in replies:
+            self._queue(encode_frame(rtype, payload), is_sample=False)
+        if sample is not None:
+            if self.record_write_times:
+                self.sample_times[sample.seq] = m.clock()
+            self._send_sample(sample)
+
     def _run(self) -> None:
         m = self.model
         next_t = time.monotonic()
@@ -147,23 +174,10 @@ class FakeLoadCellFirmware:
             wait = max(0.0, next_t - time.monotonic())
             try:
                 readable, _, _ = select.select([self._master], [], [], wait)
-                if readable:
-                    data = os.read(self._master, 256)
-                    self._rx_last = time.monotonic()
-                    for f in self._parser.feed(data):
-                        for rtype, payload in m.handle(f.type, f.payload):
-                            self._queue(encode_frame(rtype, payload), is_sample=False)
-                elif self._parser.pending and time.monotonic() - self._rx_last > 0.05:
-                    self._parser.flush()  # a command that stopped half-way (reported via _on_reject)
+                self._receive(time.monotonic()) if readable else self._receive_idle(time.monotonic())
                 now = time.monotonic()
                 if now >= next_t:
-                    sample, replies = m.tick()
-                    for rtype, payload in replies:
-                        self._queue(encode_frame(rtype, payload), is_sample=False)
-                    if sample is not None:
-                        if self.record_write_times:
-                            self.sample_times[sample.seq] = m.clock()
-                        self._send_sample(sample)
+                    self._convert()
                     next_t += 1.0 / m.rate_hz
                     if now - next_t > 0.1:  # stalled far behind (debugger, suspend): do not burst
                         next_t = now
@@ -174,6 +188,30 @@ class FakeLoadCellFirmware:
                 # EIO: nobody holds the slave end any more; keep running like a device whose
                 # USB host went away
                 time.sleep(0.01)
+
+    def _receive_idle(self, now: float) -> None:
+        if self._parser.pending and now - self._rx_last > 0.05:
+            self._parser.flush()
+
+    def pump(self) -> None:
+        """Run the sketch's loop up to the model's `clock()`, without a thread: the commands
+        that came are answered and every conversion due is sent. For a firmware stepped by
+        its host's loop on simulated time (`rig sim --sim-time`), where the samples must
+        follow the world's clock, not the wall's: call it every servo period."""
+        if self.unplugged:
+            return
+        m = self.model
+        now = m.clock()
+        if self._next_t is None:
+            self._next_t = now
+        try:
+            self._receive(now)
+            while now >= self._next_t:
+                self._convert()
+                self._next_t += 1.0 / m.rate_hz
+            self._flush()
+        except OSError:
+            pass  # EIO: the host closed its end; a device keeps running without it
 
     def unplug(self) -> None:
         """Pull the USB cable: stop the firmware and close both ends of the pty."""

@@ -12,8 +12,10 @@ PROTOCOL_VERSION = 1
 BAUDRATE = 250000
 
 #: s, longest wait for a command's reply. The firmware answers within a few ms; the margin is
-#: for the host: a starved 2-core machine (two CPU burners, a procedure and `rig sim` serving
-#: the pty) delivered a SET_RATE reply more than 0.5 s late (bench/bench_kill.py, 2 of 112 runs)
+#: for the host's reader thread, held off the CPU on a starved machine (two CPU burners, a
+#: procedure and `rig sim` serving the pty: a SET_RATE reply read more than 0.5 s late,
+#: bench/bench_kill.py, 2 of 112 runs). A simulated clock does not remove that: the reply
+#: is read by this process's thread, on a real rig as against `rig sim --sim-time`
 COMMAND_TIMEOUT = 1.5
 FIRMWARE_VERSION = (1, 0, 0)
 SYNC = b"\xa5\x5a"

@@ -29,9 +29,10 @@ class LoadCell(_StreamingLoadCell):
     def __init__(self, port, calibration: LoadCellCalibration | None = None, *, rate_hz: int = 500,
                  stale_timeout: float = 0.05, clock: Callable[[], float] = time.monotonic,
                  on_sample: Callable[[ForceSample, float], None] | None = None,
-                 buffer_size: int = 65536, start: bool = True) -> None:
+                 buffer_size: int = 65536, start: bool = True, time_base=None) -> None:
         super().__init__(calibration, stale_timeout, clock, on_sample, buffer_size,
-                         name=str(getattr(port, "port", None) or getattr(port, "name", None) or port))
+                         name=str(getattr(port, "port", None) or getattr(port, "name", None) or port),
+                         time_base=time_base)
         self.port = port
         self.parser = FrameParser()
         try:
@@ -78,6 +79,28 @@ class LoadCell(_StreamingLoadCell):
                     self._copy_parser_stats()
             self._last_poll = rx
             self._check_stale(rx)
+            # the clock first, then the port: empty now means every byte written before that
+            # time has been read above, and parsed (`caught_up`)
+            now = self.clock()
+            try:
+                if port.in_waiting == 0 and now > self._caught_up:
+                    self._caught_up = now
+                    self.time_base.notify()
+            except Exception:  # noqa: BLE001 - a port that went away: the next read says so
+                pass
+
+    def caught_up(self, t: float) -> bool:
+        """See `_StreamingLoadCell.caught_up`; when not yet, wakes the reader from its wait
+        for a byte (pyserial's cancel_read), so that it looks again at once."""
+        if super().caught_up(t):
+            return True
+        cancel = getattr(self.port, "cancel_read", None)
+        if cancel is not None:
+            try:
+                cancel()
+            except Exception:  # noqa: BLE001 - a port that went away: the reader says so
+                pass
+        return False
 
     def _copy_parser_stats(self) -> None:
         st, p, sq = self._stats, self.parser, self._seq

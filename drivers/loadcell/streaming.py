@@ -74,8 +74,16 @@ class _StreamingLoadCell(abc.ABC):
 
     def __init__(self, calibration: LoadCellCalibration | None, stale_timeout: float,
                  clock: Callable[[], float], on_sample: Callable[[ForceSample, float], None] | None,
-                 buffer_size: int, name: str) -> None:
+                 buffer_size: int, name: str, time_base=None) -> None:
+        from drivers.time_base import WallTime
+
         self.calibration = calibration
+        #: the clock of the command and connect timeouts (`drivers.time_base`; `clock` stamps
+        #: the samples): simulated time when the rig follows `rig sim --sim-time`
+        self.time_base = time_base if time_base is not None else WallTime()
+        #: clock() at which the reader last found the transport empty with everything before
+        #: parsed: every byte written before that time has been taken (`caught_up`)
+        self._caught_up = float("-inf")
         self.stale_timeout = stale_timeout
         self.clock = clock
         self.on_sample = on_sample
@@ -182,6 +190,12 @@ class _StreamingLoadCell(abc.ABC):
         poll = self._last_poll
         return now if poll is None else min(now, poll)
 
+    def caught_up(self, t: float) -> bool:
+        """The reader has taken every byte the device had written by clock time `t` (it found
+        the transport empty at `t` or later, after parsing what came before). A loop in
+        lockstep with the device's simulator waits on it before reading the force of `t`."""
+        return self._caught_up >= t or self._error is not None
+
     def stream_age(self) -> float:
         """Seconds since the last sample as of the reader's last look (inf before the first)."""
         rx = self._last_rx
@@ -247,7 +261,7 @@ class _StreamingLoadCell(abc.ABC):
             out.extend(s for s in new if start <= s.t < end)
             if late or any(s.t >= end for s in new):
                 return out
-            time.sleep(0.005)
+            self.time_base.sleep(0.005)
 
     @abc.abstractmethod
     def _send(self, ctype: int, payload: bytes) -> None:
@@ -280,9 +294,11 @@ class _StreamingLoadCell(abc.ABC):
             while not self._replies.empty():  # late replies to earlier timed-out commands
                 self._replies.get_nowait()
             self._send(ctype, payload)
-            end = time.monotonic() + timeout
+            tb = self.time_base
+            end = tb.now() + timeout
             while True:
-                left = end - time.monotonic()
+                tb.free()
+                left = end - tb.now()
                 if left <= 0:
                     if self._error is not None:
                         raise self._error
@@ -368,7 +384,8 @@ class _StreamingLoadCell(abc.ABC):
         try:
             # an Uno/Nano resets when the port opens and its bootloader listens for ~1.5 s,
             # so the first IDENTIFYs may go unanswered
-            deadline = time.monotonic() + self.connect_timeout
+            tb = self.time_base
+            deadline = tb.now() + self.connect_timeout
             while True:
                 try:
                     self.identify(timeout=0.25)
@@ -376,7 +393,7 @@ class _StreamingLoadCell(abc.ABC):
                 except LoadCellCommandError as exc:
                     if self._error is not None:
                         raise
-                    if time.monotonic() > deadline:
+                    if tb.now() > deadline:
                         raise LoadCellCommandError(self._no_reply(exc)) from None
             if self.identity is not None and rate_hz > self.identity.max_rate_hz:
                 raise LoadCellError(

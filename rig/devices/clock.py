@@ -13,6 +13,7 @@ Times are seconds; rates are Hz.
 from __future__ import annotations
 
 import time
+from array import array
 from typing import Callable, Protocol, runtime_checkable
 
 Listener = Callable[[float], None]
@@ -38,8 +39,33 @@ class Clock(Protocol):
 
 
 class _Listeners:
+    """Listeners, and the loop's timing: how long the procedure computed between two ticks."""
+
     def __init__(self) -> None:
         self._listeners: list[Listener] = []
+        self._work = array("d")  # s of wall time from the return of one tick to the call of the next
+        self._returned: float | None = None
+
+    def _tick_called(self) -> None:
+        if self._returned is not None:
+            self._work.append(time.perf_counter() - self._returned)
+
+    def _tick_returns(self) -> None:
+        self._returned = time.perf_counter()
+
+    def loop_timing(self) -> dict:
+        """The loop's tick time against its period: the wall time the procedure took between
+        two ticks (median, p99, max, in ms), the period (ms), how many ticks took longer than
+        it, and the ticks counted. {} before two ticks."""
+        import numpy as np
+
+        work = np.frombuffer(self._work, dtype=float) if len(self._work) else np.zeros(0)
+        if work.size == 0:
+            return {}
+        period = getattr(self, "period", 1.0 / self.rate)
+        return {"period_ms": period * 1e3, "ticks": int(work.size),
+                "tick_median_ms": float(np.median(work) * 1e3), "tick_p99_ms": float(np.percentile(work, 99) * 1e3),
+                "tick_max_ms": float(work.max() * 1e3), "over_period": int(np.count_nonzero(work > period))}
 
     def add_listener(self, fn: Listener) -> None:
         self._listeners.append(fn)
@@ -74,8 +100,10 @@ class SimClock(_Listeners):
         return self.world.t
 
     def tick(self) -> None:
+        self._tick_called()
         self.world.step()
         self._notify(self.world.t)
+        self._tick_returns()
 
     def sleep(self, duration: float) -> None:
         """Tick for `duration` seconds of clock time (rounded to whole periods)."""
@@ -112,6 +140,7 @@ class WallClock(_Listeners):
         return self._epoch0 + (time.perf_counter() - self._perf0)
 
     def tick(self) -> None:
+        self._tick_called()
         self._k += 1
         deadline = self._perf0 + self._k * self.period
         lag = time.perf_counter() - deadline
@@ -125,6 +154,7 @@ class WallClock(_Listeners):
             # sleep() alone may overshoot by the timer slack (~50 us); good enough at 1 kHz.
             time.sleep(-lag)
         self._notify(self.now())
+        self._tick_returns()
 
     def sleep(self, duration: float) -> None:
         """Tick for `duration` seconds (rounded to whole periods)."""
@@ -171,6 +201,7 @@ class StreamClock(WallClock):
             self.min_fraction = float(min_fraction)
 
     def tick(self) -> None:
+        self._tick_called()
         self._k += 1
         earliest = self._last + self.min_fraction * self.period
         deadline = self._last + self.max_fraction * self.period
@@ -191,3 +222,124 @@ class StreamClock(WallClock):
         self._last = now
         self._seen = [s.received for s in self.sources]
         self._notify(self.now())
+        self._tick_returns()
+
+
+#: s of executor-polled wall time a loop in lockstep waits for a period's sample before it
+#: answers the period without it (a source that stopped must not hold the world: its own
+#: watchdog, on simulated time, has to see the clock go on to fire)
+LATE_SAMPLE = 2.0
+
+
+class SimTimeClock(_Listeners):
+    """Simulated time from a simulator's /clock, in lockstep (`drivers.time_base.SimTime`).
+
+    `tick()` answers the period the loop has just acted on (its commands are sent), so the
+    world steps on; it answers each period the loop skips once that period's samples have
+    come; and it returns at the first period at least `min_fraction` of a loop period after
+    the last one whose samples have all come: every arm's measured_js (`sources`: `received`
+    and `last_stamp()`) and every byte a load cell (`syncs`: `caught_up(t)`) had written by
+    then. The world waits meanwhile, however long the procedure computes, so nothing a
+    procedure does depends on how fast the machine is. A source silent for LATE_SAMPLE s of
+    polled wall time is answered without (counted in `late`), and so is every period after
+    until it sends again; a tick then returns after `max_fraction` loop periods of simulated
+    time at the latest (counted in `overruns`): the silent stream's own watchdog, on the
+    simulated clock that goes on, ends the run. `now()` is the simulated time (s).
+    """
+
+    def __init__(self, rate: float, sources, time_base, min_fraction: float = 0.75, max_fraction: float = 1.5,
+                 polled=None) -> None:
+        super().__init__()
+        if not rate > 0:
+            raise ValueError(f"clock rate must be > 0 Hz, got {rate}")
+        self.rate = float(rate)
+        self.period = 1.0 / self.rate
+        self.time = time_base
+        self.sources = list(sources)
+        self.syncs: list = []
+        self.min_fraction = float(min_fraction)
+        self.max_fraction = float(max_fraction)
+        self._polled = polled or time.monotonic
+        self._last: float | None = None
+        self._seen = [s.received for s in self.sources]
+        self.overruns = 0
+        self.skipped = 0
+        self.late = 0
+        self._degraded = False  # a source stopped: periods are answered without waiting for it
+
+    def add_source(self, source) -> None:
+        self.sources.append(source)
+        self._seen.append(source.received)
+
+    def add_sync(self, device) -> None:
+        """A device whose bytes the loop waits to have been read (`caught_up(t)`): a load cell."""
+        self.syncs.append(device)
+
+    def set_rate(self, rate: float, min_fraction: float | None = None) -> None:
+        """Tick at `rate` Hz from now on (see StreamClock.set_rate)."""
+        if not rate > 0:
+            raise ValueError(f"clock rate must be > 0 Hz, got {rate}")
+        self.rate = float(rate)
+        self.period = 1.0 / self.rate
+        if min_fraction is not None:
+            self.min_fraction = float(min_fraction)
+
+    def now(self) -> float:
+        return self.time.now()
+
+    def _complete(self, t: float, seen) -> bool:
+        """Every source has a sample of time `t` or later (newer than `seen`) and every sync
+        device has been read up to `t`."""
+        return (all(s.received > n and s.last_stamp() >= t - 1e-9 for s, n in zip(self.sources, seen))
+                and all(d.caught_up(t) for d in self.syncs))
+
+    def tick(self) -> None:
+        self._tick_called()
+        tb = self.time
+        since = tb.now() if self._last is None else self._last
+        target = since + self.min_fraction * self.period
+        deadline = since + self.max_fraction * self.period
+        tb.hold()
+        # the loop has acted on the newest period: the world may step on, up to the period
+        # the loop acts on next without waiting for an answer
+        tb.answer(next_ns=int(round(target * 1e9)))
+        seen = list(self._seen)
+        answered = tb.now_ns() or 0
+        waiting_since = self._polled()
+        late = False
+        with tb.changed:
+            while True:
+                t_ns = tb.now_ns() or 0
+                t = t_ns * 1e-9
+                if t_ns > answered:
+                    if self._complete(t, seen if t >= target else [-1] * len(seen)):
+                        self._degraded = False
+                        if t >= target:
+                            break
+                        tb.answer(t_ns)  # a period the loop does not act on: its samples are in
+                        answered, waiting_since = t_ns, self._polled()
+                        continue
+                    if self._degraded or self._polled() - waiting_since > LATE_SAMPLE:
+                        self._degraded = True
+                        # a source that stopped: answer without it, so that the clock goes on
+                        # and its watchdog (on simulated time) can see it
+                        late = True
+                        if t >= deadline:
+                            break
+                        tb.answer(t_ns)
+                        answered, waiting_since = t_ns, self._polled()
+                        continue
+                tb.check()
+                tb.changed.wait(0.05)
+        if late:
+            self.late += 1
+            self.overruns += 1
+        self._last = t
+        self._seen = [s.received for s in self.sources]
+        self._notify(t)
+        self._tick_returns()
+
+    def sleep(self, duration: float) -> None:
+        """Tick for `duration` seconds of simulated time (rounded to whole periods)."""
+        for _ in range(int(round(duration * self.rate))):
+            self.tick()

@@ -8,7 +8,8 @@ procedure or driver needs an `if simulated:` branch.
   `SimForceSensor` (the firmware's device model and byte framing on simulated time; see
   `drivers.loadcell.sim` for why not the pty fake) and mocap as `SimTracker`.
 * Real arms (driver "ros"): a `StreamClock` at `rig.rate` (each tick waits for a fresh
-  measured_js of every arm), one rclpy context and node owned
+  measured_js of every arm; with `[ros] use_sim_time`, a `SimTimeClock` on the simulator's
+  /clock in lockstep, every driver's waits on it too), one rclpy context and node owned
   by the Rig and spun by one executor thread, `RosArm`s on it (watchdog from each arm's
   config), the serial or CAN `LoadCell` and `RosMocapTracker` on the same node. Opening
   connects (`connect`): it waits for every stream, then enables and homes the arms
@@ -25,7 +26,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from rig.config import ConfigError
-from rig.devices.clock import SimClock, StreamClock
+from rig.devices.clock import SimClock, SimTimeClock, StreamClock
 from rig.faults import DeviceFault
 
 
@@ -163,7 +164,7 @@ def open_operator(cfg, session=None):
     if cfg.operator["driver"] == "ros":
         if session is None:
             raise ValueError("the ROS operator needs a ROS session")
-        return RosOperator(session.control, timeout=cfg.operator["timeout"])
+        return RosOperator(session.control, timeout=cfg.operator["timeout"], time_base=session.time)
     return ConsoleOperator(yes=cfg.operator["yes"])
 
 
@@ -182,32 +183,29 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
     from drivers.ros_session import RosSession
 
     session = RosSession("rig", executor=cfg.ros["executor"])
-    # every tick acts on a fresh measured_js of every arm (rig.devices.clock.StreamClock)
-    rig = Rig(clock=StreamClock(cfg.rig["rate"], []), arms={})
+    rig = Rig(clock=None, arms={})
     rig.session = session
     rig._closers.append(session.close)
     try:
+        if cfg.ros["use_sim_time"]:
+            from drivers.time_base import SimTime
+
+            # every wait, timeout and stream age on the simulator's /clock; the loop's ticks
+            # answer its periods (lockstep)
+            session.time = SimTime(session.node, lockstep=cfg.ros["lockstep"], polled=session.executor_time)
+            rig._closers.append(session.time.close)  # leave the lockstep last, once the arms are held
+            rig.clock = SimTimeClock(cfg.rig["rate"], [], session.time, polled=session.executor_time)
+        else:
+            # every tick acts on a fresh measured_js of every arm (rig.devices.clock.StreamClock)
+            rig.clock = StreamClock(cfg.rig["rate"], [])
         for n in names:
             a = cfg.arms[n]
             arm = RosArm(session.node, a["namespace"], watchdog=a["watchdog"], spin=False, setting=f"[arms.{n}] watchdog",
                          console=cfg.ros["console"], streams=arm_streams, polled=session.executor_time,
-                         control_node=session.control)
+                         control_node=session.control, time_base=session.time)
             rig.arms[n] = arm
             rig.clock.add_source(arm)
             rig._closers.append(_once_stopped(session, arm.close))
-        lc = cfg.loadcell
-        if "loadcell" in uses:
-            if lc["driver"] == "serial" and lc["ports"]:
-                # a cell per object element: each with its own calibration
-                rig.forces = {k: _open_loadcell(dict(lc, port=port), rig)
-                              for k, port in enumerate(lc["ports"])}
-                rig.force = rig.forces[min(lc["element"], len(lc["ports"]) - 1)]
-            elif lc["driver"] in ("serial", "can"):
-                rig.force = _open_loadcell(lc, rig)
-                rig.forces = {lc["element"]: rig.force}
-            elif lc["driver"] == "sim":
-                raise ConfigError(f"{cfg.source}: loadcell.driver = 'sim' needs simulated arms; with ROS arms "
-                                 "use 'serial' with the pty that `rig sim` prints (or 'none')")
         m = cfg.mocap
         if "mocap" in uses and m["driver"] == "ros":
             from drivers.mocap import RosMocapTracker
@@ -215,7 +213,7 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
 
             bodies = [mb.name for n in names for mb in default_marker_bodies(n)] + ["world"]
             rig.tracker = RosMocapTracker(session.node, bodies, prefix=m["prefix"], stale_timeout=m["stale_timeout"],
-                                          polled=session.executor_time)
+                                          polled=session.executor_time, time_base=session.time)
             rig._closers.append(_once_stopped(session, rig.tracker.close))
         elif "mocap" in uses and m["driver"] == "natnet":
             from drivers.natnet.tracker import open_natnet_tracker
@@ -235,6 +233,27 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
         # closed first (the closers run newest first): the executor stops before any driver
         # destroys its endpoints on the node it spins (RosSession.stop)
         rig._closers.append(session.stop)
+        if session.time.simulated and not session.time.wait_heard(cfg.ros["connect_timeout"]):
+            from drivers.ros_session import domain_text
+            from drivers.time_base import CLOCK_TOPIC
+
+            raise ConnectError(f"{CLOCK_TOPIC}: no simulated time within {cfg.ros['connect_timeout']:g} s on "
+                               f"{domain_text()}; [ros] use_sim_time = true in {cfg.source} follows `rig sim "
+                               "--sim-time`: start it so (or set use_sim_time = false for a console on the wall clock)")
+        # the load cells after the session spins: on simulated time their replies come on its clock
+        lc = cfg.loadcell
+        if "loadcell" in uses:
+            if lc["driver"] == "serial" and lc["ports"]:
+                # a cell per object element: each with its own calibration
+                rig.forces = {k: _open_loadcell(dict(lc, port=port), rig)
+                              for k, port in enumerate(lc["ports"])}
+                rig.force = rig.forces[min(lc["element"], len(lc["ports"]) - 1)]
+            elif lc["driver"] in ("serial", "can"):
+                rig.force = _open_loadcell(lc, rig)
+                rig.forces = {lc["element"]: rig.force}
+            elif lc["driver"] == "sim":
+                raise ConfigError(f"{cfg.source}: loadcell.driver = 'sim' needs simulated arms; with ROS arms "
+                                 "use 'serial' with the pty that `rig sim` prints (or 'none')")
     except BaseException:
         rig.close()
         raise
@@ -296,7 +315,13 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say, loop_rate: flo
     mocap0 = dict(rig.tracker.stats.received) if rig.tracker is not None else {}
     cells = list(rig.forces.values()) if rig.forces else ([rig.force] if rig.force is not None else [])
     lc0 = [c.stats().samples for c in cells]
-    time.sleep(window)
+    tb = rig.session.time if rig.session is not None else None
+    t0 = tb.now() if tb is not None else time.monotonic()
+    if tb is not None:
+        tb.sleep(window)  # on simulated time: a window of the world's time (the world freed meanwhile)
+    else:
+        time.sleep(window)
+    window = (tb.now() if tb is not None else time.monotonic()) - t0 or window
     rates = {rig.arms[n].topic["measured_js"]: (rig.arms[n].received - arm0[n]) / window for n in names}
     parts = [f"{n} {rates[rig.arms[n].topic['measured_js']]:.0f} Hz" for n in names]
     for i, (cell, n0) in enumerate(zip(cells, lc0)):
@@ -309,10 +334,20 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say, loop_rate: flo
         body_rates = [(rig.tracker.stats.received[b] - mocap0[b]) / window for b in rig.tracker.bodies]
         rates["mocap"] = min(body_rates)
         parts.append(f"mocap {len(rig.tracker.bodies)} bodies {min(body_rates):.0f}-{max(body_rates):.0f} Hz")
-    say("connected: " + "; ".join(parts))
+    clock = rig.session.time.describe() if rig.session is not None else "the wall clock"
+    say("connected: " + "; ".join(parts) + f"; running on {clock}")
+    if rig.session is not None and not rig.session.time.simulated:
+        stamps = [rig.arms[n].last_stamp() for n in names]
+        if any(0.0 <= s < SIMULATED_BEFORE for s in stamps):
+            raise ConnectError(f"{rig.arms[names[0]].topic['measured_js']}: stamped {min(stamps):.3f} s, a simulator's "
+                               f"clock (`rig sim --sim-time`), while this rig runs on the wall clock: set [ros] "
+                               f"use_sim_time = true in {cfg.source} (or start rig sim without --sim-time)")
     check_stream_rates(rig, cfg, names, rates, loop_rate)
     return rates
 
+
+#: s: header stamps before this (2001-09-09) are a simulator's clock, not the epoch's
+SIMULATED_BEFORE = 1e9
 
 #: a stream heard below this fraction of the rate the rig's loop needs is refused
 RATE_MARGIN = 0.6
@@ -408,7 +443,9 @@ def _open_loadcell(lc: dict, rig: Rig):
         rig._closers.append(port.close)
         # sample times on the rig's clock, so the run compares them with its own time
         cell = LoadCell(port, calibration, rate_hz=int(round(lc["rate"])), stale_timeout=lc["stale_timeout"],
-                        clock=rig.clock.now)
+                        clock=rig.clock.now, time_base=rig.session.time if rig.session is not None else None)
+        if hasattr(rig.clock, "add_sync"):
+            rig.clock.add_sync(cell)  # the loop reads the force of a period once its bytes are read
     else:
         import can
 

@@ -54,7 +54,8 @@ class SimServer:
 
     def __init__(self, world, node, arms: list[str], ros_period: float = DVRK_ROS_PERIOD,
                  mocap: dict | None = None, seed: int = 0, console: str = "/console", cells: list | None = None,
-                 executor: str = "events", object_spec=None, tool: str | None = None):
+                 executor: str = "events", object_spec=None, tool: str | None = None, sim_time: bool = False,
+                 lockstep: bool = True, lockstep_timeout: float = 5.0):
         from geometry_msgs.msg import PoseStamped
         from rclpy.qos import DurabilityPolicy, QoSProfile
         from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, String
@@ -93,6 +94,20 @@ class SimServer:
         for b in self.bridges.values():
             b.publish_initial()
         self.console = "/" + console.strip("/")
+        #: --sim-time: stamps and /clock on the world's time; lockstep: the world waits for the
+        #: processes that follow its clock (rig.sim_server.lockstep)
+        self.sim_time = bool(sim_time)
+        self.lockstep = None
+        self._clock_pub = self._clock_msg = None
+        if self.sim_time:
+            from rosgraph_msgs.msg import Clock
+
+            self._clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10))
+            self._clock_msg = Clock()
+            if lockstep:
+                from rig.sim_server.lockstep import Lockstep
+
+                self.lockstep = Lockstep(node, timeout=lockstep_timeout, log=node.get_logger().info)
         self._subs = []
         for what in ("power_on", "power_off", "home"):
             self._subs.append(node.create_subscription(Empty, f"{self.console}/{what}",
@@ -162,6 +177,8 @@ class SimServer:
     def _queued(self, fn, arg):
         def callback(msg) -> None:
             self._commands.append((time.perf_counter(), fn, arg, msg))
+            if self.lockstep is not None:
+                self.lockstep.command_received()
         return callback
 
     def _console(self, what, _msg) -> bool:
@@ -233,12 +250,14 @@ class SimServer:
 
     # -- publishing (main thread) ---------------------------------------------------------
     def _stamp_ns(self, t: float) -> int:
-        """The header stamp, in ns, of a stream sample at world time `t` s."""
-        return int(round((self._epoch0 + t) * 1e9))
+        """The header stamp, in ns, of a stream sample at world time `t` s (on simulated
+        time the world's time itself, as /clock says it)."""
+        return int(round((t if self.sim_time else self._epoch0 + t) * 1e9))
 
     def _event_stamp_ns(self) -> int:
         """The header stamp, in ns, of an event published now (strictly increasing)."""
-        ns = max(time.time_ns(), self._last_event + 1000)
+        now = self._stamp_ns(self.world.t) if self.sim_time else time.time_ns()
+        ns = max(now, self._last_event + 1000)
         self._last_event = ns
         return ns
 
@@ -287,6 +306,12 @@ class SimServer:
                 o.x, o.y, o.z, o.w = (float(v) for v in q)
                 self._mocap_pub[body].publish(pm)
 
+    def _publish_clock(self, t: float) -> None:
+        """/clock at world time `t` (rosgraph_msgs/Clock), after the period's streams."""
+        ns = self._stamp_ns(t)
+        self._clock_msg.clock.sec, self._clock_msg.clock.nanosec = divmod(ns, 1_000_000_000)
+        self._clock_pub.publish(self._clock_msg)
+
     # -- the loop -------------------------------------------------------------------------
     def _tick(self) -> None:
         """One servo period: each arm's control, the world's step, the wrists' step, the states."""
@@ -316,6 +341,8 @@ class SimServer:
             b.published = 0
         if self.tracker is not None:
             self._publish_mocap()
+        if self.sim_time:
+            self._publish_clock(world.t)
         t_start = world.t
         self._epoch0 = time.time() - t_start
         perf0 = time.perf_counter() - t_start
@@ -324,10 +351,16 @@ class SimServer:
             on_ready()
         period = world.dt
         k = 0
+        lockstep = self.lockstep
         while not self.stop.is_set():
             if duration is not None and world.t - t_start >= duration - 1e-9:
                 break
-            self._apply_commands(perf0 + world.t + period)
+            if lockstep is not None and k % self.ros_every == 0 and lockstep.active:
+                # the period's samples are out: step past it once its followers answered it
+                lockstep.wait(self._stamp_ns(world.t), self.stop)
+            # on simulated time a command acts at the first step after it came; on the wall
+            # clock at the step of the wall time it came at (see _apply_commands)
+            self._apply_commands(float("inf") if self.sim_time else perf0 + world.t + period)
             self.operator.operator.hold_touch()
             self._tick()
             t = world.t
@@ -337,12 +370,19 @@ class SimServer:
             if k % self.ros_every == 0:
                 for b in self.bridges.values():
                     b.publish_streams(t)
+                if self.sim_time:
+                    self._publish_clock(t)
             if k % self._refresh_every == 0:
                 self._refresh_watched()
             if self.tracker is not None:
                 self._publish_mocap()
             if self.natnet is not None and not self.mocap_unplugged:
                 self.natnet.pump(self._epoch0)  # Motive's clock is the stamps' timeline
+            if lockstep is not None and lockstep.active:
+                # the world runs as fast as its followers answer: nothing waits for the wall
+                # clock (the anchor moves with it, so pacing resumes from here once they leave)
+                perf0 = time.perf_counter() - t
+                continue
             lag = time.perf_counter() - (perf0 + t)
             if lag > self.max_lag:
                 self.max_lag = lag
@@ -366,7 +406,11 @@ class SimServer:
                 "measured_js_hz": {n: c / wall if wall > 0 else 0.0 for n, c in self.published.items()},
                 "late_ticks": self.late_ticks, "slips": self.slips, "command_errors": self.command_errors,
                 "superseded": self.superseded, "max_lag_s": self.max_lag,
-                "dropped": {n: st.dropped for n, st in self.states.items()}}
+                "dropped": {n: st.dropped for n, st in self.states.items()},
+                "clock": "simulated" if self.sim_time else "wall", "real_time_factor": sim / wall if wall > 0 else 0.0,
+                **({} if self.lockstep is None else {
+                    "lockstep": {"lost": self.lockstep.lost, "late_commands": self.lockstep.late_commands,
+                                 "waits": self.lockstep.waits, "wait_s": self.lockstep.wait_s}})}
 
     def close(self) -> None:
         self.stop.set()

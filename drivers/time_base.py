@@ -1,0 +1,304 @@
+"""The time a process's ROS drivers wait and age on: the wall clock, or a simulator's /clock in lockstep.
+
+Against a real dVRK console every wait, timeout and stream age is on this host's clock
+(`WallTime`). Against `rig sim --sim-time` they are on the simulator's clock (`SimTime`):
+the world's time, published on `/clock` (rosgraph_msgs/Clock) as Gazebo publishes it, and
+followed by every process started with ROS's `use_sim_time` (`[ros] use_sim_time = true`).
+A loaded machine then runs the world slower than real time and the procedure with it.
+
+Lockstep (docs/simulated-time.md): the simulator does not step past a ROS period until
+every process that follows its clock has answered that period, on `ANSWER_TOPIC`
+(std_msgs/Header: `stamp` the simulated time answered, `frame_id` "client=<id> sent=<n>
+mode=<hold|free|bye> next=<ns>"). `next` is the first period the process will act on
+again (a loop slower than the streams lets the world run to it without a round trip for
+each period between). `sent` counts the commands this process has published to the
+arms and the console, so the simulator applies them before it steps on (DDS keeps no
+order between topics; a command may reach it after the answer that follows it). A
+process answers in one of two modes:
+
+* hold: its control loop (`rig.devices.clock.SimTimeClock`) answers a period once it has
+  acted on that period's samples; the world waits for it, however long it computes.
+* free: anywhere else (connecting, waiting for a move, for the operator, between steps)
+  its executor thread answers every /clock it receives, so the world runs as fast as the
+  process takes its messages, and no faster.
+
+Any wait of a driver (`SimTime.wait`) frees the world; the loop's next tick holds it again.
+
+A simulator that stops (killed, unplugged) stops its clock, and every age measured on it
+with it: `check()` raises `ClockStopped` once the clock has stood still for `stall` s of
+wall time while this process was waiting for it (holding it while computing does not
+count).
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import threading
+import time
+
+from rig.faults import DeviceFault
+
+#: where the simulator publishes its time (rosgraph_msgs/Clock), as every ROS simulator does
+CLOCK_TOPIC = "/clock"
+#: where a process in lockstep answers the periods of the simulator's clock (std_msgs/Header)
+ANSWER_TOPIC = "/rig_sim/clock_answer"
+#: s of wall time, the longest a driver's wait sleeps before it reads the simulated clock again
+WAIT_SLICE = 0.02
+#: s of wall time the clock may stand still while this process waits for it, before the
+#: simulator counts as gone (what a process held off the CPU was measured to cost on a busy
+#: 2-core machine: the floor of the wall-clock ROS streams' stale limits)
+STALL = 2.0
+
+_CLOCK = struct.Struct("<iI")  # builtin_interfaces/Time after the 4-byte CDR encapsulation
+
+
+class ClockStopped(DeviceFault):
+    """The simulator's /clock stood still while this process waited for it."""
+
+    def __init__(self, age: float, stall: float):
+        from drivers.ros_session import domain_text
+
+        self.topic = CLOCK_TOPIC
+        self.age = age
+        self.watchdog = stall
+        super().__init__(
+            f"{CLOCK_TOPIC}: the simulated time stood still for {age:.1f} s of wall time while this process waited "
+            f"for it (limit {stall:g} s): `rig sim --sim-time` stopped or was killed; check that it runs on "
+            f"{domain_text()}, or set [ros] use_sim_time = false for a console on the wall clock")
+
+
+class WallTime:
+    """This host's monotonic clock: what a procedure waits on against a real console."""
+
+    simulated = False
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def wait(self, cond: threading.Condition, timeout: float) -> None:
+        """Wait on `cond` (held by the caller) for at most `timeout` s."""
+        if timeout > 0:
+            cond.wait(timeout)
+
+    def sleep(self, seconds: float) -> None:
+        if seconds > 0:
+            time.sleep(seconds)
+
+    def check(self) -> None:
+        """Raise if time itself is gone (never, on the wall clock)."""
+
+    def free(self) -> None:
+        """About to wait on something else than a Condition: let time run (and check it)."""
+
+    def stalled(self) -> ClockStopped | None:
+        return None
+
+    def sent(self, n: int = 1) -> None:
+        """Count commands published (only the lockstep answers need them)."""
+
+    def notify(self) -> None:
+        """A sample arrived (only a loop waiting on simulated time needs to hear it)."""
+
+    def describe(self) -> str:
+        return "the wall clock"
+
+    def close(self) -> None:
+        pass
+
+
+def parse_clock(raw: bytes) -> int:
+    """ns of a serialized rosgraph_msgs/Clock (raises ValueError on bytes that are not one)."""
+    if len(raw) < 4 + _CLOCK.size or raw[1] not in (0, 1):
+        raise ValueError("not a rosgraph_msgs/Clock")
+    fmt = "<iI" if raw[1] == 1 else ">iI"
+    sec, nsec = struct.unpack_from(fmt, raw, 4)
+    return sec * 1_000_000_000 + nsec
+
+
+class SimTime:
+    """Simulated time from a simulator's /clock, answered in lockstep (see the module docstring).
+
+    node: the node of the /clock subscription and the answers' publisher (the streams'
+    node: a /clock arrives once per ROS period, beside the arms' samples); lockstep: answer
+    the periods (False: only follow the clock, as a plain `use_sim_time` node); stall: s
+    of wall time (`ClockStopped`); polled: the monotonic time at which the executor last
+    looked for messages (`drivers.ros_session.RosSession.executor_time`), so that a
+    process held off the CPU never takes the simulator for gone.
+    """
+
+    simulated = True
+
+    def __init__(self, node, *, lockstep: bool = True, stall: float = STALL, polled=None):
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from rosgraph_msgs.msg import Clock
+        from std_msgs.msg import Header
+
+        self.lockstep = bool(lockstep)
+        self.stall = float(stall)
+        self._polled = polled
+        self.client = f"{os.getpid()}-{id(self) & 0xFFFF:04x}"
+        self.changed = threading.Condition()
+        self._t_ns: int | None = None
+        self._advanced = time.monotonic()  # wall time the clock last moved (or we last answered)
+        self._held = False
+        self._answered_ns = -1
+        self._next_ns = 0  # hold: the first period the loop acts on again
+        self._sent = 0
+        self._closed = False
+        self._lock = threading.Lock()
+        self._Header = Header
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        # raw: the stamp is all there is; one a period, beside the arms' streams
+        self._sub = node.create_subscription(Clock, CLOCK_TOPIC, self._on_clock, qos, raw=True)
+        self._pub = node.create_publisher(Header, ANSWER_TOPIC, qos) if self.lockstep else None
+        self._node = node
+        self.clocks = 0  #: /clock messages received
+        self.answers = 0  #: answers published
+
+    # -- the clock ----------------------------------------------------------------------
+    def _on_clock(self, raw: bytes) -> None:
+        try:
+            ns = parse_clock(raw)
+        except ValueError:
+            return
+        with self.changed:
+            if self._t_ns is not None and ns <= self._t_ns:
+                return  # a repeat (or a restarted simulator: its periods are answered from here)
+            self._t_ns = ns
+            self._advanced = time.monotonic()
+            self.clocks += 1
+            free = not self._held
+            self.changed.notify_all()
+        if free:
+            self._answer(ns)
+
+    def now(self) -> float:
+        """s on the simulator's clock (0.0 before its first /clock)."""
+        t = self._t_ns
+        return 0.0 if t is None else t * 1e-9
+
+    def now_ns(self) -> int | None:
+        return self._t_ns
+
+    def heard(self) -> bool:
+        """A /clock has arrived."""
+        return self._t_ns is not None
+
+    def wait_heard(self, timeout: float) -> bool:
+        """Wait up to `timeout` s of wall time for the first /clock (True once heard)."""
+        deadline = time.monotonic() + timeout
+        with self.changed:
+            while self._t_ns is None:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self.changed.wait(min(left, 0.05))
+        return True
+
+    # -- lockstep -----------------------------------------------------------------------
+    def _answer(self, ns: int, mode: str | None = None) -> None:
+        if self._pub is None:
+            return
+        with self._lock:
+            if mode is None and ns <= self._answered_ns:
+                return
+            self._answered_ns = max(self._answered_ns, ns)
+            m = self._Header()
+            m.stamp.sec, m.stamp.nanosec = divmod(max(ns, 0), 1_000_000_000)
+            m.frame_id = (f"client={self.client} sent={self._sent} mode={mode or ('hold' if self._held else 'free')} "
+                          f"next={self._next_ns if self._held else 0}")
+            self.answers += 1
+            try:
+                self._pub.publish(m)
+            except Exception:  # noqa: BLE001 - the context is shutting down: nothing left to answer
+                pass
+
+    def hold(self) -> None:
+        """From now on the world waits for `answer()` (the control loop's tick)."""
+        self._held = True
+
+    @property
+    def held(self) -> bool:
+        return self._held
+
+    def answer(self, ns: int | None = None, next_ns: int | None = None) -> None:
+        """Answer the period at `ns` (default: the newest clock): its samples are acted on and
+        the commands for it sent; `next_ns`: the first period the loop acts on again (the
+        world need not wait for an answer before it)."""
+        if next_ns is not None:
+            self._next_ns = int(next_ns)
+        t = self._t_ns if ns is None else ns
+        if t is not None:
+            with self.changed:
+                self._advanced = max(self._advanced, time.monotonic())
+            self._answer(t, "hold" if self._held else None)
+
+    def release(self) -> None:
+        """Free the world: the executor answers every /clock from now on."""
+        if self._held:
+            self._held = False
+            t = self._t_ns
+            if t is not None:
+                with self.changed:
+                    self._advanced = max(self._advanced, time.monotonic())
+                self._answer(t, "free")
+
+    def sent(self, n: int = 1) -> None:
+        """Count `n` commands published to the arms or the console (before the answer that follows them)."""
+        with self._lock:
+            self._sent += n
+
+    def notify(self) -> None:
+        """A sample arrived: wake a loop waiting on it."""
+        with self.changed:
+            self.changed.notify_all()
+
+    # -- waiting ------------------------------------------------------------------------
+    def stalled(self) -> ClockStopped | None:
+        """ClockStopped if the clock has stood still for `stall` s of wall time while this
+        process waited for it (the executor polling, the world not held by us), else None."""
+        if self._t_ns is None or (self._held and self._answered_ns < self._t_ns):
+            return None  # not heard yet (connect says so), or the world waits for our answer
+        now = time.monotonic()
+        if self._polled is not None:
+            now = min(now, self._polled())
+        age = now - self._advanced
+        return ClockStopped(age, self.stall) if age > self.stall else None
+
+    def check(self) -> None:
+        err = self.stalled()
+        if err is not None:
+            raise err
+
+    def free(self) -> None:
+        """About to wait on something else than a Condition (a queue, a port): free the
+        world, and raise ClockStopped if the simulator is gone."""
+        self.release()
+        self.check()
+
+    def wait(self, cond: threading.Condition, timeout: float) -> None:
+        """Wait on `cond` (held by the caller) for at most `timeout` s of simulated time,
+        freeing the world meanwhile; raises ClockStopped if the simulator is gone. Returns
+        after a slice of wall time at most: the caller loops and reads the time again."""
+        self.release()
+        self.check()
+        if timeout > 0:
+            cond.wait(min(timeout, WAIT_SLICE))
+
+    def sleep(self, seconds: float) -> None:
+        """Let `seconds` of simulated time pass (the world freed)."""
+        end = self.now() + seconds
+        with self.changed:
+            while self.now() < end:
+                self.wait(self.changed, end - self.now())
+
+    def describe(self) -> str:
+        return (f"simulated time ({CLOCK_TOPIC}" + (", lockstep" if self.lockstep else "") + ")")
+
+    def close(self) -> None:
+        """Leave the lockstep: the simulator steps on without this process."""
+        if not self._closed:
+            self._closed = True
+            self._held = False
+            self._answer(self._t_ns or 0, "bye")

@@ -139,6 +139,7 @@ class RosSession:
             if streams:
                 self._t = time.monotonic()
                 self.spins += 1
+                self.time.poll()
 
     def stop(self) -> bool:
         """Stop spinning: the executor thread has returned and the executor is shut down,

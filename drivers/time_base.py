@@ -45,6 +45,9 @@ CLOCK_TOPIC = "/clock"
 ANSWER_TOPIC = "/rig_sim/clock_answer"
 #: s of wall time, the longest a driver's wait sleeps before it reads the simulated clock again
 WAIT_SLICE = 0.02
+#: s of wall time between two answers of a process that holds the world while it computes:
+#: its executor repeats the last one, so the simulator tells a busy process from a dead one
+HEARTBEAT = 0.2
 #: s of wall time the clock may stand still while this process waits for it, before the
 #: simulator counts as gone (what a process held off the CPU was measured to cost on a busy
 #: 2-core machine: the floor of the wall-clock ROS streams' stale limits)
@@ -97,6 +100,9 @@ class WallTime:
     def sent(self, n: int = 1) -> None:
         """Count commands published (only the lockstep answers need them)."""
 
+    def poll(self) -> None:
+        """Called by the executor thread after each wait (only lockstep answers need it)."""
+
     def notify(self) -> None:
         """A sample arrived (only a loop waiting on simulated time needs to hear it)."""
 
@@ -144,6 +150,7 @@ class SimTime:
         self._held = False
         self._answered_ns = -1
         self._next_ns = 0  # hold: the first period the loop acts on again
+        self._answered_at = 0.0  # wall time of the last answer published
         self._sent = 0
         self._closed = False
         self._lock = threading.Lock()
@@ -209,10 +216,18 @@ class SimTime:
             m.frame_id = (f"client={self.client} sent={self._sent} mode={mode or ('hold' if self._held else 'free')} "
                           f"next={self._next_ns if self._held else 0}")
             self.answers += 1
+            self._answered_at = time.monotonic()
             try:
                 self._pub.publish(m)
             except Exception:  # noqa: BLE001 - the context is shutting down: nothing left to answer
                 pass
+
+    def poll(self) -> None:
+        """From the executor thread, after each wait for messages: a process that holds the
+        world repeats its last answer every HEARTBEAT s, so that the simulator keeps waiting
+        for a procedure that computes and lets go of one that died (it cannot say bye)."""
+        if self._held and not self._closed and time.monotonic() - self._answered_at > HEARTBEAT:
+            self._answer(max(self._answered_ns, 0), "hold")
 
     def hold(self) -> None:
         """From now on the world waits for `answer()` (the control loop's tick)."""
@@ -222,17 +237,20 @@ class SimTime:
     def held(self) -> bool:
         return self._held
 
-    def answer(self, ns: int | None = None, next_ns: int | None = None) -> None:
+    def answer(self, ns: int | None = None, next_ns: int | None = None) -> int:
         """Answer the period at `ns` (default: the newest clock): its samples are acted on and
         the commands for it sent; `next_ns`: the first period the loop acts on again (the
-        world need not wait for an answer before it)."""
+        world need not wait for an answer before it). Returns the period answered (ns; 0
+        before the first /clock): a newer one may have come meanwhile."""
         if next_ns is not None:
             self._next_ns = int(next_ns)
         t = self._t_ns if ns is None else ns
-        if t is not None:
-            with self.changed:
-                self._advanced = max(self._advanced, time.monotonic())
-            self._answer(t, "hold" if self._held else None)
+        if t is None:
+            return 0
+        with self.changed:
+            self._advanced = max(self._advanced, time.monotonic())
+        self._answer(t, "hold" if self._held else None)
+        return t
 
     def release(self) -> None:
         """Free the world: the executor answers every /clock from now on."""

@@ -129,10 +129,10 @@ def _ask_priority(nice: int) -> None:
                    "its clock has answered it, so nothing a procedure computes depends on how fast the machine is; "
                    "with no procedure following, the world runs in real time. --no-lockstep: the world runs in real "
                    "time always (a simulated clock only).")
-@click.option("--lockstep-timeout", type=click.FloatRange(min=0.1), default=5.0, show_default=True,
-              help="With --lockstep: seconds of wall time a procedure may leave the world waiting for its answer "
-                   "before the world steps on without it (a killed procedure never freezes rig sim; it rejoins "
-                   "with its next answer).")
+@click.option("--lockstep-timeout", type=click.FloatRange(min=0.1), default=1.0, show_default=True,
+              help="With --lockstep: seconds of wall time a procedure may go silent (a computing one repeats its "
+                   "answer five times a second) before the world steps on without it: a killed procedure never "
+                   "freezes rig sim; it rejoins with its next answer.")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit.")
 @click.pass_context
 def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, natnet, natnet_version, console,
@@ -230,7 +230,9 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
                 from drivers.loadcell.firmware_fake import FakeLoadCellFirmware
 
                 cell = CellLoad(world, k)
-                fw = FakeLoadCellFirmware(cell, clock=lambda: world.t, **fw_kwargs)
+                # its micros() is the world's time, as the samples' stamps on simulated time
+                fw = FakeLoadCellFirmware(cell, clock=lambda: world.t, micros_start=int(round(world.t * 1e6)),
+                                          **fw_kwargs)
                 cell.pump, cell.cable = fw.pump, fw.unplug
             else:
                 # each "Arduino" in its own process: its samples keep their pace whatever this

@@ -142,6 +142,11 @@ class _StreamingLoadCell(abc.ABC):
             return False
         t = self._clockmap.map(s.t_us, rx)
         device_t = self._clockmap._ext_us * 1e-6  # the unwrapped device time map() just took
+        if self.time_base.simulated:
+            # on simulated time the served firmware's micros() is the world's clock (`rig sim
+            # --sim-time`): the sample's time itself. The mapping from this host's reading of
+            # that clock would not do: the world runs ahead of a free process's clock
+            t = device_t
         cal = self.calibration
         force = cal.newtons(s.counts) if cal is not None else math.nan
         sample = ForceSample(t=t, force=force, raw=s.counts, seq=s.seq)

@@ -302,9 +302,8 @@ class SimTimeClock(_Listeners):
         tb.hold()
         # the loop has acted on the newest period: the world may step on, up to the period
         # the loop acts on next without waiting for an answer
-        tb.answer(next_ns=int(round(target * 1e9)))
+        answered = tb.answer(next_ns=int(round(target * 1e9)))
         seen = list(self._seen)
-        answered = tb.now_ns() or 0
         waiting_since = self._polled()
         late = False
         with tb.changed:

@@ -8,7 +8,10 @@ loop acts on is later; in free mode: within `free_lead` s of it, so its executor
 pipeline) and the commands its answers
 count have all been received. A process that says `bye` leaves; one silent for `timeout` s
 of wall time while the world waits on it is let go (logged, counted in `lost`) and
-rejoins with its next answer: a killed procedure never freezes the world for good.
+rejoins with its next answer: a killed procedure never freezes the world for good. A
+process that holds the world while it computes repeats its last answer every
+`drivers.time_base.HEARTBEAT` s from its executor thread, so only a dead or starved one
+goes silent that long.
 
 Commands cannot be told apart by sender (a ROS message carries none), so the check is on
 totals: the commands received since the clients joined against the sum of what their
@@ -61,7 +64,7 @@ class Lockstep:
     counted but not yet received; log(text): where joins, leaves and losses are told.
     """
 
-    def __init__(self, node, timeout: float = 5.0, free_lead: float = 0.05, command_wait: float = 0.5, log=None):
+    def __init__(self, node, timeout: float = 1.0, free_lead: float = 0.05, command_wait: float = 0.5, log=None):
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from std_msgs.msg import Header
 
@@ -134,7 +137,7 @@ class Lockstep:
                     now = time.monotonic()
                     for name in pending:
                         c = self.clients[name]
-                        if now - max(c.heard, began) > self.timeout:
+                        if now - c.heard > self.timeout:
                             del self.clients[name]
                             self.received = max(0, self.received - c.sent)
                             self.lost += 1

@@ -182,6 +182,9 @@ class RosArm:
         #: the rig.toml key of the watchdog, for the stale stream's line
         self.setting = setting or f"[arms.{self.name}] watchdog"
         self._polled = polled
+        #: the loop clock of the rig this arm belongs to (set by whoever paces its commands,
+        #: `rig.devices.factory`): a run reports its ticks' timing from it
+        self.clock = None
         from drivers.time_base import WallTime
 
         self._time = time_base if time_base is not None else WallTime()

@@ -204,6 +204,7 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
                          console=cfg.ros["console"], streams=arm_streams, polled=session.executor_time,
                          control_node=session.control, time_base=session.time)
             rig.arms[n] = arm
+            arm.clock = rig.clock
             rig.clock.add_source(arm)
             rig._closers.append(_once_stopped(session, arm.close))
         m = cfg.mocap

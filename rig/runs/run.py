@@ -273,6 +273,9 @@ class Run:
             doc["error"] = reason
             if stopped_in:
                 doc["step"] = stopped_in
+        tick = self._loop_timing()
+        if tick:
+            doc.setdefault("loop_tick", tick)
         if held:
             doc["held"] = held
         if hold_errors:
@@ -289,6 +292,10 @@ class Run:
             # the original error is the one to see; this one is secondary
             self._write(f"rig {self.procedure}: could not write result.json: {err}\n")
         run_owner.release(self.dir)
+        if tick:
+            self._write(f"rig {self.procedure}: loop on {tick['clock']}: {tick['tick_median_ms']:.2f} ms a tick "
+                        f"(median; p99 {tick['tick_p99_ms']:.2f} ms) against its {tick['period_ms']:.1f} ms period, "
+                        f"longer on {tick['over_period']} of {tick['ticks']} ticks\n")
         if exc is not None:
             try:  # lets exit_on_abort name the folder for Ctrl-C and failures too
                 exc.run_dir = self.dir
@@ -296,6 +303,21 @@ class Run:
                 pass
         if status == "completed":
             self._write(f"rig {self.procedure}: completed in {self.elapsed():.1f} s ({self.dir})\n")
+
+    def _loop_timing(self) -> dict:
+        """How long the procedure took per tick of its loop, against the loop's period, and
+        which clock it ran on: from the clock of the arms it moved (`clock.loop_timing()`;
+        {} when it never looped)."""
+        clock = next((a.clock for a in self._claimed if getattr(a, "clock", None) is not None), None)
+        timing = getattr(clock, "loop_timing", None)
+        if timing is None:
+            return {}
+        out = timing()
+        if out:
+            time_base = getattr(clock, "time", None)
+            out["clock"] = (time_base.describe() if time_base is not None and hasattr(time_base, "describe")
+                            else "the simulated world (in process)" if hasattr(clock, "world") else "the wall clock")
+        return out
 
     def _hold_all(self) -> tuple[list[str], list[dict]]:
         """Hold every claimed arm: (names held, [{"arm", "error"[, "state"]}] of the others).

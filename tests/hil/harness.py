@@ -30,11 +30,12 @@ PSM2_BASE = "base_xyz = [1.0728, 0.0, 0.0]\nbase_rpy = [0.0, 0.0, 3.141592653589
 
 
 def lab_toml(folder: Path, *, rate: float | None = None, watchdog: float | None = None, extra: str = "",
-             three_arms: bool = False) -> str:
+             three_arms: bool = False, sim_time: bool = False) -> str:
     """A lab's rig.toml for the rig `rig sim` serves: ROS arms, a serial load cell on
     `folder/loadcell` (rig sim links it to its pty), ROS mocap, the simulated operator.
     `three_arms`: PSM3 too, the object a triangle and a cell per element
-    (`folder/loadcell`, `loadcell1`, `loadcell2`)."""
+    (`folder/loadcell`, `loadcell1`, `loadcell2`). `sim_time`: the procedures follow
+    `rig sim --sim-time`'s clock in lockstep ([ros] use_sim_time)."""
     arm = 'driver = "ros"\n' + (f"watchdog = {watchdog}\n" if watchdog else "")
     text = ("[rig]\nseed = 0\n" + (f"rate = {rate}\n" if rate else "")
             + f"\n[arms.PSM1]\n{arm}\n[arms.PSM2]\n{arm}{PSM2_BASE}")
@@ -47,6 +48,8 @@ def lab_toml(folder: Path, *, rate: float | None = None, watchdog: float | None 
     else:
         text += f'\n[loadcell]\ndriver = "serial"\nport = "{folder / "loadcell"}"\n'
     text += '\n[mocap]\ndriver = "ros"\n\n[operator]\ndriver = "ros"\n'
+    if sim_time:
+        text += "\n[ros]\nuse_sim_time = true\n"
     return text + extra
 
 
@@ -87,15 +90,20 @@ class ServedRig:
     """`rig sim` on `folder/rig.toml` (see the module docstring); a context manager."""
 
     def __init__(self, folder: Path, domain: int | None = None, toml: str | None = None,
-                 sim_args: tuple[str, ...] = ()):
+                 sim_args: tuple[str, ...] = (), sim_time: bool = False):
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self._claim = None  # the domain this rig claimed (domain=None), held until stop()
         self._domain = domain
-        self.toml = toml if toml is not None else lab_toml(self.folder)
+        #: simulated time in lockstep (`rig sim --sim-time`, [ros] use_sim_time in the lab's file):
+        #: the procedures' figures do not depend on how busy the machine is
+        self.sim_time = sim_time
+        self.toml = toml if toml is not None else lab_toml(self.folder, sim_time=sim_time)
         # the procedures' 500 Hz loops need the arms' streams at 1 kHz (the dVRK console's
         # default period is 0.01 s; procedures refuse it in one line)
         self.sim_args = tuple(sim_args) if "--ros-period" in sim_args else ("--ros-period", "0.001", *sim_args)
+        if sim_time and "--sim-time" not in self.sim_args:
+            self.sim_args += ("--sim-time",)
         self.proc: subprocess.Popen | None = None
         self.sim_lines: list[str] = []
         self.runs_since_start = 0  # `run` calls since this rig sim started (its arms start DISABLED)

@@ -1,5 +1,8 @@
 """Three arms over the wire: `rig sim` serves PSM3 and a load cell per object element.
 
+On simulated time in lockstep (`rig sim --sim-time`): the figures are the loop's, however
+busy the machine.
+
 The lab's rig.toml names a port per element (`[loadcell] ports`); rig sim links each to
 the pty of that element's firmware, each cell is calibrated on its own (`--element`), and
 the cooperative procedure opens the three, each with its own calibration.
@@ -19,7 +22,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.hil]
 @pytest.fixture(scope="module")
 def triangle(tmp_path_factory):
     folder = tmp_path_factory.mktemp("triangle")
-    with ServedRig(folder, toml=lab_toml(folder, three_arms=True)) as rig:
+    with ServedRig(folder, toml=lab_toml(folder, three_arms=True, sim_time=True), sim_time=True) as rig:
         yield rig
 
 

@@ -40,6 +40,7 @@ STREAMS = ("measured_js", "setpoint_js", "measured_cp", "setpoint_cp", "local/me
 #: commands that count as motion (they pass the arm's operating state and its stamp order)
 MOTION = ("servo_jp", "servo_jr", "move_jp", "move_jr", "servo_cp", "move_cp", "servo_jf", "body/servo_cf",
           "spatial/servo_cf", "servo_ci", "hold", "free", "jaw/servo_jp", "jaw/move_jp", "jaw/servo_jf")
+_SETPOINTS = frozenset({"setpoint_js", "jaw/setpoint_js", "setpoint_cp", "local/setpoint_cp"})
 #: the layout of the published Jacobians (std_msgs/MultiArrayLayout dim: label, size, stride)
 JACOBIAN_DIMS = (("rows", 6, 36), ("columns", 6, 6))
 #: of those, the ones that start a trajectory (busy until its end)
@@ -64,11 +65,20 @@ def matrix_to_pose(T: np.ndarray, pose) -> None:
     o.x, o.y, o.z, o.w = (float(v) for v in matrix_to_quat_xyzw(T[:3, :3]))
 
 
-def _pose7(T: np.ndarray) -> list[float]:
-    """(px, py, pz, qx, qy, qz, qw) of a 4x4 pose."""
+def _quat(T: np.ndarray) -> list[float]:
+    """(qx, qy, qz, qw) of a 4x4 pose's rotation, w >= 0."""
     from drivers.quaternion import matrix_to_quat_xyzw
 
-    return T[:3, 3].tolist() + matrix_to_quat_xyzw(T[:3, :3]).tolist()
+    return matrix_to_quat_xyzw(T[:3, :3]).tolist()
+
+
+def _turned(a: list[float], b: list[float]) -> list[float]:
+    """The Hamilton product a b of two unit quaternions (x, y, z, w), w >= 0 (as `_quat`)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    q = [aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+         aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz]
+    return [-v for v in q] if q[3] < 0 else q
 
 
 def _quat_matrix(q) -> np.ndarray:
@@ -149,6 +159,7 @@ class ArmBridge:
             node.create_service(TriggerOperatingState, f"{ns}/operating_state", self._trigger_state),
         ]
         self._names = tuple(psm.joint_names)
+        self._base = None  # (base frame, its quaternion)
         self.published = 0
         self.sent = dict.fromkeys(STREAMS, 0)
 
@@ -289,6 +300,13 @@ class ArmBridge:
         state.messages.clear()
         psm.messages.clear()
 
+    def _in_base(self, q_local: list[float]) -> list[float]:
+        """A local orientation in the base frame: the base's quaternion (kept while the base stays) times it."""
+        base = self.psm.base_frame
+        if self._base is None or not np.array_equal(self._base[0], base):
+            self._base = (base.copy(), _quat(base))
+        return _turned(self._base[1], q_local)
+
     def _send(self, key: str, data: bytes) -> None:
         self.pub[key].publish(data)
         self.sent[key] += 1
@@ -307,22 +325,32 @@ class ArmBridge:
                 send("measured_js", cdr.write_joint_state(stamp, "", names, q[:6], dq[:6], e[:6]))
             if "jaw/measured_js" in w:
                 send("jaw/measured_js", cdr.write_joint_state(stamp, "", ("jaw",), q[6:], dq[6:], e[6:]))
-        if "setpoint_js" in w or "jaw/setpoint_js" in w:
-            sq, sdq, se = (v.tolist() for v in psm.setpoint_js())
+        setpoint = None
+        if w & _SETPOINTS:
+            setpoint = psm.setpoint_js()
+            sq, sdq, se = (v.tolist() for v in setpoint)
             if "setpoint_js" in w:
                 send("setpoint_js", cdr.write_joint_state(stamp, "", names, sq[:6], sdq[:6], se[:6]))
             if "jaw/setpoint_js" in w:
                 send("jaw/setpoint_js", cdr.write_joint_state(stamp, "", ("jaw",), sq[6:], sdq[6:], se[6:]))
         base = psm.reference_frame
-        for key, local in (("measured_cp", False), ("local/measured_cp", True)):
-            if key in w:
-                send(key, cdr.write_pose_stamped(stamp, base, _pose7(psm.measured_cp(local=local))))
+        # a pose in the base frame turns its local quaternion by the base's (one conversion a pose pair)
+        if "measured_cp" in w or "local/measured_cp" in w:
+            T_local = psm.measured_cp(local=True)
+            q_local = _quat(T_local)
+            if "local/measured_cp" in w:
+                send("local/measured_cp", cdr.write_pose_stamped(stamp, base, T_local[:3, 3].tolist() + q_local))
+            if "measured_cp" in w:
+                send("measured_cp", cdr.write_pose_stamped(stamp, base, psm.measured_cp()[:3, 3].tolist()
+                                                           + self._in_base(q_local)))
         if "setpoint_cp" in w or "local/setpoint_cp" in w:
-            T_local = psm.setpoint_cp(local=True)
-            if "setpoint_cp" in w:
-                send("setpoint_cp", cdr.write_pose_stamped(stamp, base, _pose7(psm.base_frame @ T_local)))
+            T_local = psm.setpoint_cp(local=True, q=setpoint[0])
+            q_local = _quat(T_local)
             if "local/setpoint_cp" in w:
-                send("local/setpoint_cp", cdr.write_pose_stamped(stamp, base, _pose7(T_local)))
+                send("local/setpoint_cp", cdr.write_pose_stamped(stamp, base, T_local[:3, 3].tolist() + q_local))
+            if "setpoint_cp" in w:
+                p = psm.base_frame[:3, :3] @ T_local[:3, 3] + psm.base_frame[:3, 3]
+                send("setpoint_cp", cdr.write_pose_stamped(stamp, base, p.tolist() + self._in_base(q_local)))
         for key, local in (("measured_cv", False), ("local/measured_cv", True)):
             if key in w:
                 send(key, cdr.write_twist_stamped(stamp, base, psm.measured_cv(local=local).tolist()))

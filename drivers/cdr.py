@@ -1,4 +1,4 @@
-"""Reading the two sensor messages a procedure receives most straight from their CDR bytes.
+"""The CDR bytes of the rig's streams: the two a procedure receives most read, all that `rig sim` publishes written.
 
 A procedure on the lab's rig receives 11 mocap bodies at 120 Hz and 2-3 arms'
 measured_js at 500 Hz: 2 300-2 800 messages a second on one executor thread. rclpy turns
@@ -21,8 +21,18 @@ the XCDR1 body, whose alignment is counted from the end of that header. The layo
   to 4), float64[] position, velocity, effort (uint32 count, aligned to 4; the doubles
   aligned to 8).
 
+* geometry_msgs/TwistStamped, WrenchStamped: Header, then 6 float64 aligned to 8;
+* std_msgs/Float64MultiArray: MultiArrayDimension[] dim (uint32 count; each a string
+  label, uint32 size, uint32 stride), uint32 data_offset, float64[] data.
+
 Malformed bytes (truncated, a bad encapsulation, a length past the end) raise
 `CdrError`; the drivers count such a message and drop it. Times are integer nanoseconds.
+
+The writers (`write_*`) give the bytes rclpy's own serialization gives (little endian),
+for a raw publisher (`Publisher.publish(bytes)`): `rig sim` publishes 13 streams an arm at
+up to 1 kHz, and rclpy's message objects cost more than the DDS write. A message's
+layout depends only on its frame_id, names and array lengths, so it is compiled once into
+a `struct.Struct` whose fixed parts are packed as constant byte strings.
 """
 
 from __future__ import annotations
@@ -110,3 +120,139 @@ def joint_state(buf: bytes) -> tuple[int, str, tuple[str, ...], tuple[float, ...
         else:
             arrays.append(())
     return t_ns, frame, tuple(names), arrays[0], arrays[1], arrays[2]
+
+
+# -- writing ---------------------------------------------------------------------------
+
+_ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR little endian, no options
+
+
+class _Layout:
+    """A message's bytes as constant runs and value groups: c0 v0 c1 v1 ... cN, compiled to one Struct."""
+
+    def __init__(self):
+        self._consts: list[bytearray] = [bytearray(_ENCAPSULATION)]
+        self._groups: list[str] = []
+        self._size = _BODY
+
+    def const(self, fmt: str, *values) -> None:
+        data = struct.pack("<" + fmt, *values)
+        self._consts[-1] += data
+        self._size += len(data)
+
+    def align(self, size: int) -> None:
+        self.const(f"{(-(self._size - _BODY)) % size}x")
+
+    def string(self, text: str) -> None:
+        data = text.encode("utf-8") + b"\0"
+        self.align(4)
+        self.const(f"I{len(data)}s", len(data), data)
+
+    def values(self, fmt: str, size: int) -> None:
+        """A group of values packed at each write (`size` bytes: fmt's own, aligned before)."""
+        self._groups.append(fmt)
+        self._consts.append(bytearray())
+        self._size += size
+
+    def compile(self) -> tuple[struct.Struct, tuple[bytes, ...]]:
+        fmt = "<"
+        for k, group in enumerate(self._groups):
+            fmt += f"{len(self._consts[k])}s{group}"
+        fmt += f"{len(self._consts[-1])}s"
+        return struct.Struct(fmt), tuple(bytes(c) for c in self._consts)
+
+
+def _header_layout(layout: _Layout, frame_id: str) -> None:
+    layout.values("iI", 8)
+    layout.string(frame_id)
+
+
+def _doubles(layout: _Layout, n: int) -> None:
+    layout.align(4)
+    layout.const("I", n)
+    if n:
+        layout.align(8)
+        layout.values(f"{n}d", 8 * n)
+
+
+_LAYOUTS: dict = {}
+
+
+def _fixed(kind: str, n: int, stamp_ns: int, frame_id: str, values) -> bytes:
+    """A Header then `n` float64 aligned to 8 (PoseStamped, TwistStamped, WrenchStamped)."""
+    key = (kind, frame_id)
+    compiled = _LAYOUTS.get(key)
+    if compiled is None:
+        layout = _Layout()
+        _header_layout(layout, frame_id)
+        layout.align(8)
+        layout.values(f"{n}d", 8 * n)
+        compiled = _LAYOUTS[key] = layout.compile()
+    st, (c0, c1, c2) = compiled
+    if len(values) != n:
+        raise ValueError(f"{kind} needs {n} values, got {len(values)}")
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    return st.pack(c0, sec, nanosec, c1, *values, c2)
+
+
+def write_pose_stamped(stamp_ns: int, frame_id: str, pose) -> bytes:
+    """geometry_msgs/PoseStamped; pose: (px, py, pz, qx, qy, qz, qw)."""
+    return _fixed("pose", 7, stamp_ns, frame_id, pose)
+
+
+def write_twist_stamped(stamp_ns: int, frame_id: str, twist) -> bytes:
+    """geometry_msgs/TwistStamped; twist: (linear x y z, angular x y z)."""
+    return _fixed("twist", 6, stamp_ns, frame_id, twist)
+
+
+def write_wrench_stamped(stamp_ns: int, frame_id: str, wrench) -> bytes:
+    """geometry_msgs/WrenchStamped; wrench: (force x y z, torque x y z)."""
+    return _fixed("wrench", 6, stamp_ns, frame_id, wrench)
+
+
+def write_joint_state(stamp_ns: int, frame_id: str, names: tuple[str, ...], position, velocity, effort) -> bytes:
+    """sensor_msgs/JointState; names a tuple of str, the arrays sequences of float (any lengths)."""
+    key = ("js", frame_id, names, len(position), len(velocity), len(effort))
+    compiled = _LAYOUTS.get(key)
+    if compiled is None:
+        layout = _Layout()
+        _header_layout(layout, frame_id)
+        layout.align(4)
+        layout.const("I", len(names))
+        for name in names:
+            layout.string(name)
+        for n in key[3:]:
+            _doubles(layout, n)
+        compiled = _LAYOUTS[key] = layout.compile()
+    st, consts = compiled
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    if len(consts) == 5:  # every array non-empty: the streams' case
+        return st.pack(consts[0], sec, nanosec, consts[1], *position, consts[2], *velocity, consts[3], *effort,
+                       consts[4])
+    args = [consts[0], sec, nanosec, consts[1]]
+    k = 2
+    for values in (position, velocity, effort):
+        if len(values):
+            args.extend(values)
+            args.append(consts[k])
+            k += 1
+    return st.pack(*args)
+
+
+def write_float64_multi_array(dims: tuple[tuple[str, int, int], ...], data, data_offset: int = 0) -> bytes:
+    """std_msgs/Float64MultiArray; dims: a tuple of (label, size, stride), one per dimension; data: floats."""
+    key = ("mat", dims, data_offset, len(data))
+    compiled = _LAYOUTS.get(key)
+    if compiled is None:
+        layout = _Layout()
+        layout.const("I", len(dims))
+        for label, size, stride in dims:
+            layout.string(label)
+            layout.align(4)
+            layout.const("II", size, stride)
+        layout.align(4)
+        layout.const("I", data_offset)
+        _doubles(layout, len(data))
+        compiled = _LAYOUTS[key] = layout.compile()
+    st, consts = compiled
+    return st.pack(consts[0], *data, consts[1]) if len(data) else st.pack(consts[0])

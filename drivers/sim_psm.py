@@ -111,6 +111,18 @@ class Impedance:
         return np.concatenate([force, torque])
 
 
+def _wrench(J: np.ndarray, effort: np.ndarray) -> np.ndarray:
+    """pinv(J^T) effort, as the dVRK computes a measured wrench: a solve while J is regular
+    (the same numbers in a fifth of pinv's time, twice a period), pinv where it is singular."""
+    try:
+        w = np.linalg.solve(J.T, effort)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(J.T) @ effort
+    if not np.all(np.abs(w) < 1e9):  # (near) singular: pinv drops what solve blows up
+        return np.linalg.pinv(J.T) @ effort
+    return w
+
+
 class SimPSM:
     """One arm of a `rig.sim.world.SimWorld` as a whole dVRK PSM (see the module docstring).
 
@@ -205,12 +217,12 @@ class SimPSM:
         T = self.base_frame @ T_local
         R = T[:3, :3]
         body_twist = Jb @ dq[:6]
-        wrench_body = np.linalg.pinv(Jb.T) @ effort[:6]
+        wrench_body = _wrench(Jb, effort[:6])
         wrench_abs = np.concatenate([R @ wrench_body[:3], R @ wrench_body[3:]])
         self._cache = {"q": q, "dq": dq, "effort": effort, "T_local": T_local, "T": T, "Jb": Jb, "Js": Js,
                        "v_local": body_twist, "v": np.concatenate([R @ body_twist[:3], R @ body_twist[3:]]),
                        "wrench_body": wrench_body, "wrench_abs": wrench_abs,
-                       "wrench_spatial": np.linalg.pinv(Js.T) @ effort[:6]}
+                       "wrench_spatial": _wrench(Js, effort[:6])}
         self._cache_key = key
         return self._cache
 
@@ -218,8 +230,9 @@ class SimPSM:
         k = self._kinematics()
         return (k["T_local"] if local else k["T"]).copy()
 
-    def setpoint_cp(self, local: bool = False) -> np.ndarray:
-        T = self.kin.forward(self.setpoint_js()[0][:6])
+    def setpoint_cp(self, local: bool = False, q=None) -> np.ndarray:
+        """The pose of the set-point joints (`q`, the first six of setpoint_js, when already read)."""
+        T = self.kin.forward((self.setpoint_js()[0] if q is None else q)[:6])
         return T if local else self.base_frame @ T
 
     def measured_cv(self, local: bool = False) -> np.ndarray:

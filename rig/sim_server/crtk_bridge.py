@@ -4,7 +4,8 @@
 (`drivers.sim_arm_state.SimArmState`) on the topics that jhu-cisst/cisst-ros's CRTK bridge
 (`mts_ros_crtk_bridge_provided.cpp`) gives a dVRK 2.4 PSM under /<arm>:
 
-* published every ROS period while someone subscribes: measured_js, setpoint_js,
+* published every ROS period while someone subscribes (and only then built), as CDR bytes
+  written straight from the arm's arrays (`drivers.cdr`): measured_js, setpoint_js,
   measured_cp, setpoint_cp, local/measured_cp, local/setpoint_cp, measured_cv,
   local/measured_cv, body/measured_cf, spatial/measured_cf, body/jacobian,
   spatial/jacobian (std_msgs/Float64MultiArray, 6 x 6, row major), jaw/measured_js,
@@ -21,14 +22,16 @@
 
 Subscriptions only queue (the server applies them on its main thread, the world's only
 writer); services answer from the executor thread with kinematics alone. Publishers use
-the dVRK's default QoS (reliable, volatile, depth 10).
+the dVRK's default QoS (reliable, volatile, depth 10). Which streams have a subscriber is
+looked up by the server (`refresh_watched`) and learnt at once from each publisher's
+matched event, so a client that subscribes late gets its first sample at the next period.
 """
 
 from __future__ import annotations
 
-from array import array
-
 import numpy as np
+
+from drivers import cdr
 
 #: topics published every ROS period (while subscribed)
 STREAMS = ("measured_js", "setpoint_js", "measured_cp", "setpoint_cp", "local/measured_cp", "local/setpoint_cp",
@@ -37,6 +40,9 @@ STREAMS = ("measured_js", "setpoint_js", "measured_cp", "setpoint_cp", "local/me
 #: commands that count as motion (they pass the arm's operating state and its stamp order)
 MOTION = ("servo_jp", "servo_jr", "move_jp", "move_jr", "servo_cp", "move_cp", "servo_jf", "body/servo_cf",
           "spatial/servo_cf", "servo_ci", "hold", "free", "jaw/servo_jp", "jaw/move_jp", "jaw/servo_jf")
+_SETPOINTS = frozenset({"setpoint_js", "jaw/setpoint_js", "setpoint_cp", "local/setpoint_cp"})
+#: the layout of the published Jacobians (std_msgs/MultiArrayLayout dim: label, size, stride)
+JACOBIAN_DIMS = (("rows", 6, 36), ("columns", 6, 6))
 #: of those, the ones that start a trajectory (busy until its end)
 MOVES = ("move_jp", "move_jr", "move_cp", "jaw/move_jp")
 
@@ -57,6 +63,22 @@ def matrix_to_pose(T: np.ndarray, pose) -> None:
     pose.position.x, pose.position.y, pose.position.z = (float(v) for v in T[:3, 3])
     o = pose.orientation
     o.x, o.y, o.z, o.w = (float(v) for v in matrix_to_quat_xyzw(T[:3, :3]))
+
+
+def _quat(T: np.ndarray) -> list[float]:
+    """(qx, qy, qz, qw) of a 4x4 pose's rotation, w >= 0."""
+    from drivers.quaternion import matrix_to_quat_xyzw
+
+    return matrix_to_quat_xyzw(T[:3, :3]).tolist()
+
+
+def _turned(a: list[float], b: list[float]) -> list[float]:
+    """The Hamilton product a b of two unit quaternions (x, y, z, w), w >= 0 (as `_quat`)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    q = [aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+         aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz]
+    return [-v for v in q] if q[3] < 0 else q
 
 
 def _quat_matrix(q) -> np.ndarray:
@@ -87,31 +109,36 @@ class ArmBridge:
     """One served PSM's CRTK topics on `node` (see the module docstring).
 
     psm: the `SimPSM`; state: its `SimArmState`; queue(fn, key, msg): how a received
-    command reaches the main thread; stamp(msg, t): fills a header stamp for sim time t;
-    event_stamp(msg): fills a header stamp for an event (strictly increasing).
+    command reaches the main thread; stamp_ns(t): the header stamp (ns) of a sample at sim
+    time t; event_stamp_ns(): the header stamp (ns) of an event published now (strictly
+    increasing). `published` counts the ROS periods served (the streams due, published to
+    whoever listened); `sent` the messages of each stream.
     """
 
-    def __init__(self, node, psm, state, queue, stamp, event_stamp):
+    def __init__(self, node, psm, state, queue, stamp_ns, event_stamp_ns):
         from crtk_msgs.msg import CartesianImpedance, OperatingState, StringStamped
         from crtk_msgs.srv import QueryForwardKinematics, QueryInverseKinematics, TriggerOperatingState
         from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+        from rclpy.event_handler import PublisherEventCallbacks
         from rclpy.qos import QoSProfile
         from sensor_msgs.msg import JointState
-        from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, MultiArrayDimension, String
+        from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, String
 
         self.node, self.psm, self.state = node, psm, state
         self.name = psm.name
-        self._stamp, self._event_stamp = stamp, event_stamp
-        self._T = {"js": JointState, "pose": PoseStamped, "twist": TwistStamped, "wrench": WrenchStamped,
-                   "mat": Float64MultiArray, "dim": MultiArrayDimension, "state": OperatingState,
-                   "string": String, "bool": Bool, "float": Float64}
+        self._stamp_ns, self._event_stamp_ns = stamp_ns, event_stamp_ns
+        self._T = {"state": OperatingState, "string": String, "bool": Bool, "float": Float64}
         qos = QoSProfile(depth=10)
         ns = "/" + self.name
         types = {"measured_js": JointState, "setpoint_js": JointState, "jaw/measured_js": JointState,
                  "jaw/setpoint_js": JointState, "measured_cv": TwistStamped, "local/measured_cv": TwistStamped,
                  "body/measured_cf": WrenchStamped, "spatial/measured_cf": WrenchStamped,
                  "body/jacobian": Float64MultiArray, "spatial/jacobian": Float64MultiArray}
-        self.pub = {k: node.create_publisher(types.get(k, PoseStamped), f"{ns}/{k}", qos) for k in STREAMS}
+        self.watched: frozenset[str] = frozenset()
+        self.pub = {k: node.create_publisher(types.get(k, PoseStamped), f"{ns}/{k}", qos,
+                                             event_callbacks=PublisherEventCallbacks(
+                                                 matched=lambda info, k=k: self._matched(k, info.current_count)))
+                    for k in STREAMS}
         events = {"operating_state": OperatingState, "error": String, "warning": String, "status": String,
                   "goal_reached": Bool, "trajectory_j/ratio": Float64, "trajectory_j/ratio_v": Float64,
                   "trajectory_j/ratio_a": Float64}
@@ -131,11 +158,10 @@ class ArmBridge:
             node.create_service(QueryInverseKinematics, f"{ns}/inverse_kinematics", self._ik),
             node.create_service(TriggerOperatingState, f"{ns}/operating_state", self._trigger_state),
         ]
-        self.watched: set[str] = set()
-        self._js = {k: JointState() for k in ("measured_js", "setpoint_js", "jaw/measured_js", "jaw/setpoint_js")}
-        for k, m in self._js.items():
-            m.name = ["jaw"] if k.startswith("jaw/") else list(psm.joint_names)
+        self._names = tuple(psm.joint_names)
+        self._base = None  # (base frame, its quaternion)
         self.published = 0
+        self.sent = dict.fromkeys(STREAMS, 0)
 
     # -- services (executor thread: kinematics only) -------------------------------------
     def _fk(self, req, res, local: bool = False):
@@ -161,7 +187,8 @@ class ArmBridge:
 
     def _trigger_state(self, _req, res):
         st = self.state.operating_state()
-        self._event_stamp(res.operating_state)
+        stamp = res.operating_state.header.stamp
+        stamp.sec, stamp.nanosec = divmod(self._event_stamp_ns(), 1_000_000_000)
         res.operating_state.state, res.operating_state.is_homed = st.state, st.is_homed
         res.operating_state.is_busy = st.is_busy
         return res
@@ -235,17 +262,20 @@ class ArmBridge:
         raise ValueError(f"unknown command {key}")
 
     # -- publishing (main thread) ------------------------------------------------------------
-    def refresh_watched(self, everything: bool = False) -> None:
-        """The streams to publish: those with a subscriber, or all of them."""
-        self.watched = set(self.pub) if everything else {k for k, p in self.pub.items()
-                                                          if p.get_subscription_count() > 0}
+    def refresh_watched(self) -> None:
+        """The streams to publish: those with a subscriber."""
+        self.watched = frozenset(k for k, p in self.pub.items() if p.get_subscription_count() > 0)
+
+    def _matched(self, key: str, subscribers: int) -> None:
+        """A subscriber came or went (executor thread): the set is replaced, never changed in place."""
+        self.watched = self.watched | {key} if subscribers > 0 else self.watched - {key}
 
     def publish_events(self) -> None:
         """The operating state's and the arm's events and messages, in order."""
         T, state, psm = self._T, self.state, self.psm
         for st in state.events:
             m = T["state"]()
-            self._event_stamp(m)
+            m.header.stamp.sec, m.header.stamp.nanosec = divmod(self._event_stamp_ns(), 1_000_000_000)
             m.header.frame_id = self.name
             m.state, m.is_homed, m.is_busy = st.state, st.is_homed, st.is_busy
             self.event_pub["operating_state"].publish(m)
@@ -270,72 +300,68 @@ class ArmBridge:
         state.messages.clear()
         psm.messages.clear()
 
-    def _joint(self, key: str, q, dq, e, t: float) -> None:
-        m = self._js[key]
-        self._stamp(m, t)
-        # array('d') skips the generated setters' per-element checks
-        m.position, m.velocity, m.effort = array("d", q), array("d", dq), array("d", e)
-        self.pub[key].publish(m)
+    def _in_base(self, q_local: list[float]) -> list[float]:
+        """A local orientation in the base frame: the base's quaternion (kept while the base stays) times it."""
+        base = self.psm.base_frame
+        if self._base is None or not np.array_equal(self._base[0], base):
+            self._base = (base.copy(), _quat(base))
+        return _turned(self._base[1], q_local)
 
-    def _pose(self, key: str, T: np.ndarray, t: float, frame: str) -> None:
-        m = self._T["pose"]()
-        self._stamp(m, t)
-        m.header.frame_id = frame
-        matrix_to_pose(T, m.pose)
-        self.pub[key].publish(m)
+    def _send(self, key: str, data: bytes) -> None:
+        self.pub[key].publish(data)
+        self.sent[key] += 1
 
     def publish_streams(self, t: float) -> None:
-        """Every watched stream at sim time t (measured_js always: it is the arm's heartbeat)."""
-        psm, w = self.psm, self.watched
-        q, dq, e = psm.measured_js()
-        self._joint("measured_js", q[:6], dq[:6], e[:6], t)
+        """Every watched stream at sim time t, built only when watched."""
         self.published += 1
+        w = self.watched
         if not w:
             return
-        if "jaw/measured_js" in w:
-            self._joint("jaw/measured_js", q[6:], dq[6:], e[6:], t)
-        if w & {"setpoint_js", "jaw/setpoint_js"}:
-            sq, sdq, se = psm.setpoint_js()
+        psm, send, stamp = self.psm, self._send, self._stamp_ns(t)
+        names = self._names
+        if "measured_js" in w or "jaw/measured_js" in w:
+            q, dq, e = (v.tolist() for v in psm.measured_js())
+            if "measured_js" in w:
+                send("measured_js", cdr.write_joint_state(stamp, "", names, q[:6], dq[:6], e[:6]))
+            if "jaw/measured_js" in w:
+                send("jaw/measured_js", cdr.write_joint_state(stamp, "", ("jaw",), q[6:], dq[6:], e[6:]))
+        setpoint = None
+        if w & _SETPOINTS:
+            setpoint = psm.setpoint_js()
+            sq, sdq, se = (v.tolist() for v in setpoint)
             if "setpoint_js" in w:
-                self._joint("setpoint_js", sq[:6], sdq[:6], se[:6], t)
+                send("setpoint_js", cdr.write_joint_state(stamp, "", names, sq[:6], sdq[:6], se[:6]))
             if "jaw/setpoint_js" in w:
-                self._joint("jaw/setpoint_js", sq[6:], sdq[6:], se[6:], t)
+                send("jaw/setpoint_js", cdr.write_joint_state(stamp, "", ("jaw",), sq[6:], sdq[6:], se[6:]))
         base = psm.reference_frame
-        for key, local in (("measured_cp", False), ("local/measured_cp", True)):
-            if key in w:
-                self._pose(key, psm.measured_cp(local=local), t, base)
-        if w & {"setpoint_cp", "local/setpoint_cp"}:
-            T_local = psm.setpoint_cp(local=True)
-            if "setpoint_cp" in w:
-                self._pose("setpoint_cp", psm.base_frame @ T_local, t, base)
+        # a pose in the base frame turns its local quaternion by the base's (one conversion a pose pair)
+        if "measured_cp" in w or "local/measured_cp" in w:
+            T_local = psm.measured_cp(local=True)
+            q_local = _quat(T_local)
+            if "local/measured_cp" in w:
+                send("local/measured_cp", cdr.write_pose_stamped(stamp, base, T_local[:3, 3].tolist() + q_local))
+            if "measured_cp" in w:
+                send("measured_cp", cdr.write_pose_stamped(stamp, base, psm.measured_cp()[:3, 3].tolist()
+                                                           + self._in_base(q_local)))
+        if "setpoint_cp" in w or "local/setpoint_cp" in w:
+            T_local = psm.setpoint_cp(local=True, q=setpoint[0])
+            q_local = _quat(T_local)
             if "local/setpoint_cp" in w:
-                self._pose("local/setpoint_cp", T_local, t, base)
+                send("local/setpoint_cp", cdr.write_pose_stamped(stamp, base, T_local[:3, 3].tolist() + q_local))
+            if "setpoint_cp" in w:
+                p = psm.base_frame[:3, :3] @ T_local[:3, 3] + psm.base_frame[:3, 3]
+                send("setpoint_cp", cdr.write_pose_stamped(stamp, base, p.tolist() + self._in_base(q_local)))
         for key, local in (("measured_cv", False), ("local/measured_cv", True)):
             if key in w:
-                v = psm.measured_cv(local=local)
-                m = self._T["twist"]()
-                self._stamp(m, t)
-                m.header.frame_id = base
-                m.twist.linear.x, m.twist.linear.y, m.twist.linear.z = (float(x) for x in v[:3])
-                m.twist.angular.x, m.twist.angular.y, m.twist.angular.z = (float(x) for x in v[3:])
-                self.pub[key].publish(m)
-        for key in ("body/measured_cf", "spatial/measured_cf"):
-            if key in w:
-                f = psm.body_measured_cf() if key.startswith("body") else psm.spatial_measured_cf()
-                m = self._T["wrench"]()
-                self._stamp(m, t)
-                m.header.frame_id = psm.name if key.startswith("body") else base
-                m.wrench.force.x, m.wrench.force.y, m.wrench.force.z = (float(x) for x in f[:3])
-                m.wrench.torque.x, m.wrench.torque.y, m.wrench.torque.z = (float(x) for x in f[3:])
-                self.pub[key].publish(m)
+                send(key, cdr.write_twist_stamped(stamp, base, psm.measured_cv(local=local).tolist()))
+        if "body/measured_cf" in w:
+            send("body/measured_cf", cdr.write_wrench_stamped(stamp, psm.name, psm.body_measured_cf().tolist()))
+        if "spatial/measured_cf" in w:
+            send("spatial/measured_cf", cdr.write_wrench_stamped(stamp, base, psm.spatial_measured_cf().tolist()))
         for key in ("body/jacobian", "spatial/jacobian"):
             if key in w:
                 J = psm.jacobian(key.split("/")[0])
-                m = self._T["mat"]()
-                m.layout.dim = [self._T["dim"](label="rows", size=J.shape[0], stride=J.size),
-                                self._T["dim"](label="columns", size=J.shape[1], stride=J.shape[1])]
-                m.data = array("d", J.ravel())
-                self.pub[key].publish(m)
+                send(key, cdr.write_float64_multi_array(JACOBIAN_DIMS, J.ravel().tolist()))
 
     def publish_initial(self) -> None:
         """What a client that connects first finds: the trajectory ratio (latched nowhere on

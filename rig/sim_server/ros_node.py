@@ -5,8 +5,8 @@
 * every simulated arm as a whole dVRK 2.4 PSM (`drivers.sim_psm.SimPSM` behind its
   operating state `drivers.sim_arm_state.SimArmState`) on the CRTK topics of
   `rig.sim_server.crtk_bridge.ArmBridge`: the streams every ROS period (`ros_period`, as
-  `dvrk_system -p`), each while it has a subscriber (looked up at 10 Hz; measured_js
-  always), the events (operating_state, error, warning, status, goal_reached, the
+  `dvrk_system -p`), each only while it has a subscriber (looked up at 10 Hz, and at once
+  from the publisher's matched event), written straight to CDR bytes, the events (operating_state, error, warning, status, goal_reached, the
   trajectory ratio) when they happen;
 * the console under `console` (/console as dVRK 2.3, /system as 2.4): power_on,
   power_off and home act on every arm through its state machine; set_volume, beep and
@@ -40,8 +40,6 @@ DVRK_ROS_PERIOD = 0.01
 #: ns: a command stamped older than an arm's last one by less than this was overtaken on
 #: the wire (superseded); by more, it comes from another clock
 REORDER_NS = 1_000_000_000
-#: s, the ROS period from which every arm stream is published whether watched or not
-ALWAYS_BELOW = 0.004
 
 
 class SimServer:
@@ -84,16 +82,14 @@ class SimServer:
         self.ros_period = float(ros_period)
         self.ros_every = max(1, int(round(self.ros_period * self.rate)))
         self._refresh_every = max(1, int(round(0.1 * self.rate)))  # subscribers looked up at 10 Hz
-        # At the dVRK's periods every stream is published whether or not anyone listens, as
-        # the dVRK does (a client that just connected finds its first sample within a
-        # period); faster than ALWAYS_BELOW s, only the watched ones (the CPU of 14 topics
-        # per arm at 1 kHz would starve the servo loop)
-        self.publish_all = self.ros_period >= ALWAYS_BELOW
+        # A stream is built only while it has a subscriber, at every period: a client that
+        # subscribes late is seen at once (each publisher's matched event) and gets its
+        # first sample at the next period, as from a dVRK that publishes to everyone
         self._commands: deque = deque()
         self._last_event = 0
         qos = QoSProfile(depth=10)
-        self.bridges = {n: ArmBridge(node, self.psms[n], self.states[n], self._queued, self._stamp,
-                                     self._event_stamp) for n in arms}
+        self.bridges = {n: ArmBridge(node, self.psms[n], self.states[n], self._queued, self._stamp_ns,
+                                     self._event_stamp_ns) for n in arms}
         for b in self.bridges.values():
             b.publish_initial()
         self.console = "/" + console.strip("/")
@@ -136,11 +132,9 @@ class SimServer:
         self.mocap_unplugged = False
         self.tracker = None
         self.natnet = None  # a drivers.natnet.fake_motive.SimMotive when serving NatNet (`--natnet`)
-        self._mocap_msg: dict = {}
         self._mocap_pub: dict = {}
         self._mocap = mocap
         self._seed = seed
-        self._Pose = PoseStamped
         if mocap is not None:
             from drivers.mocap import pose_topic
             from rig.sim.world import default_marker_bodies
@@ -265,16 +259,10 @@ class SimServer:
         self._last_event = ns
         return ns
 
-    def _stamp(self, msg, t: float) -> None:
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(self._stamp_ns(t), 1_000_000_000)
-
-    def _event_stamp(self, msg) -> None:
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(self._event_stamp_ns(), 1_000_000_000)
-
     def _refresh_watched(self) -> None:
         """Which streams have subscribers; start or stop the mocap system to match."""
         for b in self.bridges.values():
-            b.refresh_watched(everything=self.publish_all)
+            b.refresh_watched()
         watched = any(p.get_subscription_count() > 0 for p in self._mocap_pub.values())
         if watched and self.tracker is None:
             from drivers.mocap_sim import SimTracker
@@ -292,23 +280,20 @@ class SimServer:
         self.mocap_unplugged = True
 
     def _publish_mocap(self) -> None:
+        from drivers.cdr import write_pose_stamped
+
         frames = self.tracker.frames()
         if self.mocap_unplugged:
             return
         for frame in frames:
+            stamp = self._stamp_ns(frame.t)
             for body, pose in frame.bodies.items():
                 if pose is None:
                     continue  # occluded: bridges publish nothing for a lost body
-                pm = self._mocap_msg.get(body)
-                if pm is None:  # one message object per body, refilled (publish copies it)
-                    pm = self._mocap_msg[body] = self._Pose()
-                    pm.header.frame_id = "world"
-                self._stamp(pm, frame.t)
-                pm.pose.position.x, pm.pose.position.y, pm.pose.position.z = pose.position.tolist()
-                q = frame.quaternions[body]  # frame.quaternion_order == "xyzw", as on the wire
-                o = pm.pose.orientation
-                o.x, o.y, o.z, o.w = (float(v) for v in q)
-                self._mocap_pub[body].publish(pm)
+                # frame.quaternion_order == "xyzw", as on the wire
+                xyzw = frame.quaternions[body]
+                self._mocap_pub[body].publish(write_pose_stamped(stamp, "world", pose.position.tolist() + [
+                    float(xyzw[0]), float(xyzw[1]), float(xyzw[2]), float(xyzw[3])]))
 
     def _publish_clock(self, t: float) -> None:
         """/clock at world time `t` (rosgraph_msgs/Clock), after the period's streams."""

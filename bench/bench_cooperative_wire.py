@@ -1,4 +1,4 @@
-"""`rig cooperative` over the wire, per object x ROS period x load (issue 35's table).
+"""`rig cooperative` over the wire, per object x ROS period x clock x load (issues 35, 44).
 
 For each ROS period `rig sim` serves (0.01 s = the dVRK's default, 0.002, 0.001) one
 `rig sim` in its own folder (tests/hil/harness.py): the load cell calibrated, the arms
@@ -7,9 +7,11 @@ triangle on a rig sim of its own) with a 3 cm move, each a separate `rig coopera
 --json` process as a lab runs it. The model: `rig identify` on the built-in simulated rig
 (the same plant rig sim serves), passed with --force-model, so this bench measures the
 force loop, not the identification. `--burners N` starts N CPU-burning processes for the
-whole bench.
+whole bench. `--clocks sim,wall`: `rig sim --sim-time` with the procedures in lockstep
+([ros] use_sim_time; the default), and the wall clock, as against a real console.
 
-    .venv/bin/python bench/bench_cooperative_wire.py [--runs 5] [--burners 2] [--periods 0.01,0.002,0.001]
+    .venv/bin/python bench/bench_cooperative_wire.py [--runs 5] [--burners 2] [--periods 0.01,0.002,0.001] \
+        [--clocks sim,wall]
 
 Prints per object x period: completed runs, false aborts, worst max |F - 5 N| during the
 move and worst overshoot against 0.25 N and 0.5 N, the loop's rate and period (median /
@@ -84,6 +86,7 @@ def main() -> int:
     ap.add_argument("--burners", type=int, default=0, help="CPU-burning processes beside the rig")
     ap.add_argument("--periods", default="0.01,0.002,0.001", help="rig sim --ros-period values, s")
     ap.add_argument("--objects", default="spring,string,three", help="spring, string, three (the triangle)")
+    ap.add_argument("--clocks", default="sim", help="sim (rig sim --sim-time, lockstep), wall, or both: sim,wall")
     a = ap.parse_args()
     burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(a.burners)]
     rows = []
@@ -92,42 +95,54 @@ def main() -> int:
             tmp = Path(tmp)
             model = _model(tmp / "model")
             common = MOVE + ["--model", str(model), "--force-model"]
-            for period in a.periods.split(","):
-                for obj in a.objects.split(","):
+            cases = [(c, p, o) for c in a.clocks.split(",") for p in a.periods.split(",") for o in a.objects.split(",")]
+            for clock, period, obj in cases:
+                    sim_time = clock == "sim"
                     three = obj == "three"
-                    folder = tmp / f"{obj}-{period}"
+                    folder = tmp / f"{obj}-{period}-{clock}"
                     domain = 170 + (os.getpid() + len(rows)) % 30
-                    print(f"{obj} at --ros-period {period} ({a.burners} burners):", flush=True)
+                    label = f"{obj} @ {period} s, {clock}"
+                    print(f"{obj} at --ros-period {period} on the {clock} clock ({a.burners} burners):", flush=True)
                     # [rig] rate no faster than the arms publish (every procedure refuses a
                     # slower stream than its loop needs: rig.devices.factory.check_stream_rates); rig
                     # sim's arms keep their 500 Hz servo (--rate), as a console's do at any -p
                     rate = min(500.0, round(1.0 / float(period)))
-                    with ServedRig(folder, domain, toml=lab_toml(folder, three_arms=three, rate=rate),
-                                   sim_args=("--rate", "500", "--ros-period", period)) as rig:
+                    with ServedRig(folder, domain, toml=lab_toml(folder, three_arms=three, rate=rate, sim_time=sim_time),
+                                   sim_args=("--rate", "500", "--ros-period", period), sim_time=sim_time) as rig:
                         problem = _prepare(rig, 3 if three else 1)
                         if problem:
-                            rows.append((f"{obj} @ {period} s: set-up", problem[:80], "completes", False))
+                            rows.append((f"{label}: set-up", problem[:80], "completes", False))
                             continue
                         args = common + (["--arms", "PSM1,PSM2,PSM3", "--object", "spring"] if three
                                          else ["--object", obj])
                         r = _runs(rig, obj, args, a.runs)
+                        said = rig.stop(keep_domain=True)
+                    factor = next((ln.split("real-time factor ")[1].split(")")[0] for ln in said.splitlines()
+                                   if "real-time factor" in ln), None)
                     if r["refused"]:
-                        rows.append((f"{obj} @ {period} s: refused", r["refused"][:100], "one line", True))
+                        rows.append((f"{label}: refused", r["refused"][:100], "one line", True))
                         continue
                     docs = r["docs"]
                     worst = max((d["max_error_during_motion"] for d in docs), default=float("nan"))
                     over = max((d["overshoot"] for d in docs), default=float("nan"))
                     done = sum(d.get("status") == "completed" for d in docs)
-                    rows.append((f"{obj} @ {period} s: completed / failed (0.5 N) / aborted",
+                    rows.append((f"{label}: completed / failed (0.5 N) / aborted",
                                  f"{done} / {len(docs) - done} / {len(r['aborts'])}", f"{a.runs} / 0 / 0",
                                  done == a.runs and not r["aborts"]))
-                    rows.append((f"{obj} @ {period} s: worst max |F - 5 N| moving / overshoot",
+                    rows.append((f"{label}: worst max |F - 5 N| moving / overshoot",
                                  f"{worst:.3f} / {over:.3f} N", "<= 0.25 / 0.5", worst <= 0.25 and over <= 0.5))
                     if docs:
                         lt = docs[-1]["loop_timing"]
-                        rows.append((f"{obj} @ {period} s: loop rate, period median / p99 / max",
+                        rows.append((f"{label}: loop rate, period median / p99 / max",
                                      f"{lt['rate_hz']:g} Hz, {lt['period_ms_median']:.2f} / {lt['period_ms_p99']:.1f}"
                                      f" / {lt['period_ms_max']:.0f} ms", "reported", True))
+                        tick = docs[-1].get("loop_tick") or {}
+                        if tick:
+                            rows.append((f"{label}: tick median / p99 against the period",
+                                         f"{tick['tick_median_ms']:.2f} / {tick['tick_p99_ms']:.2f} of "
+                                         f"{tick['period_ms']:.1f} ms", "reported", True))
+                    if factor is not None:
+                        rows.append((f"{label}: rig sim's real-time factor", factor, "> 1 quiet", True))
     finally:
         for b in burners:
             b.kill()

@@ -45,6 +45,9 @@ CLOCK_TOPIC = "/clock"
 ANSWER_TOPIC = "/rig_sim/clock_answer"
 #: s of wall time, the longest a driver's wait sleeps before it reads the simulated clock again
 WAIT_SLICE = 0.02
+#: s of simulated time a device read on a thread of its own (a load cell's port) may lag the
+#: clock a free process answers: the world waits for its reader too
+SYNC_LAG = 0.01
 #: s of wall time between two answers of a process that holds the world while it computes:
 #: its executor repeats the last one, so the simulator tells a busy process from a dead one
 HEARTBEAT = 0.2
@@ -160,6 +163,9 @@ class SimTime:
         self._sub = node.create_subscription(Clock, CLOCK_TOPIC, self._on_clock, qos, raw=True)
         self._pub = node.create_publisher(Header, ANSWER_TOPIC, qos) if self.lockstep else None
         self._node = node
+        #: devices read on threads of their own, with `caught_up(t)` (a load cell): a period
+        #: is answered once they have taken what the world wrote up to it
+        self.syncs: list = []
         self.clocks = 0  #: /clock messages received
         self.answers = 0  #: answers published
 
@@ -178,6 +184,19 @@ class SimTime:
             free = not self._held
             self.changed.notify_all()
         if free:
+            self._free_answer()
+
+    def add_sync(self, device) -> None:
+        """A device whose reader the world waits for (`caught_up(t)`: a load cell)."""
+        self.syncs.append(device)
+
+    def _free_answer(self) -> None:
+        """Free mode: answer the newest clock once every sync device has caught up with it."""
+        ns = self._t_ns
+        if ns is None or self._held or ns <= self._answered_ns:
+            return
+        t = ns * 1e-9 - SYNC_LAG
+        if all(d.caught_up(t) for d in self.syncs):
             self._answer(ns)
 
     def now(self) -> float:
@@ -256,11 +275,10 @@ class SimTime:
         """Free the world: the executor answers every /clock from now on."""
         if self._held:
             self._held = False
-            t = self._t_ns
-            if t is not None:
+            if self._t_ns is not None:
                 with self.changed:
                     self._advanced = max(self._advanced, time.monotonic())
-                self._answer(t, "free")
+                self._free_answer()
 
     def sent(self, n: int = 1) -> None:
         """Count `n` commands published to the arms or the console (before the answer that follows them)."""
@@ -268,9 +286,12 @@ class SimTime:
             self._sent += n
 
     def notify(self) -> None:
-        """A sample arrived: wake a loop waiting on it."""
+        """A sample arrived, or a device caught up: wake a loop waiting on it (and, free,
+        answer a period that waited for the device)."""
         with self.changed:
             self.changed.notify_all()
+        if not self._held and self.syncs:
+            self._free_answer()
 
     # -- waiting ------------------------------------------------------------------------
     def stalled(self) -> ClockStopped | None:

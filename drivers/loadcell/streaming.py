@@ -199,7 +199,7 @@ class _StreamingLoadCell(abc.ABC):
         """The reader has taken every byte the device had written by clock time `t` (it found
         the transport empty at `t` or later, after parsing what came before). A loop in
         lockstep with the device's simulator waits on it before reading the force of `t`."""
-        return self._caught_up >= t or self._error is not None
+        return self._caught_up >= t or self._error is not None or self._stop.is_set()
 
     def stream_age(self) -> float:
         """Seconds since the last sample as of the reader's last look (inf before the first)."""

@@ -256,7 +256,6 @@ class SimTimeClock(_Listeners):
         self.period = 1.0 / self.rate
         self.time = time_base
         self.sources = list(sources)
-        self.syncs: list = []
         self.min_fraction = float(min_fraction)
         self.max_fraction = float(max_fraction)
         self._polled = polled or time.monotonic
@@ -272,8 +271,9 @@ class SimTimeClock(_Listeners):
         self._seen.append(source.received)
 
     def add_sync(self, device) -> None:
-        """A device whose bytes the loop waits to have been read (`caught_up(t)`): a load cell."""
-        self.syncs.append(device)
+        """A device whose bytes the loop waits to have been read (`caught_up(t)`): a load
+        cell (kept by the time base, which waits for it when free too)."""
+        self.time.add_sync(device)
 
     def set_rate(self, rate: float, min_fraction: float | None = None) -> None:
         """Tick at `rate` Hz from now on (see StreamClock.set_rate)."""
@@ -291,7 +291,7 @@ class SimTimeClock(_Listeners):
         """Every source has a sample of time `t` or later (newer than `seen`) and every sync
         device has been read up to `t`."""
         return (all(s.received > n and s.last_stamp() >= t - 1e-9 for s, n in zip(self.sources, seen))
-                and all(d.caught_up(t) for d in self.syncs))
+                and all(d.caught_up(t) for d in self.time.syncs))
 
     def tick(self) -> None:
         self._tick_called()

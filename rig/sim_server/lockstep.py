@@ -76,7 +76,9 @@ class Lockstep:
         self._log = log or (lambda text: None)
         self.clients: dict[str, Client] = {}
         self.cond = threading.Condition()
-        self.received = 0  # commands received, less those of clients that left
+        self.received = 0  # commands received (every client's, and any other publisher's)
+        self.settled = 0  # the commands counted by clients that left (their last answer's)
+        self._departed: dict[str, int] = {}
         self.lost = 0
         self.late_commands = 0
         self.waits = 0
@@ -105,10 +107,11 @@ class Lockstep:
             known = self.clients.get(client)
             if mode == "bye":
                 if known is not None:
-                    del self.clients[client]
-                    self.received = max(0, self.received - known.sent)
+                    self._depart(client)
                     self._log(f"lockstep: {client} left at t = {ns * 1e-9:.3f} s")
             elif known is None:
+                # its count goes on from where it left, if it was let go
+                self.settled -= self._departed.pop(client, 0)
                 self.clients[client] = Client(ns, sent, mode, time.monotonic(), next_ns)
                 self._log(f"lockstep: {client} follows the clock from t = {ns * 1e-9:.3f} s ({mode})")
             else:
@@ -118,6 +121,11 @@ class Lockstep:
                 known.next_ns = next_ns
                 known.heard = time.monotonic()
             self.cond.notify_all()
+
+    def _depart(self, client: str) -> None:
+        c = self.clients.pop(client)
+        self.settled += c.sent
+        self._departed[client] = c.sent
 
     def _pending(self, t_ns: int) -> list[str]:
         # hold: the period itself, unless the loop acts next on a later one; free: within the lead
@@ -138,8 +146,7 @@ class Lockstep:
                     for name in pending:
                         c = self.clients[name]
                         if now - c.heard > self.timeout:
-                            del self.clients[name]
-                            self.received = max(0, self.received - c.sent)
+                            self._depart(name)
                             self.lost += 1
                             self._log(f"lockstep: {name} left the world waiting {self.timeout:g} s at t = "
                                       f"{t_ns * 1e-9:.3f} s; stepping on without it until it answers again")
@@ -147,7 +154,7 @@ class Lockstep:
                         waited = True
                         self.cond.wait(0.05)
                     continue
-                owed = sum(c.sent for c in self.clients.values())
+                owed = self.settled + sum(c.sent for c in self.clients.values())
                 if self.received >= owed:
                     break
                 if time.monotonic() - began > self.command_wait:

@@ -88,7 +88,7 @@ def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits, ma
     every = max(1, n // 100)
     arm.drain_js()  # what arrived before the trajectory starts is not part of it
     ticks_without = waited = 0
-    q_last = t_last = None
+    q_last = t_last = rest_offset = None
     silent_after = SILENT * max(1.0 / rate, _stream_period(arm))
     delay = np.inf  # the least (now - stamp) seen: transport plus any offset of the two clocks
     k = 0
@@ -120,12 +120,15 @@ def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits, ma
         # resume, a set-point a lag ahead, not one that ran on by the stall times the speed
         # (calibration.excitation_design). The set-point of the sample's own time leaves
         # the transport delay out of the lag.
-        # Not at the start: there the set-point stands still, and a loaded joint resting a few
-        # mrad short of it under the PID (START_TOLERANCE) would hold the trajectory for good
-        # (seen over the wire: q2 2.3 mrad short, 380 000 periods waited).
+        # The lead is counted from where the arm rested at the start: a loaded joint rests a
+        # few mrad short of its set-point under the PID (START_TOLERANCE), and that offset
+        # alone held the trajectory at its start for good (seen over the wire: q2 2.3 mrad
+        # short, 380 000 periods waited).
         then = sent[max(0, bisect.bisect_right(sent_t, t_last) - 1)][1] if t_last is not None else k
+        if rest_offset is None and q_last is not None:
+            rest_offset = q_cmd[0] - q_last
         if (t_last is not None and clock.now() - t_last - delay > silent_after) or (
-                q_last is not None and then > 0 and lagging(q_last, q_cmd[then], dq_cmd[then], margin.lag)):
+                q_last is not None and lagging(q_last + rest_offset, q_cmd[then], dq_cmd[then], margin.lag)):
             waited += 1
         else:
             k += 1

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import bisect
+import collections
 
 import numpy as np
 
@@ -90,7 +91,12 @@ def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits, ma
     ticks_without = waited = 0
     q_last = t_last = rest_offset = None
     silent_after = SILENT * max(1.0 / rate, _stream_period(arm))
-    delay = np.inf  # the least (now - stamp) seen: transport plus any offset of the two clocks
+    # the least (now - stamp) over the last DELAY_WINDOW ticks: transport plus any offset of
+    # the two clocks. A window, not the whole run: samples taken in a burst when the loop
+    # starts may be stamped ahead of this process's clock (on simulated time the world ran
+    # ahead while it waited), and a delay of the run's first ticks would hold its time for good
+    delays: collections.deque = collections.deque(maxlen=max(1, int(DELAY_WINDOW * rate)))
+    delay = np.inf
     k = 0
     while k < n:
         arm.servo_jp(q_cmd[k], dq_cmd[k])
@@ -107,7 +113,8 @@ def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits, ma
             rec.joint_state(f"/{arm.name}/measured_js", js.t, js.position, js.velocity, js.effort)
         if new:
             t_last = new[-1].t
-            delay = min(delay, clock.now() - t_last)
+            delays.append(clock.now() - t_last)
+            delay = min(delays)
             q_last, dq = np.asarray(new[-1].position[:3]), np.asarray(new[-1].velocity[:3])
             if np.any(q_last < low) or np.any(q_last > high) or np.any(np.abs(dq) > speed):
                 raise AbortRun(f"{arm.name} during the {topic_prefix} trajectory at t = {k / rate:.2f} s: "
@@ -160,6 +167,8 @@ def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits, ma
 #: Loop or arm periods (the longer) by which the arm's newest sample may be older than the
 #: least delay seen before the trajectory's time waits for the arm (stream_trajectory).
 SILENT = 5.0
+#: s of ticks over which the transport delay is the least seen (`stream_trajectory`)
+DELAY_WINDOW = 0.5
 
 
 def _stream_period(arm) -> float:

@@ -241,7 +241,9 @@ def test_wrong_domain_is_one_line_naming_the_topic_and_domain(served, args, ros_
     short = served.folder / "short-connect.toml"
     short.write_text((served.folder / "rig.toml").read_text() + "\n[ros]\nconnect_timeout = 2.0\n")
     out = served.run("--config", str(short), *args, env=served.env(ROS_DOMAIN_ID=str(ros_domain)))
-    _one_clear_line(out, "/PSM1/measured_js", f"ROS_DOMAIN_ID={ros_domain}", "no message within 2 s")
+    # on simulated time the first thing a procedure waits for is the simulator's clock
+    _one_clear_line(out, "/clock", f"ROS_DOMAIN_ID={ros_domain}", "no simulated time within 2 s",
+                    "rig sim --sim-time")
 
 
 def test_a_pty_that_is_not_a_load_cell(cooperative_ready):

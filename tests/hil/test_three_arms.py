@@ -22,7 +22,10 @@ pytestmark = [pytest.mark.ros, pytest.mark.hil]
 @pytest.fixture(scope="module")
 def triangle(tmp_path_factory):
     folder = tmp_path_factory.mktemp("triangle")
-    with ServedRig(folder, toml=lab_toml(folder, three_arms=True, sim_time=True), sim_time=True) as rig:
+    # the arms' servo at 500 Hz (a console's, whatever the procedures' [rig] rate): the
+    # triangle's loop needs their streams at 500 Hz
+    with ServedRig(folder, toml=lab_toml(folder, three_arms=True, sim_time=True), sim_time=True,
+                   sim_args=("--rate", "500")) as rig:
         yield rig
 
 

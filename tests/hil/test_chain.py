@@ -239,7 +239,9 @@ def test_wrong_domain_is_one_line_naming_the_topic_and_domain(served, args, ros_
     if args[0] == "cooperative":  # it finds its calibration, registration and model before connecting
         request.getfixturevalue("cooperative_ready")
     short = served.folder / "short-connect.toml"
-    short.write_text((served.folder / "rig.toml").read_text() + "\n[ros]\nconnect_timeout = 2.0\n")
+    text = (served.folder / "rig.toml").read_text()
+    short.write_text(text.replace("[ros]\n", "[ros]\nconnect_timeout = 2.0\n") if "[ros]\n" in text
+                     else text + "\n[ros]\nconnect_timeout = 2.0\n")
     out = served.run("--config", str(short), *args, env=served.env(ROS_DOMAIN_ID=str(ros_domain)))
     # on simulated time the first thing a procedure waits for is the simulator's clock
     _one_clear_line(out, "/clock", f"ROS_DOMAIN_ID={ros_domain}", "no simulated time within 2 s",

@@ -8,6 +8,7 @@ import signal
 import pytest
 
 from tests.ros_domains import claim_domain, claim_ports, ros_environment
+from tests.xdist_crash import pytest_xdist_make_scheduler  # noqa: F401  (a dead worker fails its test, the run goes on)
 
 #: the files whose tests take longest, longest first. pyproject.toml runs `-n 2 --dist
 #: loadfile --no-loadscope-reorder`: the files go to whichever worker is free in this order,

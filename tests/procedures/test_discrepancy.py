@@ -212,6 +212,10 @@ def test_identify_run_of_the_default_rig_has_nothing_missing(tmp_path):
     assert all(w <= p for w, p in zip(g["relative_error"]["written"], g["relative_error"]["plain"]))
 
 
+# slow: the longest test of the default run (about 2 min on a loaded machine), and its parts run without it: an
+# identify run read by `rig discrepancy` (the default rig's, above) and stiction named on joint 3 (in
+# tests/calibration/discrepancy, on the simulated rig's recordings)
+@pytest.mark.slow
 def test_identify_run_with_hidden_stiction_names_it(tmp_path):
     doc = _identify_then_discrepancy(tmp_path, QUICK_IDENTIFY, STICTION_RIG)
     assert [(e["name"], e["joint"]) for e in doc["effects"]] == [("stiction", 3)], doc["iterations"]

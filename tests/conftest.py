@@ -37,7 +37,8 @@ HANG_GUARD_S = 900.0
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     """The hang guard: SIGALRM raises in the test (it fails, the run goes on); a test stuck
-    where no signal reaches Python is ended two minutes later with its worker (faulthandler)."""
+    where no signal reaches Python is ended two minutes later with its worker (faulthandler),
+    which then fails as a dead worker's test does while the run goes on (tests/xdist_crash.py)."""
     import faulthandler
     import sys
 

@@ -26,11 +26,15 @@ participant go when its lease runs out instead of at once; nothing waits on that
 A library's process (a test, a notebook: `end_with_process` never called) parks them too, and
 further: a parked node and context are kept past the interpreter's own end (a reference no
 finaliser ever drops), so that neither Python's finalisers nor rclpy's destructors delete
-the participant when the process exits; an exit handler removes its shared-memory
-segments. Measured (`bench/bench_session_kill.py`: rig sim SIGKILLed while streaming to a
-library session, the session closed 0-1.5 s later; a machine loaded 8-18 by others): with
-the nodes destroyed 1 run in 40 died of SIGSEGV in `destroy_node`, parked 0 in 40 (and no
-deletion is left to crash). A
+the participant; an exit handler removes its shared-memory segments; and the C library's
+exit, which ends the process once Python has finished with its own exit status, calls
+_exit before the static destructors, among them Fast DDS's participant factory's, which
+deletes every participant left (a parked session died there, SIGSEGV after the
+interpreter's end, before that was added). Measured (`bench/bench_session_kill.py`: rig sim
+SIGKILLed while streaming to a library session, the session closed 0-1.5 s later; a
+machine loaded 8-18 by others): with the nodes destroyed 1 run in 40 died of SIGSEGV in
+`destroy_node`, parked 0 in 40 (the bench's figures with every stream subscribed are in
+its docstring). A
 transport that cannot crash was no way out: with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 rmw_fastrtps 8.4 adds shared memory whatever FASTDDS_BUILTIN_TRANSPORTS=UDPv4 or an XML
 profile say, and UDP alone discovers nobody on this machine without multicast on the LAN.
@@ -113,12 +117,28 @@ def teardown(node, context) -> None:
         return
     for obj in (*(node if isinstance(node, tuple) else (node,)), context):
         if obj is not None:
-            # one reference more than anyone holds: the object is never freed, so at exit no
-            # destructor deletes the participant (the crash this module avoids)
+            # one reference more than anyone holds: the object is never freed, so no Python
+            # finaliser deletes the participant (the crash this module avoids)
             ctypes.pythonapi.Py_IncRef(ctypes.py_object(obj))
     if not _remove_at_exit:
         atexit.register(remove_own_segments)
+        _end_before_static_destructors()
         _remove_at_exit = True
+
+
+def _end_before_static_destructors() -> None:
+    """Make the C library's exit(status), which ends the process once Python has finished,
+    call _exit(status) before the destructors registered so far: Fast DDS's
+    DomainParticipantFactory, made with the first participant, deletes every participant
+    left in its destructor (a parked session's crashed there, SIGSEGV after the
+    interpreter's end: bench/bench_session_kill.py). Python's own end (its exit handlers,
+    its streams flushed) has run by then; the exit status is kept."""
+    try:
+        libc = ctypes.CDLL(None)
+        libc.on_exit.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+        libc.on_exit(ctypes.cast(libc._exit, ctypes.c_void_p), None)  # _exit(status, arg): arg ignored
+    except (AttributeError, OSError):  # not glibc: nothing registered, the destructors run
+        pass
 
 
 def remove_own_segments() -> None:

@@ -6,7 +6,8 @@ to every stream rig sim publishes; once they flow, rig sim is SIGKILLed after a 
 session is closed after a further random 0-1.5 s (the listener must first find the dead
 peer's port broken: that is the state in which Fast DDS 2.14's shared-memory teardown
 crashed, drivers/ros_exit.py). A run is clean when the library process printed "closed"
-and exited 0 (its interpreter's end included); a crash is a death by signal.
+and exited 0 (its interpreter's end included); a crash is a death by a signal the process
+raises itself (SIGSEGV, SIGBUS, SIGABRT), counted apart from one sent from outside.
 
 Ways (`--ways`, comma-separated):
   destroy  the library's teardown before issue 44: stop the executors, destroy the nodes,
@@ -187,10 +188,11 @@ def main() -> None:
 
     rows = []
     for way, rs in results.items():
-        crashes = sum(r["code"] < 0 for r in rs)
+        # a crash is a signal the process raises itself; SIGTERM or SIGKILL came from outside
+        crashes = sum(-r["code"] in (signal.SIGSEGV, signal.SIGBUS, signal.SIGABRT, signal.SIGILL) for r in rs)
         unclean = sum(not (r["code"] == 0 and r["closed"]) for r in rs)
         med = {k: float(np.median([r[k] for r in rs])) for k in ("cpu", "sim_cpu", "age_med", "age_p99")}
-        rows.append((f"{way}: crashes (death by signal)", f"{crashes} of {len(rs)}", "0", crashes == 0))
+        rows.append((f"{way}: crashes (SIGSEGV, SIGBUS, SIGABRT)", f"{crashes} of {len(rs)}", "0", crashes == 0))
         rows.append((f"{way}: not closed cleanly", f"{unclean} of {len(rs)}", "0", unclean == 0))
         rows.append((f"{way}: library CPU share (median)", f"{med['cpu']:.3f}", "-", True))
         rows.append((f"{way}: rig sim CPU share (median)", f"{med['sim_cpu']:.3f}", "-", True))

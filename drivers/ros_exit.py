@@ -61,7 +61,7 @@ _ending = False
 _parked: list = []  # (node, context) left to the process's end: referenced so no finaliser runs
 _own_segments: set[str] = set()
 _before: set[str] | None = None
-_remove_at_exit = False  # a library's process: remove_own_segments registered with atexit
+_exit_prepared = False  # a library's process: its segments removed at exit, its end before the destructors
 
 
 def end_with_process() -> None:
@@ -111,7 +111,7 @@ def teardown(node, context) -> None:
     """Park `node` (a node, a tuple of the context's nodes, or None) and `context` until the
     process ends: in a command's process for `leave`, in a library's past the interpreter's
     end (see the module docstring). The executors spinning them must have stopped."""
-    global _remove_at_exit
+    global _exit_prepared
     _parked.append((node, context))
     if _ending:
         return
@@ -120,10 +120,10 @@ def teardown(node, context) -> None:
             # one reference more than anyone holds: the object is never freed, so no Python
             # finaliser deletes the participant (the crash this module avoids)
             ctypes.pythonapi.Py_IncRef(ctypes.py_object(obj))
-    if not _remove_at_exit:
+    if not _exit_prepared:
         atexit.register(remove_own_segments)
         _end_before_static_destructors()
-        _remove_at_exit = True
+        _exit_prepared = True
 
 
 def _end_before_static_destructors() -> None:

@@ -27,13 +27,14 @@ and the age of each measured_js sample on arrival (receive time minus header sta
 sim stamps in wall time) as median and p99: the two ways share the transport, so these
 only show that the runs were alike.
 
-Measured on the 2-core machine loaded 3-18 by others' work (2026-11-29): subscribed to both
-arms' measured_js and measured_cp, 40 runs each: destroy 1 crash (SIGSEGV in destroy_node),
-park 0; subscribed to every stream (110), 40 runs each: destroy 0, park 0 (one run ended by
-a SIGTERM from outside). Before a library's process ended ahead of the C++ static
-destructors (drivers/ros_exit.py), a parked session with every stream subscribed died of
-SIGSEGV after its interpreter's end (1 run of 1, no Python stack: Fast DDS's participant
-factory deleting what was parked). The crash is rare (a kill must land in a write into
+Measured on the 2-core machine loaded 3-18 by others' work (2026-11-29). Round 1, subscribed
+to both arms' measured_js and measured_cp, 40 runs each: destroy 1 crash (SIGSEGV in
+destroy_node), park 0 (parking then did not yet end the process ahead of the C++ static
+destructors). Then a trial with every stream (110) subscribed: the parked session died of
+SIGSEGV after its interpreter's end (no Python stack: Fast DDS's participant factory
+deleting what was parked), so a library's process now ends ahead of those destructors
+(drivers/ros_exit.py). Round 2, every stream, 40 runs each: destroy 0, park 0 (one run
+ended by a SIGTERM from outside), and 6 more park runs 0. The crash is rare (a kill must land in a write into
 this process's port): these counts bound it, they do not measure it well.
 
     .venv/bin/python bench/bench_session_kill.py [--runs 40] [--ways destroy,park] [--burners 0]

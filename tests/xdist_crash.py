@@ -10,10 +10,15 @@ with idle workers (pytest-xdist issue 1313; seen here after a worker died in
 tests/drivers/test_dvrk_arm_ros.py: 16 tests never handed out, stopped at 24 min). The test
 it died in is also run again, and dies again, until `--max-worker-restart` is spent.
 
-`CrashSafeLoadFile` is the same scheduler with both mended: on a worker's death only the
-files with tests still to run go back in the queue, without the test the worker died in
+And when two workers are being replaced at once, the first replacement to finish
+collecting makes the scheduler hand work to the other, still collecting, and the run ends
+in an INTERNALERROR (KeyError in `_assign_work_unit`; seen in this suite's own test of it on
+a loaded machine).
+
+`CrashSafeLoadFile` is the same scheduler with the three mended: on a worker's death only
+the files with tests still to run go back in the queue, without the test the worker died in
 (xdist reports it failed, "worker 'gwN' crashed while running ..."), so every other test
-still runs once. `pytest_xdist_make_scheduler` gives it for `--dist loadfile` (tests/conftest.py
+still runs once; a worker gets work only once it has collected. `pytest_xdist_make_scheduler` gives it for `--dist loadfile` (tests/conftest.py
 imports the hook); any other `--dist` keeps xdist's own.
 """
 
@@ -49,6 +54,12 @@ if LoadFileScheduling is not None:
             for other in self.assigned_work:
                 self._reschedule(other)
             return crashitem
+
+        def _reschedule(self, node):
+            """xdist's, for a worker that has collected; one still collecting (a replacement)
+            is given work when its collection comes in (`schedule`)."""
+            if node in self.registered_collections:
+                super()._reschedule(node)
 
 
 @pytest.hookimpl(optionalhook=True)

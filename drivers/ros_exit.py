@@ -32,8 +32,8 @@ _exit before the static destructors, among them Fast DDS's participant factory's
 deletes every participant left (a parked session died there, SIGSEGV after the
 interpreter's end, before that was added). Measured (`bench/bench_session_kill.py`: rig sim
 SIGKILLed while streaming to a library session, the session closed 0-1.5 s later; a
-machine loaded 3-18 by others): with the nodes destroyed 1 run in 80 died of SIGSEGV in
-`destroy_node`, parked 0 in 80 (the bench's docstring has the rounds). A
+machine loaded 3-18 by others): with the nodes destroyed 1 run in 110 died of SIGSEGV in
+`destroy_node`, parked as here 0 in 75 (the bench's docstring has the rounds). A
 transport that cannot crash was no way out: with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 rmw_fastrtps 8.4 adds shared memory whatever FASTDDS_BUILTIN_TRANSPORTS=UDPv4 or an XML
 profile say, and UDP alone discovers nobody on this machine without multicast on the LAN.

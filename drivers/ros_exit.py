@@ -1,4 +1,4 @@
-"""How a `rig` process lets go of ROS 2: torn down in a library, left to the process's end in a command.
+"""How a process of ours lets go of ROS 2: it never deletes a DDS participant; the process's end does.
 
 Why. Fast DDS 2.14 (the middleware of ROS 2 Jazzy's rmw_fastrtps) shares a listening port's
 ring buffer and its lock with every process that writes to it (the shared-memory
@@ -23,13 +23,28 @@ and its `_el` lock in /dev/shm), which Fast DDS's teardown would have removed, s
 lab's day of runs leaves no more in /dev/shm than a clean exit would. A peer sees the
 participant go when its lease runs out instead of at once; nothing waits on that.
 
-In a library (tests, a notebook: `end_with_process` never called) `teardown` destroys the
-node and shuts the context down as before.
+A library's process (a test, a notebook: `end_with_process` never called) parks them too, and
+further: a parked node and context are kept past the interpreter's own end (a reference no
+finaliser ever drops), so that neither Python's finalisers nor rclpy's destructors delete
+the participant; an exit handler removes its shared-memory segments; and the C library's
+exit, which ends the process once Python has finished with its own exit status, calls
+_exit before the static destructors, among them Fast DDS's participant factory's, which
+deletes every participant left (a parked session died there, SIGSEGV after the
+interpreter's end, before that was added). Measured (`bench/bench_session_kill.py`: rig sim
+SIGKILLed while streaming to a library session, the session closed 0-1.5 s later; a
+machine loaded 3-18 by others): with the nodes destroyed 1 run in 110 died of SIGSEGV in
+`destroy_node`, parked as here 0 in 75 (the bench's docstring has the rounds). A
+transport that cannot crash was no way out: with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+rmw_fastrtps 8.4 adds shared memory whatever FASTDDS_BUILTIN_TRANSPORTS=UDPv4 or an XML
+profile say, and UDP alone discovers nobody on this machine without multicast on the LAN.
+The price: a closed session's participant (its threads, sockets and segment) stays until
+the process ends, and its peers see it go only then.
 """
 
 from __future__ import annotations
 
 import atexit
+import ctypes
 import os
 import re
 import sys
@@ -45,6 +60,7 @@ _ending = False
 _parked: list = []  # (node, context) left to the process's end: referenced so no finaliser runs
 _own_segments: set[str] = set()
 _before: set[str] | None = None
+_exit_prepared = False  # a library's process: its segments removed at exit, its end before the destructors
 
 
 def end_with_process() -> None:
@@ -68,7 +84,7 @@ def before_init() -> None:
     """Note the segments that exist before this process makes a participant (`RosSession`,
     rig sim and the command channel call it before `rclpy.init`)."""
     global _before
-    if _ending and _before is None:
+    if _before is None:
         _before = _segments()
 
 
@@ -76,7 +92,7 @@ def after_node() -> None:
     """Note the segments this process made: new since `before_init` and mapped by this
     process (another process starting at the same moment maps its own, not ours)."""
     global _before
-    if not _ending or _before is None:
+    if _before is None:
         return
     new = _segments() - _before
     _before = None
@@ -91,21 +107,48 @@ def after_node() -> None:
 
 
 def teardown(node, context) -> None:
-    """Destroy `node` (a node, a tuple of the context's nodes, or None) and shut `context`
-    down, or, in a command's process, park them for `leave` (see the module docstring).
-    The executors spinning them must have stopped."""
-    import rclpy
-
+    """Park `node` (a node, a tuple of the context's nodes, or None) and `context` until the
+    process ends: in a command's process for `leave`, in a library's past the interpreter's
+    end (see the module docstring). The executors spinning them must have stopped."""
+    global _exit_prepared
+    _parked.append((node, context))
     if _ending:
-        _parked.append((node, context))
         return
+    for obj in (*(node if isinstance(node, tuple) else (node,)), context):
+        if obj is not None:
+            # one reference more than anyone holds: the object is never freed, so no Python
+            # finaliser deletes the participant (the crash this module avoids)
+            ctypes.pythonapi.Py_IncRef(ctypes.py_object(obj))
+    if not _exit_prepared:
+        atexit.register(remove_own_segments)
+        _end_before_static_destructors()
+        _exit_prepared = True
+
+
+def _end_before_static_destructors() -> None:
+    """Make the C library's exit(status), which ends the process once Python has finished,
+    call _exit(status) before the destructors registered so far: Fast DDS's
+    DomainParticipantFactory, made with the first participant, deletes every participant
+    left in its destructor (a parked session's crashed there, SIGSEGV after the
+    interpreter's end: bench/bench_session_kill.py). Python's own end (its exit handlers,
+    its streams flushed) has run by then; the exit status is kept."""
     try:
-        for n in node if isinstance(node, tuple) else (node,):
-            if n is not None:
-                n.destroy_node()
-    finally:
-        if context.ok():
-            rclpy.shutdown(context=context)
+        libc = ctypes.CDLL(None)
+        libc.on_exit.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+        libc.on_exit(ctypes.cast(libc._exit, ctypes.c_void_p), None)  # _exit(status, arg): arg ignored
+    except (AttributeError, OSError):  # not glibc: nothing registered, the destructors run
+        pass
+
+
+def remove_own_segments() -> None:
+    """Remove the shared-memory segments this process made for its participants (Fast DDS's
+    participant deletion would have): the process is ending, its mappings stay valid."""
+    for name in _own_segments:
+        for path in (f"{SHM}/{name}", f"{SHM}/{name}_el"):
+            try:
+                os.unlink(path)
+            except OSError:
+                pass
 
 
 def leave(code) -> None:
@@ -126,12 +169,7 @@ def leave(code) -> None:
                 thread.join(timeout=THREAD_WAIT)
         atexit._run_exitfuncs()
     finally:
-        for name in _own_segments:
-            for path in (f"{SHM}/{name}", f"{SHM}/{name}_el"):
-                try:
-                    os.unlink(path)
-                except OSError:
-                    pass
+        remove_own_segments()
         for stream in (sys.stdout, sys.stderr):
             try:
                 stream.flush()

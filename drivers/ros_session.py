@@ -68,7 +68,7 @@ class RosSession:
     """rclpy context + node + executor thread (see the module docstring).
 
     name: the node's name; executor: "events" or "single" (`make_executor`). Use `node`
-    to create drivers, then `start()`; `close()` stops the thread and shuts the context down.
+    to create drivers, then `start()`; `close()` stops the threads and parks the participant.
     """
 
     def __init__(self, name: str = "rig", executor: str = "events"):
@@ -162,9 +162,9 @@ class RosSession:
         return True
 
     def close(self) -> None:
-        """Stop spinning, then destroy the node and shut the context down (in a `rig`
-        command's process: leave them to its end, `drivers.ros_exit`); a thread that would not
-        stop leaves them to the process's end rather than crash it."""
+        """Stop spinning, then park the nodes and the context until the process ends: a
+        participant deleted after a peer was killed mid-write crashed the process
+        (`drivers.ros_exit`). A thread that would not stop leaves them to the process's end too."""
         if not self.stop():
             return
         ros_exit.teardown((self.control, self.node), self.context)

@@ -8,6 +8,7 @@ import signal
 import pytest
 
 from tests.ros_domains import claim_domain, claim_ports, ros_environment
+from tests.xdist_crash import pytest_xdist_make_scheduler  # noqa: F401  (a dead worker fails its test, the run goes on)
 
 #: the files whose tests take longest, longest first. pyproject.toml runs `-n 2 --dist
 #: loadfile --no-loadscope-reorder`: the files go to whichever worker is free in this order,
@@ -20,6 +21,9 @@ LONG_FIRST = (
     "tests/procedures/test_identify.py",
     "tests/procedures/test_discrepancy.py",
     "tests/calibration/test_generalisation.py",
+    "tests/drivers/test_dvrk_arm_ros.py",
+    "tests/procedures/test_friction_ramp.py",
+    "tests/procedures/test_cooperative_ros.py",
     "tests/procedures/test_validate.py",
     "tests/hil/test_dvrk_client.py",
     "tests/procedures/test_provenance_chain.py",
@@ -36,7 +40,8 @@ HANG_GUARD_S = 900.0
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     """The hang guard: SIGALRM raises in the test (it fails, the run goes on); a test stuck
-    where no signal reaches Python is ended two minutes later with its worker (faulthandler)."""
+    where no signal reaches Python is ended two minutes later with its worker (faulthandler),
+    which then fails as a dead worker's test does while the run goes on (tests/xdist_crash.py)."""
     import faulthandler
     import sys
 

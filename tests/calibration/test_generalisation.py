@@ -10,8 +10,9 @@ import pytest
 
 from calibration.discrepancy.settings import Settings
 from calibration.generalisation import NOT_CONFIRMED, EffectGate, Motion, plain_fit, plain_training_block
-from calibration.hidden_effects import HiddenCase, draw_case_parameters, generate
+from calibration.hidden_effects import HiddenCase, draw_case_parameters
 from calibration.prediction import predict
+from tests.sim_cache import recorded
 
 
 def _plain_model(rec, tmp_path, name="plain.json"):
@@ -32,9 +33,9 @@ def hysteresis_case(tmp_path_factory):
     """Joint 3 with a Dahl hysteresis the plain model lacks: three trajectories of the same
     plant (training, the other motion, the test)."""
     case = HiddenCase((("hysteresis", 3),), 0)
-    train, _ = generate(case)
-    other, _ = generate(case, trajectory_seed=500)
-    test, _ = generate(case, trajectory_seed=900)
+    train, _ = recorded(case)
+    other, _ = recorded(case, trajectory_seed=500)
+    test, _ = recorded(case, trajectory_seed=900)
     plain = _plain_model(train, tmp_path_factory.mktemp("hyst"))
     p = draw_case_parameters(case)[0]
     travel = p["size"] / p["stiffness"]
@@ -74,8 +75,8 @@ def test_with_one_motion_cross_validation_in_time_keeps_the_true_effect_only(hys
 def test_nothing_confirmed_writes_the_plain_model(tmp_path):
     """A null plant: effects named on it are not confirmed on the other motion, and the
     written model is the plain one, parameter for parameter."""
-    train, _ = generate(HiddenCase((), 7))
-    other, _ = generate(HiddenCase((), 7), trajectory_seed=507)
+    train, _ = recorded(HiddenCase((), 7))
+    other, _ = recorded(HiddenCase((), 7), trajectory_seed=507)
     plain = _plain_model(train, tmp_path)
     named = [_named("hysteresis", 2, 0.004), _named("spring", 3, None, k=2)]
     gate = EffectGate(plain, named, train.q, train.dq, train.tau, train.rate, Settings(),
@@ -101,7 +102,7 @@ def test_a_given_model_is_taken_whole(tmp_path):
     from calibration.prediction import extra_effort, standard_parameters
     from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN
 
-    rec, _ = generate(HiddenCase((), 3))
+    rec, _ = recorded(HiddenCase((), 3))
     plain = _plain_model(rec, tmp_path)
     doc = dict(plain.document, effects=[{"name": "torque_offset", "joint": 2, "params": {"offset": 0.25}}])
     from dataclasses import replace
@@ -146,9 +147,9 @@ def test_with_another_motion_the_plain_model_is_identified_again_with_a_confirme
     from calibration.generalisation import IDENTIFIED_CHOICE
 
     case = HiddenCase((("spring", 3),), 1)
-    train, _ = generate(case)
-    other, _ = generate(case, trajectory_seed=501)
-    test, _ = generate(case, trajectory_seed=901)
+    train, _ = recorded(case)
+    other, _ = recorded(case, trajectory_seed=501)
+    test, _ = recorded(case, trajectory_seed=901)
     block = plain_training_block(train.q, train.dq, train.tau, train.rate, Settings().heldout)
     plain = _plain_model(train, tmp_path)
     spring = SimpleNamespace(effect="spring", joint=3, grid=None, free=np.array([True, False]), params={})
@@ -171,8 +172,8 @@ def test_with_another_motion_the_plain_model_is_identified_again_with_a_confirme
 def test_on_a_null_plant_the_identified_candidate_is_not_written(tmp_path):
     from calibration.generalisation import IDENTIFIED_CHOICE
 
-    train, _ = generate(HiddenCase((), 8))
-    other, _ = generate(HiddenCase((), 8), trajectory_seed=508)
+    train, _ = recorded(HiddenCase((), 8))
+    other, _ = recorded(HiddenCase((), 8), trajectory_seed=508)
     block = plain_training_block(train.q, train.dq, train.tau, train.rate, Settings().heldout)
     plain = _plain_model(train, tmp_path)
     named = [_named("hysteresis", 2, 0.004), _named("spring", 1, None, k=2)]

@@ -9,8 +9,9 @@ import pytest
 
 from calibration.discrepancy.settings import Settings
 from calibration.generalisation import plain_training_block
-from calibration.hidden_effects import HiddenCase, draw_case_parameters, generate
+from calibration.hidden_effects import HiddenCase, draw_case_parameters
 from calibration.identification import DEADBAND, EffectTerm, fit_identification
+from tests.sim_cache import recorded
 
 #: The simulated rig's gravity (rig.model.psm_dynamics default, PSM frame 0).
 DOWN = np.array([0.0, 0.0, -1.0])
@@ -23,7 +24,7 @@ def _tilt_deg(g) -> float:
 @pytest.fixture(scope="module")
 def spring3():
     case = HiddenCase((("spring", 3),), 1)
-    rec, _ = generate(case)
+    rec, _ = recorded(case)
     train = plain_training_block(rec.q, rec.dq, rec.tau, rec.rate, Settings().heldout)
     return train, draw_case_parameters(case)[0]
 
@@ -75,7 +76,7 @@ def test_an_effect_the_joints_friction_reproduces_is_found_inseparable(spring3):
     state of 2 mrad travel."""
     from calibration.identification import SEPARABLE_R2, inseparable_effects
 
-    rec, _ = generate(HiddenCase((("hysteresis", 3),), 1))
+    rec, _ = recorded(HiddenCase((("hysteresis", 3),), 1))
     train = plain_training_block(rec.q, rec.dq, rec.tau, rec.rate, Settings().heldout)
     dahl = EffectTerm("hysteresis", 3, 0.0002, (True,))
     others = [EffectTerm("spring", 3, None, (True, False)), EffectTerm("hysteresis", 1, 0.002, (True,))]

@@ -28,6 +28,7 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 from rclpy.context import Context  # noqa: E402
 
+from drivers import ros_exit  # noqa: E402
 from drivers.crtk import StaleStream  # noqa: E402
 from drivers.dvrk_arm import RosArm  # noqa: E402
 from drivers.interfaces import Arm  # noqa: E402
@@ -67,7 +68,7 @@ def _rig_sim():
                              "--ros-period", "0.001"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
                             cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))))
-    ctx = Context()
+    ctx, nodes = Context(), {}
     try:
         lines = _read_lines_until(proc, "ready", timeout=60)  # ~2 s on an idle machine
         rclpy.init(context=ctx)
@@ -85,11 +86,10 @@ def _rig_sim():
                "watch_node": nodes["watch"], "nodes": nodes}
         for arm in arms.values():
             arm.close()
-        for node in nodes.values():
-            node.destroy_node()
     finally:
-        if ctx.ok():
-            rclpy.shutdown(context=ctx)
+        # parked, not destroyed: the last test SIGKILLs rig sim mid-stream, after which deleting
+        # the participant crashed this process (drivers/ros_exit.py)
+        ros_exit.teardown(tuple(nodes.values()), ctx)
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
             try:

@@ -338,12 +338,13 @@ def test_effects_from_a_model_file_are_identified_with_the_rigid_body(tmp_path):
     its stated law. On a plant with that spring the plain fit tilts the gravity (the spring
     looks like one) and the spring's fit restores it, its stiffness the plant's within 3 %;
     an offset in M is left out and named (Fo is the model's own term)."""
-    from calibration.hidden_effects import HiddenCase, draw_case_parameters, generate
+    from calibration.hidden_effects import HiddenCase, draw_case_parameters
+    from tests.sim_cache import recorded
     from calibration.identification import make_model
     from rig.model.model_file import load_model, save_model
 
     case = HiddenCase((("spring", 3),), 1)
-    rec, _ = generate(case)
+    rec, _ = recorded(case)
     data = _write(tmp_path / "spring.csv", np.hstack([rec.q, rec.dq, rec.tau]))
     model = make_model([0.0, 0.0, -9.81], 400.0)
     source = save_model(tmp_path / "effects.json", standard=np.zeros(82), names=list(model.param_names()),

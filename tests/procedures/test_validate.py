@@ -191,11 +191,12 @@ def test_heldout_figures_are_the_discrepancy_baseline(tmp_path):
     from calibration.discrepancy.settings import Settings
     from calibration.discrepancy.workflow import Discrepancy
     from calibration.discrepancy_null import sim_model_and_base
-    from calibration.hidden_effects import HiddenCase, generate
+    from calibration.hidden_effects import HiddenCase
+    from tests.sim_cache import recorded
     from calibration.prediction import predict
     from rig.model.model_file import load_model
 
-    rec, _ = generate(HiddenCase((("spring", 1),), 4))
+    rec, _ = recorded(HiddenCase((("spring", 1),), 4))
     m = load_model(write_model(tmp_path / "m.json", stribeck=None, gravity=[0.0, 0.0, -9.81]))
     model, base = sim_model_and_base()
     w = Discrepancy(m.dynamics(), base, rec.q, rec.dq, rec.tau, rec.rate, m.standard, Settings())
@@ -211,9 +212,10 @@ def test_cli_heldout_equals_rig_discrepancy_baseline(tmp_path):
     """`rig validate --block heldout` prints what `rig discrepancy --csv X --model M` reports
     as its baseline, for a model without effects (the simulated rig's true plant on a
     recording of a hidden spring, 20 s)."""
-    from calibration.hidden_effects import HiddenCase, generate
+    from calibration.hidden_effects import HiddenCase
+    from tests.sim_cache import recorded
 
-    rec, _ = generate(HiddenCase((("spring", 1),), 4), n_samples=4000)
+    rec, _ = recorded(HiddenCase((("spring", 1),), 4), n_samples=4000)
     csv = write_csv(tmp_path / "rec.csv", rec.q, rec.dq, rec.tau)
     model = write_model(tmp_path / "m.json", stribeck=None, gravity=[0.0, 0.0, -9.81])
     code, disc, err = run_cli("discrepancy", "--csv", str(csv), "--model", str(model), "--no-plots", "--json")
@@ -243,9 +245,10 @@ def test_simulated_run_and_its_export_agree_and_the_true_plant_predicts_them(tmp
     RUN_DIR and the CSV `rig export` writes of it give the same figures; the true plant
     (nominal parameters, the hidden hysteresis as the file's effect) predicts it within
     a few per cent on every joint, and without its effect is far off on joint 3."""
-    from calibration.hidden_effects import HiddenCase, generate
+    from calibration.hidden_effects import HiddenCase
+    from tests.sim_cache import recorded
 
-    rec, truth = generate(HiddenCase((("hysteresis", 3),), 5))
+    rec, truth = recorded(HiddenCase((("hysteresis", 3),), 5))
     p = truth.params[0]
     hyst = {"name": "hysteresis", "joint": 3, "params": {"Fd": p["size"], "travel": p["size"] / p["stiffness"]}}
     true_plant = write_model(tmp_path / "true.json", [hyst], stribeck=None, gravity=[0.0, 0.0, -9.81])

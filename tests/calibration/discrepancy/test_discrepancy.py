@@ -1,6 +1,7 @@
 """The discrepancy workflow on hidden-effect data from the simulated rig (issue 7).
 
-Data are generated once per session (a cache fixture); the workflow sees only the arrays.
+Data are generated once per machine and code (tests/sim_cache.py) and the workflow run once
+per session (a cache fixture); the workflow sees only the arrays.
 The full sweep (every catalogue effect on every joint) is marked slow; bench/ prints its
 confusion matrix.
 """
@@ -14,9 +15,10 @@ from calibration.discrepancy.workflow import Discrepancy
 from calibration.discrepancy_null import reference_model, sim_model_and_base
 from calibration.effects import (CATALOGUE, IDS, EffectContext, dahl_state, effects_torque, friction_profile,
                                  gap_crossings, gap_torque)
-from calibration.hidden_effects import (CATALOGUE_CASES, REFERENCE_EXCITATION_PATH, HiddenCase, generate,
+from calibration.hidden_effects import (CATALOGUE_CASES, REFERENCE_EXCITATION_PATH, HiddenCase,
                                         reference_excitation)
 from rig.sim.world import SensorNoise
+from tests.sim_cache import recorded
 
 
 @pytest.fixture(scope="session")
@@ -37,7 +39,7 @@ def workflow(sim):
             if mode == "given_model":
                 given, slope = reference_model(model, base, seed)
                 model.slope = slope
-            rec, truth = generate(HiddenCase(tuple(effects), seed))
+            rec, truth = recorded(HiddenCase(tuple(effects), seed))
             w = Discrepancy(model, base, rec.q, rec.dq, rec.tau, rec.rate, given, Settings())
             cache[key] = (w.run(), w, truth)
         return cache[key]
@@ -144,10 +146,10 @@ def test_catalogue_detection_needs_both_null_tests():
 
 def test_truth_carries_the_joint_side_velocity_the_encoder_misses_while_a_play_is_open():
     noise = SensorNoise().velocity_noise   # what the recorded velocity adds (rad/s, rad/s, m/s)
-    null, truth = generate(HiddenCase((), 0), n_samples=1200)
+    null, truth = recorded(HiddenCase((), 0), n_samples=1200)
     gap = truth.joint_velocity - null.dq
     assert np.allclose(gap.std(0), noise, rtol=0.15)          # without a play: the noise only
-    rec, truth = generate(HiddenCase((("backlash", 1),), 0), n_samples=1200)
+    rec, truth = recorded(HiddenCase((("backlash", 1),), 0), n_samples=1200)
     gap = truth.joint_velocity[:, 0] - rec.dq[:, 0]
     open_play = np.abs(gap) > 6 * noise[0]
     assert np.abs(gap).max() > 0.05                                # the joint side coasts behind
@@ -158,8 +160,8 @@ def test_truth_carries_the_joint_side_velocity_the_encoder_misses_while_a_play_i
 def test_pitch_play_opens_only_on_a_balanced_pitch():
     # The simulated pitch axis carries 0.9-2.5 N m of gravity; a joint-2 backlash case balances
     # it (as the real PSM's is) so that the transmitted torque reverses; its twin does too.
-    null, _ = generate(HiddenCase((), 0), n_samples=2000)
-    twin, _ = generate(HiddenCase((("backlash", 2),), 0), n_samples=2000, twin=True)
+    null, _ = recorded(HiddenCase((), 0), n_samples=2000)
+    twin, _ = recorded(HiddenCase((("backlash", 2),), 0), n_samples=2000, twin=True)
     assert null.tau[:, 1].min() > 0.5
     assert twin.tau[:, 1].min() < -0.2 < 0.2 < twin.tau[:, 1].max()
 
@@ -228,7 +230,7 @@ def test_added_effects_nonlinear_parameters_refit_with_the_final_model(workflow)
     assert (e["name"], e["joint"]) == ("hysteresis", 3)
     assert e["params"]["travel"] == pytest.approx(t["size"] / t["stiffness"], rel=0.08)
     model, base = sim_model_and_base()
-    twin, _ = generate(HiddenCase((("hysteresis", 3),), 2), twin=True)
+    twin, _ = recorded(HiddenCase((("hysteresis", 3),), 2), twin=True)
     floor = Discrepancy(model, base, twin.q, twin.dq, twin.tau, twin.rate, None, Settings()).heldout_rms()[2]
     assert res["final"]["heldout_rms"][2] < 1.4 * floor
 
@@ -237,7 +239,7 @@ def test_generator_follows_the_reference_excitation():
     # The reference runs' optimised excitation: the stored design, commanded through the PID
     # (recording starts after the 0.5 s settle).
     ft = reference_excitation()
-    rec, _ = generate(HiddenCase((), 7), n_samples=1000, excitation=ft)
+    rec, _ = recorded(HiddenCase((), 7), n_samples=1000, excitation=ft)
     q_cmd = ft.sample(0.5 + np.arange(1000) / 200.0)[0]
     assert np.abs(rec.q - q_cmd).max() < 0.01
     assert np.ptp(rec.q, axis=0) == pytest.approx(np.ptp(q_cmd, axis=0), rel=0.05)
@@ -265,7 +267,7 @@ def test_reference_model_predicts_a_null_run_as_well_as_its_own_fit(sim, seed):
     # left 10x the run's own held-out RMS on joint 1 (its gravity's q1 dependence was traded
     # against other columns of that trajectory).
     model, base = sim
-    rec, _ = generate(HiddenCase((), seed))
+    rec, _ = recorded(HiddenCase((), seed))
     model.slope = 400.0
     own = Discrepancy(model, base, rec.q, rec.dq, rec.tau, rec.rate, None, Settings()).heldout_rms()
     given, slope = reference_model(model, base, seed)
@@ -283,7 +285,7 @@ def test_stiction_on_the_insertion_joint_reaches_the_noise_floor(workflow):
     assert [(e["name"], e["joint"]) for e in res["effects"]] == [("stiction", 3)], res["iterations"]
     assert res["inertia_source"][2] == "measured"
     model, base = sim_model_and_base()
-    twin, _ = generate(HiddenCase((("stiction", 3),), 0), twin=True)
+    twin, _ = recorded(HiddenCase((("stiction", 3),), 0), twin=True)
     floor = Discrepancy(model, base, twin.q, twin.dq, twin.tau, twin.rate, None, Settings()).heldout_rms()[2]
     assert res["final"]["heldout_rms"][2] < 1.2 * floor
     assert res["final"]["heldout_rms"][2] < 0.5 * res["baseline"]["heldout_rms"][2]
@@ -303,7 +305,7 @@ def test_position_friction_profile_of_two_harmonics_is_recovered(sim):
     # the arrays): the information criterion picks two harmonics, not one and not four.
     model, base = sim
     model.slope = 400.0
-    rec, _ = generate(HiddenCase((), 7))
+    rec, _ = recorded(HiddenCase((), 7))
     truth = {"period": 0.1, "a_sin": [0.2, 0.0], "a_cos": [0.0, 0.15]}
     tau = rec.tau.copy()
     tau[:, 2] += np.tanh(200.0 * rec.dq[:, 2]) * friction_profile(truth, rec.q[:, 2])
@@ -351,7 +353,7 @@ def test_time_delay_is_refit_where_the_lagged_equation_holds(workflow):
     assert e["params"]["delay"] == pytest.approx(truth.params[0]["size"], rel=0.2)
     assert w.mask_lag[2] >= int(np.ceil(truth.params[0]["size"] * w.p.rate)) - 1
     model, base = sim_model_and_base()
-    twin, _ = generate(HiddenCase((("time_delay", 3),), 0), twin=True)
+    twin, _ = recorded(HiddenCase((("time_delay", 3),), 0), twin=True)
     floor = Discrepancy(model, base, twin.q, twin.dq, twin.tau, twin.rate, None, Settings()).heldout_rms()[2]
     assert res["final"]["heldout_rms"][2] < 1.2 * floor
     assert res["final"]["heldout_rms"][2] < 0.5 * res["baseline"]["heldout_rms"][2]
@@ -437,7 +439,7 @@ def test_reidentification_with_a_given_model_is_validated_on_the_held_out_block(
     monkeypatch.setattr(D, "REIDENTIFY_TOLERANCE", 0.5)
     model, base = sim
     given, slope = reference_model(model, base, 0)
-    rec, _ = generate(HiddenCase((("hysteresis", 3),), 0))
+    rec, _ = recorded(HiddenCase((("hysteresis", 3),), 0))
     res2 = Discrepancy(model, base, rec.q, rec.dq, rec.tau, rec.rate, given, Settings()).run()
     assert not res2["reidentification"]["done"]
     assert "worse on joint(s)" in res2["reidentification"]["note"]
@@ -455,7 +457,7 @@ def test_backlash_is_named_with_its_play_and_the_model_file_reproduces_its_torqu
     assert p["width"] == pytest.approx(truth.params[0]["size"], rel=0.35)
     assert 0.7 < p["unloaded_fraction"] < 1.3
     model, base = sim
-    twin, _ = generate(HiddenCase((("backlash", 3),), 1), twin=True)
+    twin, _ = recorded(HiddenCase((("backlash", 3),), 1), twin=True)
     floor = Discrepancy(model, base, twin.q, twin.dq, twin.tau, twin.rate, None, Settings()).heldout_rms()[2]
     assert res["final"]["heldout_rms"][2] < 1.3 * floor
     assert res["final"]["heldout_rms"][2] < 0.5 * res["baseline"]["heldout_rms"][2]
@@ -505,7 +507,7 @@ def test_augmented_model_file_as_the_simulated_plant_reproduces_the_recording(wo
     res, w, _ = workflow([("spring", 1), ("hysteresis", 3)], 0)
     model, _ = sim
     case = HiddenCase((("spring", 1), ("hysteresis", 3)), 0)
-    rec, _ = generate(case)
+    rec, _ = recorded(case)
     pi, effects = w.augmented(res)
     assert res["standard_consistency"]["training_torque_change_rms"][0] < 1e-4
     m = load_model(save_model(tmp_path / "model.json", standard=pi, names=model.param_names(), slope=w.slope,
@@ -513,7 +515,7 @@ def test_augmented_model_file_as_the_simulated_plant_reproduces_the_recording(wo
     params, eff = m.plant()
     rms = {}
     for label, plant in (("augmented", (params, eff)), ("without effects", (params, HiddenEffects()))):
-        replay, _ = generate(case, plant=plant)
+        replay, _ = recorded(case, plant=plant)
         rms[label] = np.sqrt(((replay.tau - rec.tau) ** 2).mean(0))
     assert rms["without effects"][0] > 0.1 and rms["without effects"][2] > 0.3, rms
     assert np.all(rms["augmented"][[0, 2]] < 0.02 * rms["without effects"][[0, 2]]), rms

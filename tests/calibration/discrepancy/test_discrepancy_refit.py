@@ -6,7 +6,8 @@ from calibration.discrepancy.settings import Settings
 from calibration.discrepancy.workflow import Discrepancy
 from calibration.discrepancy_null import sim_model_and_base
 from calibration.effects import CATALOGUE
-from calibration.hidden_effects import HiddenCase, generate
+from calibration.hidden_effects import HiddenCase
+from tests.sim_cache import recorded
 
 
 def test_a_refit_to_fewer_harmonics_keeps_columns_and_parameters_together():
@@ -16,7 +17,7 @@ def test_a_refit_to_fewer_harmonics_keeps_columns_and_parameters_together():
     values to the 8 output values"): on the WPI record once the thresholds changed."""
     model, base = sim_model_and_base()
     model.slope = 400.0
-    rec, _ = generate(HiddenCase((("position_friction", 3),), 0))
+    rec, _ = recorded(HiddenCase((("position_friction", 3),), 0))
     w = Discrepancy(model, base, rec.q, rec.dq, rec.tau, rec.rate, None, Settings())
     eff = CATALOGUE["position_friction"]
     first, refit = (0.06, 4), (0.06, 3)     # (period m, harmonics)

@@ -1,0 +1,104 @@
+"""A process's side of simulated time: /clock read from its bytes, the lockstep answers, a stopped clock."""
+
+import pytest
+
+pytest.importorskip("rosgraph_msgs")
+
+from rclpy.serialization import serialize_message  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
+
+from drivers.time_base import ClockStopped, SimTime, parse_clock  # noqa: E402
+from rig.sim_server.lockstep import parse_answer  # noqa: E402
+
+
+class FakeNode:
+    """The /clock subscription's callback and the answers' publisher, for a test to drive."""
+
+    def __init__(self):
+        self.on_clock = None
+        self.answers = []
+
+    def create_subscription(self, msg_type, topic, callback, qos, raw=False):
+        assert topic == "/clock" and msg_type is Clock and raw
+        self.on_clock = callback
+        return object()
+
+    def create_publisher(self, msg_type, topic, qos):
+        node = self
+
+        class Pub:
+            def publish(self, m):
+                node.answers.append((m.stamp.sec * 1_000_000_000 + m.stamp.nanosec, *parse_answer(m.frame_id)))
+        return Pub()
+
+    def clock(self, ns: int) -> None:
+        m = Clock()
+        m.clock.sec, m.clock.nanosec = divmod(ns, 1_000_000_000)
+        self.on_clock(serialize_message(m))
+
+
+def test_parse_clock_reads_rclpy_bytes_and_refuses_others():
+    m = Clock()
+    m.clock.sec, m.clock.nanosec = 12, 345_678_901
+    assert parse_clock(serialize_message(m)) == 12_345_678_901
+    with pytest.raises(ValueError):
+        parse_clock(b"\x00\x01\x00")
+
+
+def test_a_free_process_answers_every_clock_and_a_holding_one_only_when_its_loop_does():
+    node = FakeNode()
+    tb = SimTime(node)
+    assert not tb.heard() and tb.now() == 0.0
+    node.clock(2_000_000)
+    assert tb.now() == pytest.approx(0.002)
+    assert node.answers[-1][:4] == (2_000_000, tb.client, 0, "free")
+    tb.hold()
+    tb.sent(2)  # two commands published for this period
+    node.clock(4_000_000)
+    assert node.answers[-1][0] == 2_000_000  # held: the executor does not answer
+    assert tb.answer(next_ns=9_000_000) == 4_000_000
+    assert node.answers[-1] == (4_000_000, tb.client, 2, "hold", 9_000_000)
+    tb.release()  # a driver's wait frees the world
+    node.clock(6_000_000)
+    assert node.answers[-1][:4] == (6_000_000, tb.client, 2, "free")
+    tb.close()
+    assert node.answers[-1][3] == "bye"
+
+
+def test_a_free_process_waits_for_its_load_cells_reader_before_it_answers():
+    class Cell:
+        upto = 0.0
+
+        def caught_up(self, t):
+            return self.upto >= t
+
+    node, cell = FakeNode(), Cell()
+    tb = SimTime(node)
+    tb.add_sync(cell)
+    node.clock(50_000_000)
+    assert not node.answers  # the reader has not read what the world wrote up to 50 ms
+    cell.upto = 0.045
+    tb.notify()  # the reader caught up (within SYNC_LAG of the clock)
+    assert node.answers[-1][0] == 50_000_000
+
+
+def test_the_clock_standing_still_while_waited_for_is_a_stopped_simulator_but_not_while_held():
+    import time as _time
+
+    looked = [_time.monotonic()]  # when the executor last looked for messages
+    node = FakeNode()
+    tb = SimTime(node, stall=2.0, polled=lambda: looked[0])
+    node.clock(1_000_000)
+    looked[0] = _time.monotonic()
+    assert tb.stalled() is None
+    tb._advanced -= 3.0  # the clock last moved 3 s ago ...
+    looked[0] = tb._advanced + 1.0  # ... but the executor has not looked since (a starved process)
+    assert tb.stalled() is None
+    looked[0] = _time.monotonic()  # it kept looking, and no /clock came
+    err = tb.stalled()
+    assert isinstance(err, ClockStopped) and "/clock" in str(err) and "rig sim --sim-time" in str(err)
+    # held, with a period not yet answered: the world waits for this process, not the other way
+    tb.hold()
+    node.clock(2_000_000)
+    tb._advanced -= 10.0
+    assert tb.stalled() is None

@@ -332,8 +332,10 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
         ls = stats.get("lockstep")
         _say(f"measured_js published: {rates} of simulated time (target {target:g} Hz); {sim:.3f} s simulated in "
              f"{stats['wall_s']:.3f} s wall (real-time factor {stats['real_time_factor']:.2f})"
-             + ("" if ls is None else f"; lockstep: waited {ls['wait_s']:.1f} s for answers, let go of "
-                f"{ls['lost']} silent procedure(s), {ls['late_commands']} period(s) with commands late")
+             + ("" if ls is None else f"; lockstep: {ls['followed_sim_s']:.1f} s simulated while procedures "
+                f"followed, in {ls['followed_wall_s']:.1f} s wall (real-time factor followed {ls['real_time_factor']:.2f}), "
+                f"waited {ls['wait_s']:.1f} s for answers, let go of {ls['lost']} silent procedure(s), "
+                f"{ls['late_commands']} command(s) taken as come")
              + f"; {common}")
         return
     hz = stats["measured_js_hz"]

@@ -341,6 +341,9 @@ class SimServer:
         period = world.dt
         k = 0
         lockstep = self.lockstep
+        # the world's pace while procedures follow it (s simulated, s of wall time)
+        followed_sim = followed_wall = 0.0
+        last_iter = time.perf_counter()
         while not self.stop.is_set():
             if duration is not None and world.t - t_start >= duration - 1e-9:
                 break
@@ -370,8 +373,13 @@ class SimServer:
             if lockstep is not None and lockstep.active:
                 # the world runs as fast as its followers answer: nothing waits for the wall
                 # clock (the anchor moves with it, so pacing resumes from here once they leave)
-                perf0 = time.perf_counter() - t
+                now = time.perf_counter()
+                followed_sim += period
+                followed_wall += now - last_iter
+                last_iter = now
+                perf0 = now - t
                 continue
+            last_iter = time.perf_counter()
             lag = time.perf_counter() - (perf0 + t)
             if lag > self.max_lag:
                 self.max_lag = lag
@@ -399,7 +407,9 @@ class SimServer:
                 "clock": "simulated" if self.sim_time else "wall", "real_time_factor": sim / wall if wall > 0 else 0.0,
                 **({} if self.lockstep is None else {
                     "lockstep": {"lost": self.lockstep.lost, "late_commands": self.lockstep.late_commands,
-                                 "waits": self.lockstep.waits, "wait_s": self.lockstep.wait_s}})}
+                                 "waits": self.lockstep.waits, "wait_s": self.lockstep.wait_s,
+                                 "followed_sim_s": followed_sim, "followed_wall_s": followed_wall,
+                                 "real_time_factor": followed_sim / followed_wall if followed_wall > 0 else 0.0}})}
 
     def close(self) -> None:
         self.stop.set()

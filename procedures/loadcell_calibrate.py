@@ -160,7 +160,8 @@ def _calibrate(run: Run, cfg, params: dict, element: int | None) -> dict:
             weights.kg = kg  # collect_counts() only takes samples converted from now on
         else:
             operator.hang_mass(kg, element)
-            time.sleep(0.1)  # let it settle: the first conversions may still swing
+            # let it settle: the first conversions may still swing
+            (session.time.sleep if session is not None else time.sleep)(0.1)
 
     try:
         import serial
@@ -173,17 +174,34 @@ def _calibrate(run: Run, cfg, params: dict, element: int | None) -> dict:
                 from drivers.loadcell.serial_port import open_serial_port
                 from rig.devices.factory import open_operator
 
-                if cfg.operator["driver"] == "ros":
+                if cfg.operator["driver"] == "ros" or cfg.ros["use_sim_time"]:
                     from drivers.ros_session import RosSession
 
                     session = RosSession("rig_loadcell_calibrate", executor=cfg.ros["executor"])
+                    if cfg.ros["use_sim_time"]:
+                        from drivers.time_base import SimTime
+
+                        # the served cell converts on the world's clock: its samples, the
+                        # windows and the timeouts on the same clock, in lockstep
+                        session.time = SimTime(session.node, lockstep=cfg.ros["lockstep"],
+                                               polled=session.executor_time)
                 operator = open_operator(cfg, session)
                 if session is not None:
                     session.start()
+                    if session.time.simulated and not session.time.wait_heard(cfg.ros["connect_timeout"]):
+                        from drivers.ros_session import domain_text
+
+                        raise AbortRun(f"/clock: no simulated time within {cfg.ros['connect_timeout']:g} s on "
+                                       f"{domain_text()}; [ros] use_sim_time = true follows `rig sim --sim-time`: "
+                                       "start it so (or set use_sim_time = false)")
                 ser = open_serial_port(port, baud)
             # static loads: a scheduling hiccup is harmless here (a pty on a loaded machine
             # delivers up to ~0.35 s late), and a pulled cable still stops us at once
-            lc = LoadCell(ser, None, rate_hz=rate_hz, stale_timeout=max(0.5, cfg.loadcell["stale_timeout"]))
+            sim_time = session is not None and session.time.simulated
+            lc = LoadCell(ser, None, rate_hz=rate_hz, stale_timeout=max(0.5, cfg.loadcell["stale_timeout"]),
+                          **({"clock": session.time.now, "time_base": session.time} if sim_time else {}))
+            if sim_time:
+                session.time.add_sync(lc)  # the world waits for its reader
             ident = lc.identity
             result["device"] = {"port": port or fake.port_path, "protocol": ident.protocol,
                                 "firmware": ".".join(map(str, ident.firmware)), "adc": ident.adc,
@@ -254,6 +272,7 @@ def _calibrate(run: Run, cfg, params: dict, element: int | None) -> dict:
         if fake is not None:
             fake.unplug()
         if session is not None:
+            session.time.close()  # leave the lockstep (on the wall clock: nothing to leave)
             session.close()
     return result
 

@@ -63,15 +63,20 @@ class ClockStopped(DeviceFault):
     """The simulator's /clock stood still while this process waited for it."""
 
     def __init__(self, age: float, stall: float):
-        from drivers.ros_session import domain_text
-
         self.topic = CLOCK_TOPIC
         self.age = age
         self.watchdog = stall
         super().__init__(
             f"{CLOCK_TOPIC}: the simulated time stood still for {age:.1f} s of wall time while this process waited "
             f"for it (limit {stall:g} s): `rig sim --sim-time` stopped or was killed; check that it runs on "
-            f"{domain_text()}, or set [ros] use_sim_time = false for a console on the wall clock")
+            f"{_domain()}, or set [ros] use_sim_time = false for a console on the wall clock")
+
+
+def _domain() -> str:
+    """The ROS domain this process is on, for a line (as drivers.ros_session.domain_text says it;
+    not imported from there: the session's module imports this one)."""
+    scope = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "")
+    return f"ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0') or '0'}" + (f", discovery {scope}" if scope else "")
 
 
 class WallTime:
@@ -177,7 +182,7 @@ class SimTime:
             return
         with self.changed:
             if self._t_ns is not None and ns <= self._t_ns:
-                return  # a repeat (or a restarted simulator: its periods are answered from here)
+                return  # a repeat, or a simulator that started over: the clock stands, ClockStopped ends the run
             self._t_ns = ns
             self._advanced = time.monotonic()
             self.clocks += 1

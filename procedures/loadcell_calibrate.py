@@ -198,10 +198,9 @@ def _calibrate(run: Run, cfg, params: dict, element: int | None) -> dict:
             # static loads: a scheduling hiccup is harmless here (a pty on a loaded machine
             # delivers up to ~0.35 s late), and a pulled cable still stops us at once
             sim_time = session is not None and session.time.simulated
+            # (on simulated time the world waits for the cell's reader: drivers.time_base)
             lc = LoadCell(ser, None, rate_hz=rate_hz, stale_timeout=max(0.5, cfg.loadcell["stale_timeout"]),
                           **({"clock": session.time.now, "time_base": session.time} if sim_time else {}))
-            if sim_time:
-                session.time.add_sync(lc)  # the world waits for its reader
             ident = lc.identity
             result["device"] = {"port": port or fake.port_path, "protocol": ident.protocol,
                                 "firmware": ".".join(map(str, ident.firmware)), "adc": ident.adc,

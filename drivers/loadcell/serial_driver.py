@@ -94,7 +94,7 @@ class LoadCell(_StreamingLoadCell):
         for a byte (pyserial's cancel_read), so that it looks again at once."""
         if super().caught_up(t):
             return True
-        cancel = getattr(self.port, "cancel_read", None)
+        cancel = getattr(getattr(self, "port", None), "cancel_read", None)  # (set after the base)
         if cancel is not None:
             try:
                 cancel()

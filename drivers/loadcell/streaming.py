@@ -106,6 +106,10 @@ class _StreamingLoadCell(abc.ABC):
         self.rate_hz = 0
         self.identity: Identity | None = None
         self._tare_pending = False
+        if self.time_base.simulated:
+            # from the first command on: the world must not run ahead of a starved reader
+            # (its replies would come later than their timeout on the world's clock)
+            self.time_base.add_sync(self)
 
     _seq_bits = 32
     #: the rig.toml key of `stale_timeout`, named by the stale line

@@ -445,8 +445,8 @@ def _open_loadcell(lc: dict, rig: Rig):
         # sample times on the rig's clock, so the run compares them with its own time
         cell = LoadCell(port, calibration, rate_hz=int(round(lc["rate"])), stale_timeout=lc["stale_timeout"],
                         clock=rig.clock.now, time_base=rig.session.time if rig.session is not None else None)
-        if hasattr(rig.clock, "add_sync"):
-            rig.clock.add_sync(cell)  # the loop reads the force of a period once its bytes are read
+        # on simulated time the cell is one of its time base's syncs: the loop reads the force
+        # of a period once its bytes are read
     else:
         import can
 

@@ -301,9 +301,11 @@ class SimTime:
     # -- waiting ------------------------------------------------------------------------
     def stalled(self) -> ClockStopped | None:
         """ClockStopped if the clock has stood still for `stall` s of wall time while this
-        process waited for it (the executor polling, the world not held by us), else None."""
-        if self._t_ns is None or (self._held and self._answered_ns < self._t_ns):
-            return None  # not heard yet (connect says so), or the world waits for our answer
+        process waited for it (the executor polling, every period answered), else None."""
+        if self._t_ns is None or (self.lockstep and self._answered_ns < self._t_ns):
+            # not heard yet (connect says so), or the world waits for our answer: our loop's
+            # (held), or our load cell's reader's (free), held off the CPU on a loaded machine
+            return None
         now = time.monotonic()
         if self._polled is not None:
             now = min(now, self._polled())

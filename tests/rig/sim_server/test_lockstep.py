@@ -31,15 +31,16 @@ def answer(node, client, t_ns, sent=0, mode="hold", next_ns=0):
 
 
 def waited(lock: Lockstep, t_ns: int) -> bool:
-    """Whether wait(t_ns) is still blocked after a short look (it runs on a thread)."""
+    """Whether wait(t_ns) blocks: run here, with a stop that comes after 2 s. A wait with
+    nothing to wait for returns at once, long before it; one that blocks returns on it."""
     stop = threading.Event()
-    th = threading.Thread(target=lock.wait, args=(t_ns, stop), daemon=True)
-    th.start()
-    th.join(0.2)
-    blocked = th.is_alive()
-    stop.set()
-    th.join(5.0)
-    return blocked
+    timer = threading.Timer(2.0, stop.set)
+    timer.start()
+    try:
+        lock.wait(t_ns, stop)
+    finally:
+        timer.cancel()
+    return stop.is_set()
 
 
 def test_parse_answer_reads_the_fields_and_refuses_anything_else():

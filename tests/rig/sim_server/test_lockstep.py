@@ -98,7 +98,7 @@ def test_commands_counted_by_an_answer_are_waited_for_then_taken_as_come():
 
 def test_a_client_that_leaves_or_goes_silent_is_not_waited_for_and_its_commands_stay_counted():
     node = FakeNode()
-    lock = Lockstep(node, timeout=60.0)
+    lock = Lockstep(node, timeout=60.0, command_wait=60.0)
     answer(node, "a", 10_000_000, sent=1)
     lock.command_received()
     answer(node, "a", 10_000_000, sent=1, mode="bye")

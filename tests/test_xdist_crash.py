@@ -20,7 +20,6 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip("xdist")
 
 REPO = Path(__file__).resolve().parents[1]
 

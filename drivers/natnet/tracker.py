@@ -149,7 +149,7 @@ class NatNetTracker:
     """Tracker over a NatNet stream (see the module docstring).
 
     transport: a `UdpTransport` or anything with `send(datagram)`, `recv(timeout) ->
-    (datagram, "command" | "data") | None`, `close()` and `address` (STYLE item 1: the
+    (datagram, "command" | "data") | None`, `close()` and `address` (the
     driver gets its transport). bodies: the rigid-body names to report (default: every
     rigid body the model definitions name). stale_timeout: s without a frame before
     reads raise (`[mocap] stale_timeout`; its stale line gives the rate the frames had

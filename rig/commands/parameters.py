@@ -1,4 +1,4 @@
-"""Procedure parameters, declared once (STYLE item 5).
+"""Procedure parameters, declared once.
 
 One `Parameter` declaration gives a procedure its click option (help with units and
 default, range and choice checks with a clear message), its defaults when it is called

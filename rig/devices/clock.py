@@ -83,6 +83,19 @@ class _Listeners:
             fn(t)
 
 
+def _set_rate(self, rate: float, min_fraction: float | None = None) -> None:
+    """Pace a loop clock that waits on its sources at `rate` Hz from now on (a procedure
+    whose loop runs slower than [rig] rate); `min_fraction`: of a period between two ticks
+    at least (1.0 for a loop slower than its sources, which would otherwise tick at every
+    new sample)."""
+    if not rate > 0:
+        raise ValueError(f"clock rate must be > 0 Hz, got {rate}")
+    self.rate = float(rate)
+    self.period = 1.0 / self.rate
+    if min_fraction is not None:
+        self.min_fraction = float(min_fraction)
+
+
 class SimClock(_Listeners):
     """The simulated rig's clock: a tick is one `world.step()` of `world.dt` seconds.
 
@@ -189,16 +202,7 @@ class StreamClock(WallClock):
         self.sources.append(source)
         self._seen.append(source.received)
 
-    def set_rate(self, rate: float, min_fraction: float | None = None) -> None:
-        """Pace at `rate` Hz from now on (a procedure whose loop runs slower than [rig]
-        rate); `min_fraction`: of a period between two ticks at least (1.0 for a loop
-        slower than its sources, which would otherwise tick at every new sample)."""
-        if not rate > 0:
-            raise ValueError(f"clock rate must be > 0 Hz, got {rate}")
-        self.rate = float(rate)
-        self.period = 1.0 / self.rate
-        if min_fraction is not None:
-            self.min_fraction = float(min_fraction)
+    set_rate = _set_rate
 
     def tick(self) -> None:
         self._tick_called()
@@ -275,14 +279,7 @@ class SimTimeClock(_Listeners):
         cell (kept by the time base, which waits for it when free too)."""
         self.time.add_sync(device)
 
-    def set_rate(self, rate: float, min_fraction: float | None = None) -> None:
-        """Tick at `rate` Hz from now on (see StreamClock.set_rate)."""
-        if not rate > 0:
-            raise ValueError(f"clock rate must be > 0 Hz, got {rate}")
-        self.rate = float(rate)
-        self.period = 1.0 / self.rate
-        if min_fraction is not None:
-            self.min_fraction = float(min_fraction)
+    set_rate = _set_rate
 
     def now(self) -> float:
         return self.time.now()

@@ -1,6 +1,6 @@
 """Recording a run: every device stream as ROS 2 messages in one MCAP file.
 
-A run is a stream of documents (STYLE item 6): a `run_start` metadata record (procedure,
+A run is a stream of documents: a `run_start` metadata record (procedure,
 parameters, config snapshot, versions, seed, UTC start), one channel per device stream
 written sample by sample (`/PSM1/measured_js`, `/PSM1/servo_jp`, `/loadcell/force`,
 `/mocap/<body>/pose`, ...), and a `run_stop` metadata record (status, error, sample counts

@@ -1,4 +1,4 @@
-"""The run engine: one recorded procedure run, and the safe stop it owns (STYLE item 4).
+"""The run engine: one recorded procedure run, and the safe stop it owns.
 
     with Run("identify", parameters=params, config=cfg, seed=7) as run:
         arm = run.claim(psm1)                     # held on any exit

@@ -1,4 +1,4 @@
-"""Safety limits as data, checked every control cycle (DESIGN.md, "Safety").
+"""Safety limits as data, checked every control cycle.
 
 A breach raises `AbortRun` with one line naming what and by how much; the run engine
 (`rig.runs.run.Run`) then holds every arm the run moved and finalises the recording as aborted.

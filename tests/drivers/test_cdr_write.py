@@ -11,14 +11,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("rclpy")
+from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped  # noqa: E402
-from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
-from sensor_msgs.msg import JointState  # noqa: E402
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension  # noqa: E402
-
-from drivers import cdr  # noqa: E402
+from drivers import cdr
 
 FRAMES = ["", "w", "ab", "abc", "PSM1_base", "a_longer_frame_name", "ü"]
 #: stamps in ns: zero, under a second, a wall-clock stamp, the largest int32 second, a negative one

@@ -2,13 +2,11 @@
 
 import pytest
 
-pytest.importorskip("rosgraph_msgs")
+from rclpy.serialization import serialize_message
+from rosgraph_msgs.msg import Clock
 
-from rclpy.serialization import serialize_message  # noqa: E402
-from rosgraph_msgs.msg import Clock  # noqa: E402
-
-from drivers.time_base import ClockStopped, SimTime, parse_clock  # noqa: E402
-from rig.sim_server.lockstep import parse_answer  # noqa: E402
+from drivers.time_base import ClockStopped, SimTime, parse_clock
+from rig.sim_server.lockstep import parse_answer
 
 
 class FakeNode:

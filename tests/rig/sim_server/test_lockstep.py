@@ -4,11 +4,9 @@ import threading
 
 import pytest
 
-pytest.importorskip("std_msgs")
+from std_msgs.msg import Header
 
-from std_msgs.msg import Header  # noqa: E402
-
-from rig.sim_server.lockstep import Lockstep, parse_answer  # noqa: E402
+from rig.sim_server.lockstep import Lockstep, parse_answer
 
 
 class FakeNode:

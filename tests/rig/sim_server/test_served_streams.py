@@ -7,17 +7,17 @@ import time
 
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
-from rclpy.context import Context  # noqa: E402
-from rclpy.event_handler import SubscriptionEventCallbacks  # noqa: E402
-from rclpy.qos import QoSProfile  # noqa: E402
+import rclpy
+from rclpy.context import Context
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.qos import QoSProfile
 
-from drivers import cdr  # noqa: E402
-from drivers.ros_session import make_executor  # noqa: E402
-from rig import config  # noqa: E402
-from rig.sim.world import world_from_config  # noqa: E402
-from rig.sim_server.crtk_bridge import STREAMS  # noqa: E402
-from rig.sim_server.ros_node import SimServer  # noqa: E402
+from drivers import cdr
+from drivers.ros_session import make_executor
+from rig import config
+from rig.sim.world import world_from_config
+from rig.sim_server.crtk_bridge import STREAMS
+from rig.sim_server.ros_node import SimServer
 
 pytestmark = pytest.mark.ros
 

@@ -7,7 +7,7 @@ from calibration.base_params import base_parameters_of, random_samples
 from calibration.estimators import Identification, model_nominal
 from calibration.layout import ParamLayout
 
-psm_dynamics = pytest.importorskip("rig.model.psm_dynamics")
+from rig.model import psm_dynamics  # noqa: E402
 from rig.model.psm_kinematics import DQ_MAX, Q_MAX, Q_MIN  # noqa: E402
 
 

@@ -7,7 +7,7 @@ import struct
 import numpy as np
 import pytest
 
-pytest.importorskip("rclpy")
+import rclpy  # noqa: E402,F401  (a declared dependency: a broken install fails here)
 
 from geometry_msgs.msg import PoseStamped  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402

@@ -25,7 +25,7 @@ import time
 import numpy as np
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
+import rclpy  # noqa: E402  (a declared dependency: a broken install fails here)
 from rclpy.context import Context  # noqa: E402
 
 from drivers import ros_exit  # noqa: E402

@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from drivers.interfaces import Tracker
 
-rclpy = pytest.importorskip("rclpy")
+import rclpy  # noqa: E402  (a declared dependency: a broken install fails here)
 from geometry_msgs.msg import PoseStamped  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402

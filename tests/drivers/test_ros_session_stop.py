@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-pytest.importorskip("rclpy")
+import rclpy  # noqa: E402,F401  (a declared dependency: a broken install fails here)
 
 from drivers.ros_session import RosSession  # noqa: E402
 from rig.devices.factory import _once_stopped  # noqa: E402

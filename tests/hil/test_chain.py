@@ -27,7 +27,7 @@ import os
 import numpy as np
 import pytest
 
-pytest.importorskip("rclpy")
+import rclpy  # noqa: E402,F401  (a declared dependency: a broken install fails here)
 
 from tests.hil.harness import ServedRig, completed  # noqa: E402
 from tests.ros_domains import ros_environment  # noqa: E402

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
+import rclpy  # noqa: E402  (a declared dependency: a broken install fails here)
 
 from tests.hil.harness import ServedRig  # noqa: E402
 

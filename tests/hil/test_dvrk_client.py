@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
+import rclpy  # noqa: E402  (a declared dependency: a broken install fails here)
 
 from tests.hil.dvrk_client import client_env, client_scripts, skip_reason  # noqa: E402
 from tests.hil.harness import ServedRig  # noqa: E402

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip("rclpy")
+import rclpy  # noqa: E402,F401  (a declared dependency: a broken install fails here)
 
 from tests.hil.dvrk_client import (  # noqa: E402
     DEBIAN_DIST_PACKAGES, REPO, client_env, client_scripts, clients_dir, skip_reason)

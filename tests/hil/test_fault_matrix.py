@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import pytest
 
-pytest.importorskip("rclpy")
+import rclpy  # noqa: E402,F401  (a declared dependency: a broken install fails here)
 
 from tests.hil.fault_matrix import FAULTS, PROCEDURES, cell, lab, prepare, sim_args  # noqa: E402
 from tests.hil.harness import ServedRig  # noqa: E402

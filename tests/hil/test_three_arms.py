@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import pytest
 
-pytest.importorskip("rclpy")
+import rclpy  # noqa: E402,F401  (a declared dependency: a broken install fails here)
 
 from tests.hil.harness import ServedRig, completed, lab_toml  # noqa: E402
 

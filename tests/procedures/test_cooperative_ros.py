@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
+import rclpy  # noqa: E402  (a declared dependency: a broken install fails here)
 from geometry_msgs.msg import Twist  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402

@@ -45,7 +45,7 @@ def model_with_error(error: float, seed: int) -> PSMDynamics:
 
 def run_case(kind: str, arms: list[str], seed: int, mode: str = "impedance", deadband: float = 0.4,
              duration: float = 5.0, stiffness: float | None = None) -> dict:
-    from procedures.cooperative import run_cooperative
+    from procedures.cooperative import PARAMETERS, run_cooperative
 
     doc = {"rig": {"seed": seed},
            "arms": {"PSM1": {}, "PSM2": {"base_xyz": [config.DEFAULT_PSM2_X, 0, 0], "base_rpy": [0, 0, np.pi]}},
@@ -58,8 +58,10 @@ def run_case(kind: str, arms: list[str], seed: int, mode: str = "impedance", dea
     for a in arms:
         doc["effects"][a] = {"stiction": [0.0, 0.0, 1.0]}
     cfg = config.parse(doc, f"bench ({kind}, {len(arms)} arms)")
-    params = {"force": 5.0, "duration": duration, "settle": 2.0, "hold_after": 2.0, "deadband": deadband,
-              "tension_ceiling": 15.0}
+    # every parameter of the procedure at its default (the success tolerance too), these set
+    params = {p.name: p.default for p in PARAMETERS}
+    params.update({"force": 5.0, "duration": duration, "settle": 2.0, "hold_after": 2.0, "deadband": deadband,
+                   "tension_ceiling": 15.0})
     move = np.array([0.05, 0.0, 0.0])
     return run_cooperative(cfg, arms, arms[-1] if len(arms) == 2 else "PSM1", params, move, np.zeros(3), mode,
                            model=model_with_error(0.15, seed), seed=seed, progress=False)

@@ -2,7 +2,7 @@
 
 The dVRK 2.3 PSM names its joints as below (the first three are the rig's joints 1-3);
 a `Wrench` is what `body/measured_cf` carries. `StaleStream` is the error every arm
-driver raises when its measured_js stream stopped (DESIGN.md, "Safety").
+driver raises when its measured_js stream stopped (docs/safety.md, "Stale streams").
 
 The operating state (crtk_msgs/OperatingState on `<arm>/operating_state`): `state` is one
 of DISABLED, ENABLED, PAUSED, FAULT; a dVRK arm obeys motion commands (servo_jp, servo_jf,

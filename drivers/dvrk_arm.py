@@ -40,7 +40,7 @@ after the last change hears nothing until the next: `wait_for_state` then asks t
 `operating_state` service (crtk_msgs/TriggerOperatingState, as the dVRK's bridge serves
 it), and `ready()` does so while it waits.
 
-Threading model. The driver is given a node (STYLE item 1) and never creates one. Its
+Threading model. The driver is given a node (docs/fakes.md, "A driver gets its transport") and never creates one. Its
 subscription callbacks only copy the newest message under a lock; they run on whatever
 executor spins the node: with `spin=True` (the default) the driver starts its own
 single-threaded executor on a daemon thread for this node; with `spin=False` the caller

@@ -1,4 +1,4 @@
-"""The device interfaces that procedures use (DESIGN.md, "Devices and fakes").
+"""The device interfaces that procedures use (docs/fakes.md).
 
 A procedure only ever sees these. A driver takes its transport (a ROS 2 node, a pyserial
 port, a python-can bus) and implements one of them; its fake sits next to it and behaves

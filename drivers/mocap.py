@@ -46,7 +46,7 @@ class MocapStaleError(DeviceFault):
 
 @dataclass
 class MocapStats:
-    """Counters a procedure reports (DESIGN.md: dropped frames are counted, never hidden).
+    """Counters a procedure reports (docs/recordings.md: dropped frames are counted, never hidden).
 
     received: messages accepted per body; late: a body's message arriving after its
     frame was emitted without it (dropped); duplicate: a second message for the same body
@@ -80,7 +80,7 @@ def pose_topic(prefix: str, body: str) -> str:
 class RosMocapTracker:
     """Tracker over ROS 2 PoseStamped topics, one per rigid body.
 
-    node: an rclpy Node that someone else spins (STYLE item 1: the driver gets its
+    node: an rclpy Node that someone else spins (docs/fakes.md: the driver gets its
     transport). bodies: rigid-body names. prefix: topic prefix (see `pose_topic`).
     stale_timeout: s without a message on any body's topic before reads raise (the
     `[mocap] stale_timeout` key; `rig.config.stale_default` derives its default from the

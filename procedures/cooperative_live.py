@@ -25,7 +25,7 @@ class _LiveCommands:
     An increment with a NaN or one that would take a target out of the limits (workspace
     box, joint limits, reach) or the set-point out of [0, maximum_force] N or to the tension
     ceiling is refused: nothing moves, it is counted and reported, and the run goes on
-    holding (DESIGN.md, "Bad input").
+    holding (docs/safety.md, "Bad input").
     """
 
     STEP_M = KEY_STEP_M

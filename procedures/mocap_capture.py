@@ -250,7 +250,7 @@ class Devices:
 
 def tracker_stats(tracker) -> dict:
     """The tracker's counters (frames, incomplete, late, dropped...; drivers.mocap.MocapStats)
-    for a run's result: frames lost on the way are reported, never hidden (DESIGN.md)."""
+    for a run's result: frames lost on the way are reported, never hidden (docs/recordings.md)."""
     st = getattr(tracker, "stats", None)
     if st is None:
         return {}

@@ -234,7 +234,7 @@ def test_published_increments_move_the_object_and_raise_the_tension(tmp_path, te
 
 
 def test_bad_increments_are_refused_and_the_object_stays_held(tmp_path, teleop):
-    # DESIGN.md, "Bad input": a NaN, or an increment that would take a target out of the
+    # docs/safety.md, "Bad input": a NaN, or an increment that would take a target out of the
     # workspace box or the tension set-point above the ceiling, is refused before anything
     # moves, counted and reported; the run keeps holding and completes.
     settle, hold_after = 1.5, 2.0

@@ -7,6 +7,31 @@ The master moves 5 cm in 5 s. The issue asks for strings of 20000 N/m and stiffe
 50000 N/m string is run too, against the same targets. Prints figure, value, target, pass/fail.
 
     python bench/bench_cooperative.py [--seeds 1]
+
+Tuning log of the effort path's presets (rig.control.cooperative_gains.preset), measured
+with this bench's conditions unless said otherwise; re-run it after changing a gain.
+
+- Spring, desired inertia Md 1 kg: 0.5 kg gave 0.10 N in-process, but a control loop held
+  up by the machine (over the wire, two CPU burners: holds of 10-20 ms) rang on joint 2
+  up to the effort ceiling. In-process at 500 Hz with the measured joints a tick late and
+  holds of up to 7 periods on 30 % of the ticks, 0.5 and 0.75 kg aborted and 1 kg held
+  (0.14-0.18 N; holds of up to 11 periods on 15 %: 0.21-0.35 N).
+- String, Kp 200 N/m: of 50-800 N/m this gave the smallest error while moving (a softer
+  slave lags the master, a stiffer one passes the master's lag into the string).
+- String, k_fp 10: of 0-20 tried (15 % model error, stiction), 4 gave 0.28 N while
+  moving, 10-20 about 0.23 N (following the plan); 10 keeps a factor 2 from the largest
+  tried.
+- String, damping ratio 0.3: over the wire the state is about a tick old when the command
+  acts, and 0.7 then rang at half the loop rate on joint 3 up to the effort ceiling.
+  In-process, 3 cm move at 500 Hz, measured joints one tick late: 0.7 and 0.5 aborted,
+  0.4 / 0.3 / 0.2 held (0.115 / 0.109 / 0.109 N); two ticks late only 0.2 held. On this
+  bench's cases (1 N stiction, 15 % model error, 1 kHz) 0.2 aborted on the 50 kN/m string
+  and 0.3 gave 0.142 / 0.164 N (0.7: 0.108 / 0.148).
+- A desired inertia of 0.35 kg on the string limit-cycled (the sampled, filtered force
+  arrives too late for an arm-object mode above 200 rad/s).
+- Slaves follow the master's measured motion, not its plan: on a 20 kN/m string
+  following the plan gave 0.24 N while moving, following the measurement 0.17 N; at
+  100 kN/m 0.39 N and 0.21 N.
 """
 
 from __future__ import annotations

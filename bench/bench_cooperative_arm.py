@@ -15,6 +15,15 @@ sample), rig sim catching up by `--gap-every`/`--gap` (the arms' state unpublish
 
 Prints per object x period: max |F - 5 N| during the 3 cm move, overshoot, RMS after
 settling, and pass/fail against 0.25 N and 0.5 N (the over-the-wire targets of issue 35).
+
+Tuning log of the arm path's presets (rig.control.cooperative_gains.arm_preset), this
+bench at a 3 cm move and 5 N: the spring along the object 1000 N/m (400: 0.20 N at
+100 Hz, 1000: 0.175 N), the string 2000 N/m (1000: 0.28 N, 2000: 0.265 N at 100 Hz;
+0.18 N at 500 Hz), both damped at a ratio of 1 against spring + object (0.7 overshot the
+start-up ramp by 0.65-0.8 N on the string). With the loop at 100 Hz every object holds
+from 100 Hz streams here: the spring and the triangle 0.14-0.16 N, the string
+0.27-0.35 N (procedures.cooperative.ARM_LOOP_MIN_RATE; bench_cooperative_wire.py says
+why the string and the triangle still need 500 Hz over the wire).
 """
 
 from __future__ import annotations

@@ -16,6 +16,19 @@ whole bench. `--clocks sim,wall`: `rig sim --sim-time` with the procedures in lo
 Prints per object x period: completed runs, false aborts, worst max |F - 5 N| during the
 move and worst overshoot against 0.25 N and 0.5 N, the loop's rate and period (median /
 p99 / max), and a refusal (with its line) where the procedure refuses the period.
+
+Tuning log of procedures.cooperative's loop rates, on a 2-core machine shared with other
+work (quiet, 3 runs each unless said):
+
+- ARM_LOOP_MIN_RATE: at 100 Hz streams the spring held 0.18-0.43 N, but the string
+  aborted 1 of 3 on the tension ceiling (2.6-5.3 N in the others) and the triangle 3 of 3;
+  at 500 Hz streams neither aborted (string 0.85-1.9 N, triangle 0.47-1.8 N): they need
+  the faster console (spring 100 Hz, string and triangle 500 Hz).
+- ARM_LOOP_MAX_RATE: a tick with one slave costs 3-5 ms of Python (controller 1.5-2 ms,
+  the servo_ci goal and message 0.4 ms, publishing and recording the rest). With both
+  processes at 80-90 % of a core, 200 Hz starved the loop (periods to 30-70 ms at
+  p99/max, the tension older than 10 ms on 8-18 % of ticks): 0.34-2.2 N while moving and
+  aborts; 100 Hz: 0.25-0.68 N, no aborts in those runs.
 """
 
 from __future__ import annotations

@@ -225,8 +225,9 @@ def build_controller(cfg, names, master, params, translation, rotation, mode, dy
     every arm with its rigid-body model (`calibration.effects.EffectCompensation`)."""
     from calibration.effects import EffectCompensation
     from rig.control.controllers import FeedforwardModel, StickSlipCompensation
-    from rig.control.cooperative_controller import (CooperativeController, ForceLoop, Motion, PositionForceLoop,
-                                                    arm_preset, preset)
+    from rig.control.cooperative_controller import CooperativeController
+    from rig.control.cooperative_gains import ForceLoop, PositionForceLoop, arm_preset, preset
+    from rig.control.cooperative_plan import Motion
 
     d = dyn.params.drive
     friction = {}
@@ -250,13 +251,8 @@ def build_controller(cfg, names, master, params, translation, rotation, mode, dy
 # ----------------------------------------------------------------------------- the run
 #: Hz: the lowest rate of the arms' streams the arm-impedance path runs at, per object
 #: ("three": the triangle of three arms); a slower console is refused in one line naming
-#: its `-p`. The loop itself runs at most ARM_LOOP_MAX_RATE. In sim time
-#: (bench_cooperative_arm, loop at 100 Hz) every object holds from 100 Hz streams: the
-#: spring and the triangle 0.14-0.16 N, the string 0.27-0.35 N. Against rig sim on this
-#: 2-core machine (bench_cooperative_wire, quiet, 3 runs each) at 100 Hz streams the spring
-#: held 0.18-0.43 N, but the string aborted 1 of 3 on the tension ceiling (2.6-5.3 N in the
-#: others) and the triangle 3 of 3; at 500 Hz streams neither aborted (string 0.85-1.9 N,
-#: triangle 0.47-1.8 N): they need the faster console.
+#: its `-p`. Measured on bench/bench_cooperative_arm.py and bench/bench_cooperative_wire.py
+#: (their docstrings keep the figures).
 ARM_LOOP_MIN_RATE = {"spring": 100.0, "string": 500.0, "three": 500.0}
 
 
@@ -265,12 +261,9 @@ def arm_loop_min_rate(kind: str, arms: int) -> float:
     return ARM_LOOP_MIN_RATE["three"] if arms > 2 else ARM_LOOP_MIN_RATE[kind]
 
 
-#: Hz: the arm-impedance loop runs at the rate the arms publish, up to this. It moves set-
-#: points; a tick with one slave costs 3-5 ms of Python (controller 1.5-2 ms, the servo_ci
-#: goal and message 0.4 ms, publishing and recording the rest). Against rig sim on this
-#: 2-core machine (both processes at 80-90 % of a core) 200 Hz starved the loop (periods
-#: to 30-70 ms at p99/max, the tension older than 10 ms on 8-18 % of ticks): 0.34-2.2 N
-#: while moving and aborts; 100 Hz: 0.25-0.68 N, no aborts in those runs.
+#: Hz: the arm-impedance loop runs at the rate the arms publish, up to this: a tick costs
+#: milliseconds of Python, and a faster loop starved itself over the wire
+#: (bench/bench_cooperative_wire.py keeps the figures).
 ARM_LOOP_MAX_RATE = 100.0
 
 

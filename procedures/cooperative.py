@@ -18,15 +18,16 @@ holds every arm it moved.
 from __future__ import annotations
 
 import sys
-import time
-from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import click
 import numpy as np
 
 from procedures import cooperative_figures as figures
 from procedures.cooperative_live import KEY_STEP_M, KEY_STEP_N, KEY_STEP_RAD, SLEW_M, SLEW_N, SLEW_RAD, _LiveCommands
+from procedures.cooperative_loop import ServoCI, TensionHold, plot_hint
 from procedures.cooperative_report import (_figures, _filter_delays, _force_hold_figures, _loop_timing, _missed,
                                            _slave_control_text, format_report)
 from rig.commands.abort import exit_on_abort
@@ -35,6 +36,7 @@ from rig.commands.options import config_from_context, json_option, yes_option
 from rig.commands.parameters import Parameter, with_parameters
 from rig.commands.report import emit_result, exit_for_status
 from rig.runs import provenance
+from rig.runs.control_loop import ControlLoop
 from rig.runs.run import AbortRun, Run
 
 STEPS = ["power and home the arms", "attach the object", "check the plan",
@@ -281,6 +283,48 @@ def _pace_at_published_rate(rig, names, master) -> None:
         rig.clock.set_rate(min(rig.clock.rate, ARM_LOOP_MAX_RATE, float(round(heard))), min_fraction=0.9)
 
 
+@dataclass
+class Setup:
+    """What a cooperative run is given: the arms, the plan, the model, the registration."""
+
+    cfg: Any
+    names: list[str]
+    master: str
+    params: dict
+    translation: np.ndarray
+    rotation: np.ndarray
+    mode: str
+    dyn: Any
+    stick: Any
+    rcm_frames: dict
+    model_note: str
+    registration_note: str
+    limits: Any
+    slave_control: str = "effort"
+    effects: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    dry_run: bool = False
+    ros_commands: bool = False
+    interactive: bool = False
+    parameter_set: Any = None
+    seed: int | None = None
+
+    @property
+    def elements(self) -> list[tuple[str, str]]:
+        return [(a, b) for i, a in enumerate(self.names) for b in self.names[i + 1:]]
+
+    @property
+    def total(self) -> float:
+        """s: the loop's length (settle, move, hold after)."""
+        return self.params["settle"] + self.params["duration"] + self.params["hold_after"]
+
+    def controller(self, dt: float):
+        return build_controller(self.cfg, self.names, self.master, self.params, self.translation, self.rotation,
+                                self.mode, self.dyn, self.stick, self.rcm_frames, self.cfg.object["kind"],
+                                self.cfg.object["stiffness"], self.elements, dt, list(self.effects),
+                                self.slave_control)
+
+
 def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, model_path=None, seed=None,
                     dry_run=False, ros_commands=False, interactive=False, parameter_set=None, model=None,
                     progress=True, force_model=False, slave_control="auto"):
@@ -302,334 +346,204 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
     if params["force"] >= limits.tension_ceiling:
         raise click.BadParameter(f"{params['force']} N is not below the tension ceiling "
                                  f"{limits.tension_ceiling} N", param_hint="--force")
-    ros = all(cfg.arms[n]["driver"] == "ros" for n in names)
-    if slave_control == "auto":
-        slave_control = "arm" if ros and mode == "impedance" else "effort"
-    elif slave_control == "arm" and not ros:
-        raise click.BadParameter("'arm' needs ROS arms (the dVRK runs servo_ci); the in-process simulated arms "
-                                 "take efforts: use 'effort' or 'auto'", param_hint="--slave-control")
-    elif slave_control == "arm" and mode != "impedance":
-        raise click.BadParameter("'arm' is the impedance mode's; --mode position keeps the slaves on servo_jp",
-                                 param_hint="--slave-control")
+    slave_control = _slave_control(cfg, names, mode, slave_control)
+    setup = Setup(cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames, model_note,
+                  registration_note, limits, slave_control, list(effects), warnings, dry_run, ros_commands,
+                  interactive, parameter_set, seed)
     rig = open_rig(cfg, names, seed=seed, uses=("loadcell",),
                    loop_rate=arm_loop_min_rate(cfg.object["kind"], len(names)) if slave_control == "arm" else None)
     try:
-        return _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
-                    model_note, registration_note, limits, dry_run, ros_commands, interactive,
-                    parameter_set, seed, progress, effects, warnings, slave_control)
+        return _run(rig, setup, progress)
     finally:
         rig.close()
 
 
-def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames, model_note,
-         registration_note, limits, dry_run, ros_commands, interactive, parameter_set, seed, progress,
-         effects=(), warnings=(), slave_control="effort"):
-    clock = rig.clock
-    if slave_control == "arm":
-        _pace_at_published_rate(rig, names, master)
-    elements = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
-    kind = cfg.object["kind"]
-    stiffness = cfg.object["stiffness"]
-    with Run("cooperative", parameters=parameter_set if parameter_set is not None else params,
-             config=cfg.snapshot(), seed=seed if seed is not None else cfg.rig["seed"], steps=STEPS,
-             progress=progress) as run:
-        rec = run.recorder
-        notes = [f"model: {model_note}", f"registration: {registration_note}"] + [
-            f"warning: {w}" for w in warnings]
-        for line in notes:
-            run._write(line + "\n")
-        def new_controller():
-            return build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick,
-                                    rcm_frames, kind, stiffness, elements, 1.0 / clock.rate, list(effects),
-                                    slave_control)
+def _slave_control(cfg, names, mode, slave_control: str) -> str:
+    """--slave-control resolved: "auto" is the arm on ROS arms in impedance mode, else effort."""
+    ros = all(cfg.arms[n]["driver"] == "ros" for n in names)
+    if slave_control == "auto":
+        return "arm" if ros and mode == "impedance" else "effort"
+    if slave_control == "arm" and not ros:
+        raise click.BadParameter("'arm' needs ROS arms (the dVRK runs servo_ci); the in-process simulated arms "
+                                 "take efforts: use 'effort' or 'auto'", param_hint="--slave-control")
+    if slave_control == "arm" and mode != "impedance":
+        raise click.BadParameter("'arm' is the impedance mode's; --mode position keeps the slaves on servo_jp",
+                                 param_hint="--slave-control")
+    return slave_control
 
-        if dry_run:
-            # plan only: nothing is powered, moved or attached; the plan starts where a
-            # real run would (the simulated rig's start, or each arm's configured q0)
-            q0 = {n: (rig.arms[n].measured_js().position[:3] if rig.world is not None
-                      else np.array(cfg.arms[n]["q0"], float)) for n in names}
-            controller = new_controller()
-            controller.start(clock.now(), q0, {n: np.zeros(3) for n in names},
-                             np.full(len(elements), float(params["force"])))
-            total = params["settle"] + params["duration"] + params["hold_after"]
-            with run.step(STEPS[2]):
-                plan = _check_plan(controller, names, q0, total, limits)
-            result = {"plan": plan, "model": model_note, "registration": registration_note,
-                      "arms": names, "master": master, "mode": mode, "object": kind, "warnings": list(warnings)}
-            run.finish(result, status="dry-run")
-            return run.result
+
+def _run(rig, setup: Setup, progress: bool) -> dict:
+    """The steps of the run (STEPS), each a call; the hold is the run engine's control loop
+    with `TensionHold.step`."""
+    if setup.slave_control == "arm":
+        _pace_at_published_rate(rig, setup.names, setup.master)
+    with Run("cooperative", parameters=setup.parameter_set if setup.parameter_set is not None else setup.params,
+             config=setup.cfg.snapshot(), seed=setup.seed if setup.seed is not None else setup.cfg.rig["seed"],
+             steps=STEPS, progress=progress) as run:
+        for line in [f"model: {setup.model_note}", f"registration: {setup.registration_note}"] + [
+                f"warning: {w}" for w in setup.warnings]:
+            run.say(line)
+        if setup.dry_run:
+            return _dry_run(run, rig, setup)
         with run.step(STEPS[0]):
-            for n in names:
-                arm = rig.arms[n]
-                if hasattr(arm, "power_on"):
-                    arm.power_on()
-            if rig.world is None:
-                # a real (or served) rig is wherever the last procedure left it: with the
-                # object off, bring every arm to its configured start q0, where the object
-                # fits between the tips (the simulated rig starts there, object attached)
-                rig.operator.detach_object()
-                for n in names:
-                    run.claim(rig.arms[n])
-                    if not rig.arms[n].move_jp(np.array(cfg.arms[n]["q0"]), wait=True, timeout=15.0):
-                        raise AbortRun(f"{n} did not reach its start q0 = {cfg.arms[n]['q0']} (rad, rad, m) in 15 s")
+            _power_and_home(run, rig, setup)
         with run.step(STEPS[1]):
-            rig.operator.attach_object(kind)
-            # the simulated object is attached at construction; let it settle under the PIDs
-            for _ in range(int(0.5 * clock.rate)):
-                clock.tick()
-            if rig.force is None:
-                raise AbortRun("no load cell: the tension cannot be tracked")
-            sensed = sorted(rig.forces)
-            if len(sensed) != len(elements):
-                held = [elements[k] for k in sensed]
-                raise AbortRun(f"the object has {len(elements)} elements but load cells on only {held}: "
-                               "a triangle of three arms needs a load cell on every element")
-        controller = new_controller()
-        comp = next(iter(controller.impedance.values())).model.effects if controller.impedance else None
-        model_effects = {"fed_forward": [], "not_fed_forward": []}
-        if comp is not None:
-            model_effects = {"fed_forward": [f"{e['name']}@{e['joint']}" for e in comp.entries],
-                             "not_fed_forward": comp.skipped}
-            for sk in comp.skipped:
-                run._write(f"model effect {sk['name']}@{sk['joint']} not fed forward: {sk['reason']}\n")
-        js = {n: rig.arms[n].measured_js() for n in names}
-        q0 = {n: js[n].position[:3] for n in names}
+            _attach(rig, setup)
+        controller = setup.controller(1.0 / rig.clock.rate)
+        model_effects = _model_effects(controller, run)
         sensors = [rig.forces[k] for k in sorted(rig.forces)]
-        first = [s.read() for s in sensors]
-        tension = np.array([s.force for s in first])
-        controller.start(clock.now(), q0, {n: js[n].velocity[:3] for n in names}, tension,
-                         stamps={n: js[n].t for n in names}, tension_t=np.array([s.t for s in first]))
-        total = params["settle"] + params["duration"] + params["hold_after"]
+        first = _start(controller, rig, setup.names, sensors)
         with run.step(STEPS[2]):
-            plan = _check_plan(controller, names, q0, total, limits)
-        for n in names:
+            plan = _check_plan(controller, setup.names, first[1], setup.total, setup.limits)
+        for n in setup.names:
             run.claim(rig.arms[n])
-        live = _LiveCommands(controller, ros_commands, interactive, rec, names, limits,
-                             maximum_force=_parameter("force").maximum, say=run._write)
-        n_ticks = int(round(total * clock.rate))
-        log = {"t": np.empty(n_ticks), "tension": np.empty((n_ticks, len(elements))), "setpoint": np.empty(n_ticks),
-               "loop_us": np.empty(n_ticks), "x_f": np.empty((n_ticks, len(controller.slaves))),
-               "force_offset": np.empty(n_ticks)}
-        for n in names:
-            log[f"{n}.x"] = np.empty((n_ticks, 3))
-            log[f"{n}.xd"] = np.empty((n_ticks, 3))
-        servo_ci = None
-        if slave_control == "arm":
-            servo_ci = _ServoCI(rig, controller.slaves)
-            # the set-point ramp starts with the loop (checking the plan took a while; in
-            # the effort path the slack take-up starts it)
-            js = {n: rig.arms[n].measured_js() for n in names}
-            newest = [s.read() for s in sensors]
-            controller.start(clock.now(), {n: js[n].position[:3] for n in names},
-                             {n: js[n].velocity[:3] for n in names}, np.array([s.force for s in newest]),
-                             stamps={n: js[n].t for n in names}, tension_t=np.array([s.t for s in newest]))
-        t_start = clock.now()
-        # where the loop and the motion begin on the run clock: `rig plot` draws the figures
-        # from the recording on this time base (procedures/cooperative_figures.py)
-        motion = (controller.t0 + controller.motion.start - t_start,
-                  controller.t0 + controller.motion.start + controller.motion.duration - t_start)
-        rec.metadata(figures.LOOP_METADATA, figures.loop_metadata(t_start, names, master, t_start + motion[0],
-                                                                  t_start + motion[1], elements))
-        overruns0, skipped0 = getattr(clock, "overruns", 0), getattr(clock, "skipped", 0)
-        last_js_t = {n: None for n in names}
-        repeated_js = 0  # ticks that found an arm's measured_js not renewed since the last one
-        # The arms' clock against the loop's: a sample stamped further on from the last one
-        # than the loop's own time moved is a jump of the console's clock (its servo loop
-        # fell behind and caught up, or rig sim re-anchored its time on a starved machine):
-        # the arm moved less than the stamps say. Their largest (ms) and count (> 20 ms).
-        stamp_jumps, stamp_jump_max, t_prev_tick = 0, 0.0, None
-        # and how old the arms' samples were when the loop acted on them (ms, the oldest arm's)
-        sample_age_ms = np.zeros(n_ticks)
-        # The force loop acts only on a tension at most two of the cell's frame periods old
-        # (at a tick the newest sample is up to one period old, plus its way to the loop);
-        # older, the controller holds its force loop (CooperativeController.step, blind).
-        # Samples can stop reaching the loop while the port still has them: the driver's
-        # reader thread held up on a loaded machine (100-475 ms seen over the wire with
-        # one CPU burner) delivers them in a burst later, and its stream age does not
-        # count that as silence. A tension no newer than the stale timeout ends the run.
-        max_force_age = max(2.0 / cfg.loadcell["rate"], 2.0 / clock.rate)
-        stale_timeout = cfg.loadcell["stale_timeout"]
-        # With the impedance in the arm a late tension only holds the set-point where it
-        # is (the arm keeps the slaves in place): samples that reach the loop late, the
-        # cell still streaming, are then waited for as long as the arms' own streams are
-        loop_stale = (max(stale_timeout, *(cfg.arms[n]["watchdog"] for n in names)) if slave_control == "arm"
-                      else stale_timeout)
-        last_force_t = [s.t for s in first]
-        # The cells have streamed since they were opened: record what they hold now, so
-        # the first tick of the hold does not (three cells held ~3900 samples each after
-        # connecting; recording them took that tick 60 ms, just as the slaves went over to
-        # effort control).
-        for k_el, sensor in enumerate(sensors):
-            topic = "/loadcell/force" if k_el == 0 else f"/loadcell{k_el}/force"
-            for s in sensor.samples():
-                rec.tension(topic, s.t, s.force)
-                last_force_t[k_el] = max(last_force_t[k_el], s.t)
-        blind_ticks, blind_longest = 0, 0.0
-        t_last_tick = None
-        # the ROS 2 context and the keyboard are released however the loop ends
-        done = 0  # ticks completed
-
-        def timing_so_far() -> dict:
-            """The loop's timing over the ticks it completed (an aborted run's result has it)."""
-            lt = _loop_timing(log["t"][:done], clock.rate, getattr(clock, "overruns", 0) - overruns0,
-                              getattr(clock, "skipped", 0) - skipped0, repeated_js, len(names), log["loop_us"][:done])
-            lt["arm_clock_jumps"] = int(stamp_jumps)
-            lt["arm_clock_jump_ms_max"] = 1e3 * stamp_jump_max
-            ages = sample_age_ms[:done]
-            lt["arm_sample_age_ms"] = ({"median": float(np.median(ages)), "p99": float(np.percentile(ages, 99)),
-                                        "max": float(np.max(ages))} if len(ages) else None)
-            return lt
-
-        with live, _plot_hint(run, timing_so_far), run.step(STEPS[3], total=n_ticks) as step:
-            for k in range(n_ticks):
-                clock.tick()
-                t = clock.now()
-                js = {n: rig.arms[n].measured_js() for n in names}
-                for n in names:
-                    repeated_js += js[n].t == last_js_t[n]
-                    if last_js_t[n] is not None and t_prev_tick is not None:
-                        jump = (js[n].t - last_js_t[n]) - (t - t_prev_tick)
-                        stamp_jump_max = max(stamp_jump_max, jump)
-                        stamp_jumps += jump > 0.02
-                    last_js_t[n] = js[n].t
-                t_prev_tick = t
-                sample_age_ms[k] = 1e3 * max(t - js[n].t for n in names)
-                fresh = None
-                newest = []
-                for k_el, sensor in enumerate(sensors):
-                    new = sensor.samples()
-                    topic = "/loadcell/force" if k_el == 0 else f"/loadcell{k_el}/force"
-                    for s in new:
-                        rec.tension(topic, s.t, s.force)
-                    newest.append(new[-1] if new else None)
-                    if new:
-                        last_force_t[k_el] = max(last_force_t[k_el], new[-1].t)
-                fresh_t = None
-                if all(s is not None for s in newest):
-                    tension = np.array([s.force for s in newest])
-                    fresh, fresh_t = tension, np.array([s.t for s in newest])
-                force_age = t - min(last_force_t)
-                # a tick late itself (this process held) finds samples as old as the gap:
-                # they are the newest there are, not a stalled cell
-                gap = t - t_last_tick if t_last_tick is not None else 0.0
-                t_last_tick = t
-                blind = force_age > max(max_force_age, gap + 1.0 / cfg.loadcell["rate"])
-                if blind:
-                    blind_ticks += 1
-                    blind_longest = max(blind_longest, force_age)
-                    if force_age > stale_timeout:
-                        _check_stale_tension(sensors, force_age, stale_timeout, loop_stale, cfg.loadcell["rate"],
-                                             "[loadcell] stale_timeout")
-                live.poll(t)
-                c0 = time.perf_counter()
-                q = {n: js[n].position[:3] for n in names}
-                dq = {n: js[n].velocity[:3] for n in names}
-                # the samples' own times: the loop's ticks are not `dt` apart over the wire
-                commands = controller.step(t, q, dq, fresh, blind=blind, stamps={n: js[n].t for n in names},
-                                           tension_t=fresh_t)
-                loop_us = (time.perf_counter() - c0) * 1e6
-                xd, _, _ = controller.desired(t)
-                # recorded before the checks: an aborted run's recording holds the tick that
-                # broke a limit
-                rec.scalar(figures.SETPOINT_TOPIC, t, controller.force_setpoint)
-                x = {}
-                for n in names:
-                    x[n] = controller.tip_world(n, q[n])
-                    rec.joint_state(f"/{n}/measured_js", js[n].t, js[n].position, js[n].velocity, js[n].effort)
-                    rec.point(figures.measured_cp_topic(n), js[n].t, x[n], "world")
-                    rec.point(figures.setpoint_cp_topic(n), t, xd[n], "world")
-                limits.check_tension(float(tension.max()))
-                for n in names:
-                    limits.check_arm(n, q[n], dq[n], js[n].effort[:3], x[n])
-                    cmd = commands[n]
-                    if cmd.kind == "position":
-                        rig.arms[n].servo_jp(cmd.q, cmd.dq)
-                        rec.joint_state(f"/{n}/servo_jp", t, cmd.q, cmd.dq, ())
-                    elif cmd.kind == "impedance":
-                        limits.check_effort(n, cmd.feedforward)
-                        servo_ci.send(n, cmd, t, rec)
-                    else:
-                        limits.check_effort(n, cmd.effort)
-                        rig.arms[n].servo_jf(cmd.effort)
-                        rec.joint_state(f"/{n}/servo_jf", t, (), (), cmd.effort)
-                    log[f"{n}.x"][k] = x[n]
-                    log[f"{n}.xd"][k] = xd[n]
-                rec.scalar("/cooperative/loop_time_us", t, loop_us)
-                log["t"][k] = t - t_start
-                log["tension"][k] = tension
-                log["setpoint"][k] = controller.force_setpoint
-                log["force_offset"][k] = controller.applied_force_offset
-                log["loop_us"][k] = loop_us
-                log["x_f"][k] = [controller.x_f[s] for s in controller.slaves]
-                rec.scalar("/cooperative/x_f", t, float(log["x_f"][k][0]))
-                done = k + 1
-                if k % 100 == 0:
-                    step.update(k)
-                    live.show(t - t_start, float(tension.mean()), {n: log[f"{n}.x"][k] for n in names})
-            step.update(n_ticks)
-        with run.step(STEPS[4]):
-            result = _figures(log, params, names, master, mode, kind, controller,
-                              last_live=None if live.last_applied is None else live.last_applied - t_start)
-            result["loop_timing"] = timing_so_far()
-            result["loop_timing"].update(_force_hold_figures(blind_ticks, n_ticks, blind_longest, max_force_age))
-            if ros_commands or interactive:
-                result["live_commands"] = live.summary(t_start)
-            result["slave_control"] = _slave_control_text(slave_control, mode, clock.rate)
-            result.update({"model": model_note, "model_effects": model_effects, "registration": registration_note, "arms": names,
-                           "master": master, "mode": mode, "object": kind,
-                           "filter_delay": _filter_delays(controller), "warnings": list(warnings)})
-            missed = _missed(result, params)
-            trace = figures.trace_from_log(log, names, master, motion,
-                                           f"{run.dir.name} ({'failed: ' + missed if missed else 'completed'})",
-                                           tolerance=params.get("tolerance"), ceiling=params.get("tension_ceiling"),
-                                           elements=elements)
-            result["cartesian_tracking"] = figures.cartesian_tracking(trace)
-            result["plot"] = str(figures.draw_force_figure(trace, Path(run.dir) / "cooperative.png"))
-            result["tracking_plot"] = str(figures.draw_tracking_figure(trace, Path(run.dir) / "cooperative-tracking.png"))
-            run.finish(result, status="failed" if missed else "completed", reason=missed)
-        return run.result
+        return _hold(run, rig, setup, controller, sensors, first[0], model_effects, plan)
 
 
-@contextmanager
-def _plot_hint(run, timing=None):
-    """A loop cut short (an abort, Ctrl-C, a fault) draws no figure: say how to see it, and
-    leave the loop's timing so far (`timing()`) in the run's result (result.json of an
-    aborted run then says whether the machine kept time)."""
-    try:
-        yield
-    except BaseException:
-        run._write(f"the figures of this run up to where it stopped: rig plot {run.dir}\n")
-        if timing is not None and run.result is None:
-            try:
-                run.result = {"loop_timing": timing()}
-            except Exception:  # noqa: BLE001 - the abort's own reason is the one to report
-                pass
-        raise
+def _hold(run, rig, setup: Setup, controller, sensors, first, model_effects, plan) -> dict:
+    """Steps 4 and 5: hold the tension while the master moves, then the figures and the report."""
+    clock, names = rig.clock, setup.names
+    live = _LiveCommands(controller, setup.ros_commands, setup.interactive, run.recorder, names, setup.limits,
+                         maximum_force=_parameter("force").maximum, say=run.say)
+    n_ticks = int(round(setup.total * clock.rate))
+    servo_ci = None
+    if setup.slave_control == "arm":
+        servo_ci = ServoCI(rig, controller.slaves)
+        # the set-point ramp starts with the loop (checking the plan took a while; in the
+        # effort path the slack take-up starts it)
+        _start(controller, rig, names, sensors)
+    t_start = clock.now()
+    # where the loop and the motion begin on the run clock: `rig plot` draws the figures
+    # from the recording on this time base (procedures/cooperative_figures.py)
+    motion = (controller.t0 + controller.motion.start - t_start,
+              controller.t0 + controller.motion.start + controller.motion.duration - t_start)
+    run.recorder.metadata(figures.LOOP_METADATA, figures.loop_metadata(
+        t_start, names, setup.master, t_start + motion[0], t_start + motion[1], setup.elements))
+    loop = ControlLoop(run, clock, {n: rig.arms[n] for n in names}, limits=setup.limits, sensors=sensors,
+                       impedance=servo_ci, loop_time_topic="/cooperative/loop_time_us")
+    loop.newest_force_t = [s.t for s in first]
+    loop.prime()
+    hold = TensionHold(controller, loop, live, setup.cfg, n_ticks, t_start, np.array([s.force for s in first]))
+
+    def timing_so_far() -> dict:
+        """The loop's timing over the ticks it completed (an aborted run's result has it)."""
+        return _timing(loop, hold, clock.rate, len(names))
+
+    # the ROS 2 context and the keyboard are released however the loop ends
+    with live, plot_hint(run, timing_so_far), run.step(STEPS[3], total=n_ticks) as step:
+        loop.run(hold.step, n_ticks, progress=step, on_progress=hold.show)
+    with run.step(STEPS[4]):
+        return _report(run, setup, controller, hold, live, timing_so_far(), model_effects, motion, t_start)
 
 
-class _ServoCI:
-    """Sends the slaves' arm-impedance commands as the dVRK's servo_ci (rig.control.arm_impedance),
-    with the tool-tip orientation held where it was when the loop started."""
+def _timing(loop, hold, rate: float, arms: int) -> dict:
+    lt_raw = loop.timing()
+    done = len(lt_raw["t"])
+    lt = _loop_timing(hold.log["t"][:done], rate, lt_raw["overruns"], lt_raw["skipped"], lt_raw["repeated_js"],
+                      arms, hold.log["loop_us"][:done])
+    lt["arm_clock_jumps"] = int(lt_raw["arm_clock_jumps"])
+    lt["arm_clock_jump_ms_max"] = 1e3 * lt_raw["arm_clock_jump_max"]
+    ages = lt_raw["sample_age_ms"]
+    lt["arm_sample_age_ms"] = ({"median": float(np.median(ages)), "p99": float(np.percentile(ages, 99)),
+                                "max": float(np.max(ages))} if len(ages) else None)
+    return lt
 
-    def __init__(self, rig, slaves):
-        from rig.model.psm_arm_kinematics import PSMKinematics
 
-        self.arms = {n: rig.arms[n] for n in slaves}
-        self.kinematics = PSMKinematics()
-        self.hold = {n: self.kinematics.forward(self.arms[n].measured_arm()[0][:6])[:3, :3] for n in slaves}
+def _report(run, setup: Setup, controller, hold, live, timing: dict, model_effects, motion, t_start) -> dict:
+    params, names, master, kind = setup.params, setup.names, setup.master, setup.cfg.object["kind"]
+    n_ticks = len(hold.log["t"])
+    result = _figures(hold.log, params, names, master, setup.mode, kind, controller,
+                      last_live=None if live.last_applied is None else live.last_applied - t_start)
+    result["loop_timing"] = timing
+    result["loop_timing"].update(_force_hold_figures(hold.blind_ticks, n_ticks, hold.blind_longest,
+                                                     hold.max_force_age))
+    if setup.ros_commands or setup.interactive:
+        result["live_commands"] = live.summary(t_start)
+    result["slave_control"] = _slave_control_text(setup.slave_control, setup.mode, hold.loop.clock.rate)
+    result.update({"model": setup.model_note, "model_effects": model_effects,
+                   "registration": setup.registration_note, "arms": names, "master": master, "mode": setup.mode,
+                   "object": kind, "filter_delay": _filter_delays(controller), "warnings": list(setup.warnings)})
+    missed = _missed(result, params)
+    trace = figures.trace_from_log(hold.log, names, master, motion,
+                                   f"{run.dir.name} ({'failed: ' + missed if missed else 'completed'})",
+                                   tolerance=params.get("tolerance"), ceiling=params.get("tension_ceiling"),
+                                   elements=setup.elements)
+    result["cartesian_tracking"] = figures.cartesian_tracking(trace)
+    result["plot"] = str(figures.draw_force_figure(trace, Path(run.dir) / "cooperative.png"))
+    result["tracking_plot"] = str(figures.draw_tracking_figure(trace, Path(run.dir) / "cooperative-tracking.png"))
+    run.finish(result, status="failed" if missed else "completed", reason=missed)
+    return run.result
 
-    def send(self, n: str, cmd, t: float, rec) -> None:
-        from rig.control.arm_impedance import servo_ci_goal
 
-        arm = self.arms[n]
-        q = arm.measured_arm()[0][:6]
-        g = servo_ci_goal(self.kinematics, q, cmd.target, cmd.velocity, cmd.u, cmd.stiffness, cmd.damping,
-                          cmd.feedforward, orientation=self.hold[n])
-        arm.servo_ci(g.position, g.orientation, g.stiffness, g.damping, g.bias,
-                     torque_stiffness=g.torque_stiffness, torque_damping=g.torque_damping, torque_bias=g.torque_bias,
-                     force_orientation=g.force_orientation)
-        rec.pose(f"/{n}/servo_ci/goal", t, g.position, (0.0, 0.0, 0.0, 1.0))
-        rec.wrench(f"/{n}/servo_ci/bias", t, g.force_orientation @ g.bias)
+def _dry_run(run, rig, setup: Setup) -> dict:
+    """Plan only: nothing is powered, moved or attached; the plan starts where a real run
+    would (the simulated rig's start, or each arm's configured q0)."""
+    names = setup.names
+    q0 = {n: (rig.arms[n].measured_js().position[:3] if rig.world is not None
+              else np.array(setup.cfg.arms[n]["q0"], float)) for n in names}
+    controller = setup.controller(1.0 / rig.clock.rate)
+    controller.start(rig.clock.now(), q0, {n: np.zeros(3) for n in names},
+                     np.full(len(setup.elements), float(setup.params["force"])))
+    with run.step(STEPS[2]):
+        plan = _check_plan(controller, names, q0, setup.total, setup.limits)
+    result = {"plan": plan, "model": setup.model_note, "registration": setup.registration_note,
+              "arms": names, "master": setup.master, "mode": setup.mode, "object": setup.cfg.object["kind"],
+              "warnings": list(setup.warnings)}
+    run.finish(result, status="dry-run")
+    return run.result
+
+
+def _power_and_home(run, rig, setup: Setup) -> None:
+    for n in setup.names:
+        arm = rig.arms[n]
+        if hasattr(arm, "power_on"):
+            arm.power_on()
+    if rig.world is None:
+        # a real (or served) rig is wherever the last procedure left it: with the object
+        # off, bring every arm to its configured start q0, where the object fits between
+        # the tips (the simulated rig starts there, object attached)
+        rig.operator.detach_object()
+        for n in setup.names:
+            run.claim(rig.arms[n])
+            q0 = setup.cfg.arms[n]["q0"]
+            if not rig.arms[n].move_jp(np.array(q0), wait=True, timeout=15.0):
+                raise AbortRun(f"{n} did not reach its start q0 = {q0} (rad, rad, m) in 15 s")
+
+
+def _attach(rig, setup: Setup) -> None:
+    rig.operator.attach_object(setup.cfg.object["kind"])
+    # the simulated object is attached at construction; let it settle under the PIDs
+    for _ in range(int(0.5 * rig.clock.rate)):
+        rig.clock.tick()
+    if rig.force is None:
+        raise AbortRun("no load cell: the tension cannot be tracked")
+    elements = setup.elements
+    sensed = sorted(rig.forces)
+    if len(sensed) != len(elements):
+        held = [elements[k] for k in sensed]
+        raise AbortRun(f"the object has {len(elements)} elements but load cells on only {held}: "
+                       "a triangle of three arms needs a load cell on every element")
+
+
+def _model_effects(controller, run) -> dict:
+    """The model file's effects the controllers feed forward and those they cannot (said)."""
+    comp = next(iter(controller.impedance.values())).model.effects if controller.impedance else None
+    if comp is None:
+        return {"fed_forward": [], "not_fed_forward": []}
+    for sk in comp.skipped:
+        run.say(f"model effect {sk['name']}@{sk['joint']} not fed forward: {sk['reason']}")
+    return {"fed_forward": [f"{e['name']}@{e['joint']}" for e in comp.entries], "not_fed_forward": comp.skipped}
+
+
+def _start(controller, rig, names, sensors) -> tuple[list, dict]:
+    """Start the controller from the arms' and the cells' newest samples; returns the cells'
+    samples and the arms' joints (rad, rad, m)."""
+    js = {n: rig.arms[n].measured_js() for n in names}
+    first = [s.read() for s in sensors]
+    controller.start(rig.clock.now(), {n: js[n].position[:3] for n in names}, {n: js[n].velocity[:3] for n in names},
+                     np.array([s.force for s in first]), stamps={n: js[n].t for n in names},
+                     tension_t=np.array([s.t for s in first]))
+    return first, {n: js[n].position[:3] for n in names}
 
 
 def _check_plan(controller, names, q0, total, limits) -> dict:
@@ -653,23 +567,3 @@ def _check_plan(controller, names, q0, total, limits) -> dict:
     return {"duration": total, "max_velocity_fraction": worst}
 
 
-def _check_stale_tension(sensors, age: float, timeout: float, loop_limit: float, rate: float, setting: str) -> None:
-    """The newest tension at the loop is `age` s old, beyond the stale `timeout`: end the
-    run if the cell fell silent (its driver saw no sample for longer than `timeout`), or
-    if samples have not reached the loop for longer than `loop_limit` while the cell
-    still streamed (this process held off the CPU); else keep holding."""
-    from rig.faults import silence_text, starved_text
-
-    silent = max(s.stream_age() for s in sensors)
-    if silent <= timeout and age <= loop_limit:
-        return
-    cells = ", ".join(str(getattr(s, "name", None) or f"element {k}") for k, s in enumerate(sensors))
-    if silent > timeout:
-        raise AbortRun(f"load cell stale: {silence_text(silent, rate, 'sample')}, beyond the stale timeout "
-                       f"{1000 * timeout:.0f} ms ({setting}). " + starved_text(
-                           setting, f"the cell{'s' if len(sensors) > 1 else ''} ({cells}) are plugged in and powered "
-                           "(or `rig sim` runs)", "check the cable and power"))
-    raise AbortRun(f"load cell stale: no sample reached the control loop for {1000 * age:.0f} ms "
-                   f"(limit {1000 * loop_limit:.0f} ms) while the cell{'s' if len(sensors) > 1 else ''} "
-                   f"({cells}) still streamed at {rate:g} Hz: this process was held off the CPU, the machine is too "
-                   f"busy for the loop (free a CPU or raise {setting}; the force loop held meanwhile)")

@@ -414,6 +414,11 @@ class Run:
     def _out(self) -> TextIO:
         return self.stream if self.stream is not None else sys.stderr
 
+    def say(self, line: str) -> None:
+        """A line for the person running the procedure (stderr, with the steps; not with
+        progress off)."""
+        self._write(line if line.endswith("\n") else line + "\n")
+
     def _write(self, text: str) -> None:
         if not self.progress:
             return

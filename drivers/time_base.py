@@ -24,10 +24,14 @@ process answers in one of two modes:
 
 Any wait of a driver (`SimTime.wait`) frees the world; the loop's next tick holds it again.
 
-A simulator that stops (killed, unplugged) stops its clock, and every age measured on it
-with it: `check()` raises `ClockStopped` once the clock has stood still for `stall` s of
-wall time while this process was waiting for it (holding it while computing does not
-count).
+A simulator that waits for an answer repeats its newest /clock every `HEARTBEAT` s of wall
+time (the same stamp: time does not move), and a process that owes no answer but has
+nothing to send (free, its load cell's reader held off the CPU; held, its loop computing)
+repeats its newest answer as often: each side tells a peer that waits from one that died.
+A simulator that stops (killed, unplugged) stops its clock and its repeats, and every age
+measured on it with it: `check()` raises `ClockStopped` once neither has come for `stall`
+s of wall time while this process was waiting for it (holding it while computing does
+not count).
 """
 
 from __future__ import annotations
@@ -48,8 +52,10 @@ WAIT_SLICE = 0.02
 #: s of simulated time a device read on a thread of its own (a load cell's port) may lag the
 #: clock a free process answers: the world waits for its reader too
 SYNC_LAG = 0.01
-#: s of wall time between two answers of a process that holds the world while it computes:
-#: its executor repeats the last one, so the simulator tells a busy process from a dead one
+#: s of wall time between two answers of a process that holds the world while it computes
+#: (or, free, waits for its load cell's reader): its executor repeats the last one, so the
+#: simulator tells a busy process from a dead one; the simulator repeats its /clock as
+#: often while it waits for answers (`rig.sim_server.lockstep`)
 HEARTBEAT = 0.2
 #: s of wall time the clock may stand still while this process waits for it, before the
 #: simulator counts as gone (what a process held off the CPU was measured to cost on a busy
@@ -155,6 +161,7 @@ class SimTime:
         self.changed = threading.Condition()
         self._t_ns: int | None = None
         self._advanced = time.monotonic()  # wall time the clock last moved (or we last answered)
+        self._repeated = 0.0  # wall time the simulator last repeated its clock (it waits for an answer)
         self._held = False
         self._answered_ns = -1
         self._next_ns = 0  # hold: the first period the loop acts on again
@@ -182,7 +189,9 @@ class SimTime:
             return
         with self.changed:
             if self._t_ns is not None and ns <= self._t_ns:
-                return  # a repeat, or a simulator that started over: the clock stands, ClockStopped ends the run
+                if ns == self._t_ns:
+                    self._repeated = time.monotonic()  # it waits for an answer: alive
+                return  # a simulator that started over: the clock stands, ClockStopped ends the run
             self._t_ns = ns
             self._advanced = time.monotonic()
             self.clocks += 1
@@ -232,8 +241,8 @@ class SimTime:
         if self._pub is None:
             return
         with self._lock:
-            if mode is None and ns <= self._answered_ns:
-                return
+            if (mode is None and ns <= self._answered_ns) or (self._closed and mode != "bye"):
+                return  # an answer after bye would make the simulator wait for a process that left
             self._answered_ns = max(self._answered_ns, ns)
             m = self._Header()
             m.stamp.sec, m.stamp.nanosec = divmod(max(ns, 0), 1_000_000_000)
@@ -250,8 +259,14 @@ class SimTime:
         """From the executor thread, after each wait for messages: a process that holds the
         world repeats its last answer every HEARTBEAT s, so that the simulator keeps waiting
         for a procedure that computes and lets go of one that died (it cannot say bye)."""
-        if self._held and not self._closed and time.monotonic() - self._answered_at > HEARTBEAT:
-            self._answer(max(self._answered_ns, 0), "hold")
+        if self._closed or self._answered_ns < 0 or time.monotonic() - self._answered_at <= HEARTBEAT:
+            return
+        if self._held:
+            self._answer(self._answered_ns, "hold")
+        else:
+            self._free_answer()  # the newest clock if the load cells have caught up with it,
+            if time.monotonic() - self._answered_at > HEARTBEAT:  # else the last one again
+                self._answer(self._answered_ns, "free")
 
     def hold(self) -> None:
         """From now on the world waits for `answer()` (the control loop's tick)."""
@@ -300,8 +315,9 @@ class SimTime:
 
     # -- waiting ------------------------------------------------------------------------
     def stalled(self) -> ClockStopped | None:
-        """ClockStopped if the clock has stood still for `stall` s of wall time while this
-        process waited for it (the executor polling, every period answered), else None."""
+        """ClockStopped if the clock has stood still, and the simulator has not repeated it,
+        for `stall` s of wall time while this process waited for it (the executor polling,
+        every period answered), else None."""
         if self._t_ns is None or (self.lockstep and self._answered_ns < self._t_ns):
             # not heard yet (connect says so), or the world waits for our answer: our loop's
             # (held), or our load cell's reader's (free), held off the CPU on a loaded machine
@@ -309,7 +325,7 @@ class SimTime:
         now = time.monotonic()
         if self._polled is not None:
             now = min(now, self._polled())
-        age = now - self._advanced
+        age = now - max(self._advanced, self._repeated)
         return ClockStopped(age, self.stall) if age > self.stall else None
 
     def check(self) -> None:
@@ -344,7 +360,9 @@ class SimTime:
 
     def close(self) -> None:
         """Leave the lockstep: the simulator steps on without this process."""
-        if not self._closed:
+        with self._lock:
+            if self._closed:
+                return
             self._closed = True
             self._held = False
-            self._answer(self._t_ns or 0, "bye")
+        self._answer(self._t_ns or 0, "bye")

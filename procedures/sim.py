@@ -129,10 +129,10 @@ def _ask_priority(nice: int) -> None:
                    "its clock has answered it, so nothing a procedure computes depends on how fast the machine is; "
                    "with no procedure following, the world runs in real time. --no-lockstep: the world runs in real "
                    "time always (a simulated clock only).")
-@click.option("--lockstep-timeout", type=click.FloatRange(min=0.1), default=1.0, show_default=True,
-              help="With --lockstep: seconds of wall time a procedure may go silent (a computing one repeats its "
-                   "answer five times a second) before the world steps on without it: a killed procedure never "
-                   "freezes rig sim; it rejoins with its next answer.")
+@click.option("--lockstep-timeout", type=click.FloatRange(min=0.1), default=3.0, show_default=True,
+              help="With --lockstep: seconds of wall time a procedure may go silent (a live one repeats its "
+                   "answer five times a second, computing or waiting) before the world steps on without it: a killed "
+                   "procedure never freezes rig sim; it rejoins with its next answer.")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit.")
 @click.pass_context
 def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, natnet, natnet_version, console,

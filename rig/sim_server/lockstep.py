@@ -9,9 +9,11 @@ pipeline) and the commands its answers
 count have all been received. A process that says `bye` leaves; one silent for `timeout` s
 of wall time while the world waits on it is let go (logged, counted in `lost`) and
 rejoins with its next answer: a killed procedure never freezes the world for good. A
-process that holds the world while it computes repeats its last answer every
-`drivers.time_base.HEARTBEAT` s from its executor thread, so only a dead or starved one
-goes silent that long.
+process that holds the world while it computes (or waits, free, for its load cell's
+reader) repeats its last answer every `drivers.time_base.HEARTBEAT` s from its executor
+thread, so only a dead or starved one goes silent that long. While it waits, the
+simulator repeats its newest /clock as often (`repeat`), so that a process that has
+answered tells a simulator waiting for another from one that died.
 
 Commands cannot be told apart by sender (a ROS message carries none), so the check is on
 totals: the commands received since the clients joined against the sum of what their
@@ -27,6 +29,15 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
+
+from drivers.time_base import HEARTBEAT
+
+#: s of wall time a follower may leave the world waiting without a word (no answer, no
+#: repeat of one) before it is let go. Every live follower speaks every HEARTBEAT s, so
+#: this is how long a process may be held off the CPU: on a 2-core machine with two CPU
+#: burners and four other sessions' tests (load average 13), 1 s let go of followers that
+#: were alive (rig sim's log: 4 in 3 triangle runs)
+TIMEOUT = 3.0
 
 
 @dataclass
@@ -61,10 +72,12 @@ class Lockstep:
     node: the simulator's node (the answers' subscription); timeout: s of wall time a
     client may leave the world waiting before it is let go; free_lead: s of simulated time
     a client in free mode may lag; command_wait: s of wall time to wait for commands
-    counted but not yet received; log(text): where joins, leaves and losses are told.
+    counted but not yet received; log(text): where joins, leaves and losses are told;
+    repeat(): publishes the newest /clock again (every HEARTBEAT s of a wait).
     """
 
-    def __init__(self, node, timeout: float = 1.0, free_lead: float = 0.05, command_wait: float = 0.5, log=None):
+    def __init__(self, node, timeout: float = TIMEOUT, free_lead: float = 0.05, command_wait: float = 0.5, log=None,
+                 repeat=None):
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from std_msgs.msg import Header
 
@@ -74,6 +87,7 @@ class Lockstep:
         self.free_lead_ns = int(round(free_lead * 1e9))
         self.command_wait = float(command_wait)
         self._log = log or (lambda text: None)
+        self._repeat = repeat or (lambda: None)
         self.clients: dict[str, Client] = {}
         self.cond = threading.Condition()
         self.received = 0  # commands received (every client's, and any other publisher's)
@@ -136,10 +150,13 @@ class Lockstep:
     def wait(self, t_ns: int, stop: threading.Event) -> None:
         """Block until every client answered the period at `t_ns` and the commands they
         counted arrived (see the class docstring), or `stop` is set."""
-        began = time.monotonic()
+        began = repeated = time.monotonic()
         waited = False
         with self.cond:
             while not stop.is_set():
+                if time.monotonic() - repeated > HEARTBEAT:
+                    repeated = time.monotonic()
+                    self._repeat()
                 pending = self._pending(t_ns)
                 if pending:
                     now = time.monotonic()

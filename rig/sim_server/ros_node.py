@@ -56,7 +56,7 @@ class SimServer:
     def __init__(self, world, node, arms: list[str], ros_period: float = DVRK_ROS_PERIOD,
                  mocap: dict | None = None, seed: int = 0, console: str = "/console", cells: list | None = None,
                  executor: str = "events", object_spec=None, tool: str | None = None, sim_time: bool = False,
-                 lockstep: bool = True, lockstep_timeout: float = 1.0):
+                 lockstep: bool = True, lockstep_timeout: float = 3.0):
         from geometry_msgs.msg import PoseStamped
         from rclpy.qos import DurabilityPolicy, QoSProfile
         from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, String
@@ -106,7 +106,8 @@ class SimServer:
             if lockstep:
                 from rig.sim_server.lockstep import Lockstep
 
-                self.lockstep = Lockstep(node, timeout=lockstep_timeout, log=node.get_logger().info)
+                self.lockstep = Lockstep(node, timeout=lockstep_timeout, log=node.get_logger().info,
+                                         repeat=lambda: self._clock_pub.publish(self._clock_msg))
         self._subs = []
         for what in ("power_on", "power_off", "home"):
             self._subs.append(node.create_subscription(Empty, f"{self.console}/{what}",

@@ -100,3 +100,62 @@ def test_the_clock_standing_still_while_waited_for_is_a_stopped_simulator_but_no
     node.clock(2_000_000)
     tb._advanced -= 10.0
     assert tb.stalled() is None
+
+
+def test_a_repeated_clock_is_a_simulator_that_waits_for_another_follower_not_a_stopped_one():
+    import time as _time
+
+    node = FakeNode()
+    tb = SimTime(node, stall=2.0, polled=_time.monotonic)
+    node.clock(1_000_000)  # answered (free): the world now waits for somebody else
+    tb._advanced -= 3.0  # the clock has not moved for 3 s ...
+    assert isinstance(tb.stalled(), ClockStopped)
+    node.clock(1_000_000)  # ... but the simulator repeats it: it is alive and waiting
+    assert tb.stalled() is None
+    assert node.answers[-1][0] == 1_000_000 and len(node.answers) == 1  # a repeat is not answered again
+    tb._repeated -= 3.0  # and then falls silent too: gone
+    assert isinstance(tb.stalled(), ClockStopped)
+
+
+def test_a_live_process_repeats_its_answer_when_it_has_nothing_new_to_say():
+    class Cell:
+        upto = 0.0
+
+        def caught_up(self, t):
+            return self.upto >= t
+
+    node, cell = FakeNode(), Cell()
+    tb = SimTime(node)
+    node.clock(10_000_000)
+    tb.add_sync(cell)
+    node.clock(50_000_000)  # free, its load cell's reader behind: no answer for 50 ms
+    assert [a[0] for a in node.answers] == [10_000_000]
+    tb.poll()  # within HEARTBEAT of the last answer: nothing
+    assert len(node.answers) == 1
+    tb._answered_at -= 1.0
+    tb.poll()  # silent for a heartbeat: the last answer again, so the simulator keeps waiting for it
+    assert node.answers[-1][:4] == (10_000_000, tb.client, 0, "free")
+    assert len(node.answers) == 2
+    cell.upto = 0.05
+    tb._answered_at -= 1.0
+    tb.poll()  # the reader has caught up meanwhile: the newest clock, not a repeat
+    assert node.answers[-1][0] == 50_000_000
+    tb.hold()
+    tb._answered_at -= 1.0
+    tb.poll()  # held while its loop computes: the last answer again, in hold mode
+    assert node.answers[-1][:4] == (50_000_000, tb.client, 0, "hold")
+
+
+def test_nothing_is_answered_after_bye():
+    node = FakeNode()
+    tb = SimTime(node)
+    node.clock(10_000_000)
+    tb.close()
+    assert node.answers[-1][3] == "bye"
+    n = len(node.answers)
+    node.clock(12_000_000)  # a /clock the executor takes after the process said bye
+    tb._answered_at -= 1.0
+    tb.poll()
+    tb.answer()
+    tb.close()
+    assert len(node.answers) == n

@@ -105,7 +105,10 @@ class ServedRig:
         if sim_time and "--sim-time" not in self.sim_args:
             self.sim_args += ("--sim-time",)
         self.proc: subprocess.Popen | None = None
-        self.sim_lines: list[str] = []
+        self.sim_lines: list[str] = []  # what rig sim printed up to "ready"
+        self.sim_err: list[str] = []  # its stderr (ROS log lines: lockstep joins, leaves, losses)
+        self._readers: list[threading.Thread] = []
+        self._out_rest: list[str] = []  # its stdout after "ready"
         self.runs_since_start = 0  # `run` calls since this rig sim started (its arms start DISABLED)
         #: a procedure run on this rig sim said an arm is in FAULT: it stays so until a person
         #: clears it (as on a dVRK), so a test that needs working arms starts a fresh rig sim
@@ -142,6 +145,7 @@ class ServedRig:
     def start(self, timeout: float = 60.0) -> "ServedRig":
         (self.folder / "rig.toml").write_text(self.toml)
         self.sim_lines, self.runs_since_start, self.faulted = [], 0, False
+        self._readers, self._out_rest, self.sim_err = [], [], []
         self.proc = subprocess.Popen([sys.executable, "-m", "rig.cli", "sim", *self.sim_args],
                                      cwd=self.folder, env=self.env(RIG_LOGS=str(self.folder / "sim-logs")),
                                      stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -159,7 +163,32 @@ class ServedRig:
                 line = self.proc.stdout.readline().strip()
                 self.sim_lines.append(line)
                 if line == "ready":
+                    sel.close()
+                    self._drain()
                     return self
+
+    def _drain(self) -> None:
+        """Read rig sim's stdout and stderr for as long as it runs. A pipe nobody reads fills
+        (64 KiB on Linux), and rig sim then blocks in its next write: its world, and the
+        /clock every procedure follows, would stand still for a reason that is the
+        harness's, not the rig's. What it said is kept (`sim_lines`, `sim_err`)."""
+        self.sim_err = []
+        self._out_done = threading.Event()
+
+        def read(stream, sink: list[str], done: threading.Event | None) -> None:
+            try:
+                for line in stream:
+                    sink.append(line)
+            except (ValueError, OSError):  # closed by _stop
+                pass
+            if done is not None:
+                done.set()
+
+        self._readers = [threading.Thread(target=read, args=(self.proc.stdout, self._out_rest, self._out_done),
+                                          daemon=True),
+                         threading.Thread(target=read, args=(self.proc.stderr, self.sim_err, None), daemon=True)]
+        for r in self._readers:
+            r.start()
 
     def run(self, *args: str, timeout: float = 300.0, json_doc: bool = True, stdin: str | None = None,
             env: dict | None = None, on_start=None, when: tuple[str, object] | None = None) -> Outcome:
@@ -251,7 +280,10 @@ class ServedRig:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
-        rest = self.proc.stdout.read() if self.proc.stdout else ""
+        for r in self._readers:
+            r.join(timeout=10.0)
+        rest = "".join(self._out_rest) if self._readers else self.proc.stdout.read()
+        self._readers, self._out_rest = [], []
         self.proc.stdout.close()
         self.proc.stderr.close()
         return rest

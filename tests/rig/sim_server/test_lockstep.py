@@ -114,3 +114,27 @@ def test_a_client_that_leaves_or_goes_silent_is_not_waited_for_and_its_commands_
     assert lock2.lost == 1 and not lock2.active
     answer(node2, "c", 10_000_000)
     assert lock2.active and not waited(lock2, 10_000_000)
+
+
+def test_a_waiting_world_repeats_its_clock_every_heartbeat():
+    from drivers.time_base import HEARTBEAT
+
+    node = FakeNode()
+    repeats = []
+    lock = Lockstep(node, timeout=60.0, repeat=lambda: repeats.append(1))
+    answer(node, "a", 0)
+    stop = threading.Event()
+    # the wait ends on a stop set after the test saw the world repeat its clock twice (the
+    # test's thread waits on it, so no scheduling of this machine's is read as a repeat)
+    watcher = threading.Thread(target=lambda: (lock.wait(10_000_000, stop)), daemon=True)
+    watcher.start()
+    while len(repeats) < 2 and watcher.is_alive():
+        watcher.join(HEARTBEAT / 4)
+    stop.set()
+    watcher.join(10.0)
+    assert len(repeats) >= 2 and not watcher.is_alive()
+    # answered at once: no repeat
+    repeats.clear()
+    answer(node, "a", 20_000_000)
+    lock.wait(20_000_000, threading.Event())
+    assert repeats == []

@@ -35,7 +35,9 @@ from rig.commands.exit_codes import InputError
 from rig.commands.options import config_from_context, json_option, yes_option
 from rig.commands.parameters import Parameter, with_parameters
 from rig.commands.report import emit_result, exit_for_status
+from rig.control.arm_command import ArmCommand, CommandKind
 from rig.runs import provenance
+from rig.runs.control_loop import ControlLoop
 from rig.runs.run import AbortRun, Run
 
 PROCEDURE = "friction-ramp"
@@ -107,34 +109,35 @@ def move_to(arm, q, what: str, timeout: float = 10.0) -> None:
 
 
 def force_ramp(run, arm, clock, dyn, q_ref, direction: int, p: dict, step) -> dict:
-    """One ramp (module docstring, 1). Returns the samples and the breakaway (or None)."""
+    """One ramp (module docstring, 1). Returns the samples and the breakaway (or None).
+
+    The run engine's control loop reads the arm, this step computes the effort (the
+    compensation, the PD holding joints 1-2 and the ramp on joint 3) and the loop sends it;
+    the clock ticks at the end of each period."""
     rate = clock.rate
     n_settle = int(round(SETTLE * rate))
     n_ramp = int(round(p["ramp_time"] * rate))
     slope = p["max_force"] / p["ramp_time"]
     rows = []
-    name = arm.name
-    for k in range(n_settle + n_ramp):
-        js = arm.measured_js()
+
+    def ramp_step(tick) -> dict:
+        js = tick.js[arm.name]
         q, dq = np.asarray(js.position[:3], float), np.asarray(js.velocity[:3], float)
-        ramp = direction * slope * max(k - n_settle, 0) / rate
+        ramp = direction * slope * max(tick.k - n_settle, 0) / rate
         comp = dyn.gravity_torque(q) + dyn.Fo
         tau = comp.copy()
         tau[:2] += HOLD_KP * (q_ref[:2] - q[:2]) - HOLD_KD * dq[:2]
         tau[JOINT] += ramp
-        arm.servo_jf(tau)
-        run.recorder.joint_state(f"/{name}/servo_jf", js.t, effort=tau)
-        run.recorder.joint_state(f"/{name}/measured_js", js.t, js.position, js.velocity, js.effort)
+        tick.command_t = js.t
         rows.append((js.t, ramp, comp[JOINT], q[JOINT], dq[JOINT], js.effort[JOINT]))
-        if abs(q[JOINT] - q_ref[JOINT]) > 0.03:
-            break  # far enough: the breakaway is long past (and the stroke is finite)
-        arr = np.array(rows)
-        k_b = _detect(arr, p["threshold"], direction)
-        if k_b is not None and len(rows) - k_b > 40:
-            break  # 40 ms of motion after the breakaway shows it in the plot
-        clock.tick()
-        if k % 50 == 0:
-            step.update(min(k, n_settle + n_ramp))
+        k_b = _detect(np.array(rows), p["threshold"], direction)
+        # far enough: the breakaway is long past (and the stroke is finite); or 40 ms of
+        # motion after the breakaway, which shows it in the plot
+        tick.last = abs(q[JOINT] - q_ref[JOINT]) > 0.03 or (k_b is not None and len(rows) - k_b > 40)
+        return {arm.name: ArmCommand(CommandKind.EFFORT, effort=tau)}
+
+    ControlLoop(run, clock, {arm.name: arm}).run(ramp_step, n_settle + n_ramp, progress=step, every=50,
+                                                 tick_last=True)
     arm.hold()
     arr = np.array(rows)
     k_b = _detect(arr, p["threshold"], direction)
@@ -188,13 +191,13 @@ def constant_velocity_sweeps(run, arm, clock, dyn, q_ref, speeds, p: dict, step)
                 raise AbortRun(f"{name} did not reach the start of the {v} m/s stroke")
         qs, sign = sweep_profile(q_start, distance, v, rate)
         vals = []
-        for k, q3 in enumerate(qs):
-            cmd = np.array([q_ref[0], q_ref[1], q3])
-            arm.servo_jp(cmd)
-            run.recorder.joint_state(f"/{name}/servo_jp", clock.now(), cmd)
-            clock.tick()
-            js = arm.measured_js()
-            run.recorder.joint_state(f"/{name}/measured_js", js.t, js.position, js.velocity, js.effort)
+
+        def command(k: int) -> dict:
+            return {name: ArmCommand(CommandKind.POSITION, q=np.array([q_ref[0], q_ref[1], qs[k]]))}
+
+        def sweep_step(tick) -> dict | None:
+            # the set-point of period k was sent at its start: the arm's answer to it
+            k, js = tick.k, tick.js[name]
             if sign[k] != 0:
                 q, dq = np.asarray(js.position[:3], float), np.asarray(js.velocity[:3], float)
                 # eq. 5.49: the measured effort minus the model's rigid-body effort
@@ -202,6 +205,11 @@ def constant_velocity_sweeps(run, arm, clock, dyn, q_ref, speeds, p: dict, step)
                 f = float(js.effort[JOINT] - rigid)
                 vals.append((sign[k], dq[JOINT], f))
                 samples.append((sign[k] * v, dq[JOINT], f))
+            return command(k + 1) if k + 1 < len(qs) else None
+
+        loop = ControlLoop(run, clock, {name: arm})
+        loop.send(command(0), clock.now())
+        loop.run(sweep_step, len(qs))
         vals = np.array(vals)
         for s in (1, -1):
             sel = vals[vals[:, 0] == s]

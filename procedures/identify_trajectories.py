@@ -7,6 +7,8 @@ import collections
 
 import numpy as np
 
+from rig.control.arm_command import ArmCommand, CommandKind
+from rig.runs.control_loop import ControlLoop
 from rig.runs.run import AbortRun
 
 
@@ -76,92 +78,119 @@ def stream_trajectory(run, arm, clock, traj, topic_prefix: str, step, limits, ma
     less that fraction of its velocity margin (calibration.excitation_design): before the
     limit, where the console would fault. The trajectory's time waits while its set-point
     leads the arm by more than the margin's lag (calibration.excitation_design.lagging).
+    The run engine's control loop ticks, drains every sample the arm sent into the
+    recording and sends the commands (rig.runs.control_loop); `_Streamer.step` is its step.
     """
-    from calibration.excitation_design import lagging
-
-    rate = clock.rate
-    n = int(round(traj.duration * rate)) + 1
-    q_cmd, dq_cmd, _ = traj.sample(np.arange(n) / rate)
-    low, high, speed = margin.abort_limits(limits.q_min, limits.q_max, limits.dq_max)
-    samples = []
-    sent, sent_t = [], []
-    rec = run.recorder
-    every = max(1, n // 100)
+    streamer = _Streamer(arm, clock.rate, traj, topic_prefix, step, limits, margin)
+    loop = ControlLoop(run, clock, {arm.name: arm}, read="drain")
     arm.drain_js()  # what arrived before the trajectory starts is not part of it
-    ticks_without = waited = 0
-    q_last = t_last = rest_offset = None
-    silent_after = SILENT * max(1.0 / rate, _stream_period(arm))
-    # the least (now - stamp) over the last DELAY_WINDOW ticks: transport plus any offset of
-    # the two clocks. A window, not the whole run: samples taken in a burst when the loop
-    # starts may be stamped ahead of this process's clock (on simulated time the world ran
-    # ahead while it waited), and a delay of the run's first ticks would hold its time for good
-    delays: collections.deque = collections.deque(maxlen=max(1, int(DELAY_WINDOW * rate)))
-    delay = np.inf
-    k = 0
-    while k < n:
-        arm.servo_jp(q_cmd[k], dq_cmd[k])
-        sent.append((clock.now(), k))
-        sent_t.append(sent[-1][0])
-        rec.joint_state(f"/{arm.name}/servo_jp", sent[-1][0], q_cmd[k], dq_cmd[k])
-        clock.tick()
-        # every sample the arm sent since the last tick: a tick held up by the machine
-        # finds several, and the fit still gets the stream whole
-        new = arm.drain_js()
-        ticks_without += not new
-        for js in new:
-            samples.append((js.t, js.position[:3], js.velocity[:3], js.effort[:3]))
-            rec.joint_state(f"/{arm.name}/measured_js", js.t, js.position, js.velocity, js.effort)
-        if new:
-            t_last = new[-1].t
-            delays.append(clock.now() - t_last)
-            delay = min(delays)
-            q_last, dq = np.asarray(new[-1].position[:3]), np.asarray(new[-1].velocity[:3])
-            if np.any(q_last < low) or np.any(q_last > high) or np.any(np.abs(dq) > speed):
-                raise AbortRun(f"{arm.name} during the {topic_prefix} trajectory at t = {k / rate:.2f} s: "
-                               f"{_abort_reason(q_last, dq, low, high, speed, limits, margin)}; the arm is held")
-        # The trajectory's time waits while the arm's newest sample is older than usual (it
-        # is silent, or its process fell behind and catches up: over the wire a served arm
-        # held off the CPU for 0.5 s applied the commands queued meanwhile at once), or
-        # while the set-point in force at that sample's stamp leads it by more than the
-        # margin's lag: an arm whose commands stopped arriving then meets, when they
-        # resume, a set-point a lag ahead, not one that ran on by the stall times the speed
-        # (calibration.excitation_design). The set-point of the sample's own time leaves
-        # the transport delay out of the lag.
-        # The lead is counted from where the arm rested at the start: a loaded joint rests a
-        # few mrad short of its set-point under the PID (START_TOLERANCE), and that offset
-        # alone held the trajectory at its start for good (seen over the wire: q2 2.3 mrad
-        # short, 380 000 periods waited).
-        then = sent[max(0, bisect.bisect_right(sent_t, t_last) - 1)][1] if t_last is not None else k
-        if rest_offset is None and q_last is not None:
-            rest_offset = q_cmd[0] - q_last
-        if (t_last is not None and clock.now() - t_last - delay > silent_after) or (
-                q_last is not None and lagging(q_last + rest_offset, q_cmd[then], dq_cmd[then], margin.lag)):
-            waited += 1
+    loop.send(streamer.command(0, clock.now()), clock.now())
+    loop.run(streamer.step)
+    step.update(streamer.n)
+    return streamer.result(limits)
+
+
+class _Streamer:
+    """The trajectory's loop step: judge the newest samples, advance the trajectory's time
+    or wait for the arm, command the next set-point."""
+
+    def __init__(self, arm, rate: float, traj, topic_prefix: str, step, limits, margin):
+        self.arm, self.rate, self.topic_prefix, self.progress, self.limits, self.margin = (
+            arm, rate, topic_prefix, step, limits, margin)
+        self.n = int(round(traj.duration * rate)) + 1
+        self.q_cmd, self.dq_cmd, _ = traj.sample(np.arange(self.n) / rate)
+        self.low, self.high, self.speed = margin.abort_limits(limits.q_min, limits.q_max, limits.dq_max)
+        self.samples, self.sent, self.sent_t = [], [], []
+        self.every = max(1, self.n // 100)
+        self.ticks_without = self.waited = 0
+        self.q_last = self.t_last = self.rest_offset = None
+        self.silent_after = SILENT * max(1.0 / rate, _stream_period(arm))
+        # the least (now - stamp) over the last DELAY_WINDOW ticks: transport plus any offset of
+        # the two clocks. A window, not the whole run: samples taken in a burst when the loop
+        # starts may be stamped ahead of this process's clock (on simulated time the world ran
+        # ahead while it waited), and a delay of the run's first ticks would hold its time for good
+        self.delays: collections.deque = collections.deque(maxlen=max(1, int(DELAY_WINDOW * rate)))
+        self.delay = np.inf
+        self.k = 0
+
+    def command(self, k: int, t: float) -> dict:
+        self.sent.append((t, k))
+        self.sent_t.append(t)
+        return {self.arm.name: ArmCommand(CommandKind.POSITION, q=self.q_cmd[k], dq=self.dq_cmd[k])}
+
+    def step(self, tick) -> dict | None:
+        self._see(tick.t, tick.joint_samples[self.arm.name])
+        if self._waits(tick.t):
+            self.waited += 1
         else:
-            k += 1
-            if k % every == 0:
-                step.update(k)
-    step.update(n)
-    if not samples:
-        raise AbortRun(f"{arm.name}: no measured_js during the {topic_prefix} trajectory")
-    T = np.array([s[0] for s in samples])
-    Q, DQ, TAU = (np.array([s[i] for s in samples], float) for i in (1, 2, 3))
-    sent_k = np.array([x[1] for x in sent])
-    met = tracking_met(T, Q, DQ, np.array(sent_t), q_cmd[sent_k], dq_cmd[sent_k], limits)
-    met["periods_waited_for_the_arm"] = waited
-    # Keep each sample once (time must increase), and put them on a uniform grid of their
-    # own stamps (the arm's sample times), which the filtering and the decimation assume:
-    # over the wire the samples jitter, and a gap (a publisher held up) is interpolated.
-    keep = np.concatenate([[True], np.diff(T) > 0])
-    t, q, dq, tau = T[keep], Q[keep], DQ[keep], TAU[keep]
-    if len(t) > 1 and not np.allclose(np.diff(t), 1.0 / rate, rtol=1e-3, atol=1e-6):
-        grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate)) + 1) / rate
+            self.k += 1
+            if self.k % self.every == 0:
+                self.progress.update(self.k)
+        return self.command(self.k, tick.t) if self.k < self.n else None
 
-        def on_grid(x):
-            return np.column_stack([np.interp(grid, t, x[:, j]) for j in range(x.shape[1])])
+    def _see(self, t: float, new: list) -> None:
+        """Every sample the arm sent since the last tick: a tick held up by the machine finds
+        several, and the fit still gets the stream whole."""
+        self.ticks_without += not new
+        for js in new:
+            self.samples.append((js.t, js.position[:3], js.velocity[:3], js.effort[:3]))
+        if not new:
+            return
+        self.t_last = new[-1].t
+        self.delays.append(t - self.t_last)
+        self.delay = min(self.delays)
+        self.q_last, dq = np.asarray(new[-1].position[:3]), np.asarray(new[-1].velocity[:3])
+        low, high, speed = self.low, self.high, self.speed
+        if np.any(self.q_last < low) or np.any(self.q_last > high) or np.any(np.abs(dq) > speed):
+            raise AbortRun(f"{self.arm.name} during the {self.topic_prefix} trajectory at t = {self.k / self.rate:.2f} s: "
+                           f"{_abort_reason(self.q_last, dq, low, high, speed, self.limits, self.margin)}; "
+                           "the arm is held")
 
-        t, q, dq, tau = grid, on_grid(q), on_grid(dq), on_grid(tau)
-    return {"t": t, "q": q, "dq": dq, "tau": tau, "rate": rate, "ticks_without_sample": ticks_without, "met": met}
+    def _waits(self, t: float) -> bool:
+        """The trajectory's time waits while the arm's newest sample is older than usual (it
+        is silent, or its process fell behind and catches up: over the wire a served arm
+        held off the CPU for 0.5 s applied the commands queued meanwhile at once), or while
+        the set-point in force at that sample's stamp leads it by more than the margin's lag:
+        an arm whose commands stopped arriving then meets, when they resume, a set-point a
+        lag ahead, not one that ran on by the stall times the speed
+        (calibration.excitation_design). The set-point of the sample's own time leaves the
+        transport delay out of the lag. The lead is counted from where the arm rested at the
+        start: a loaded joint rests a few mrad short of its set-point under the PID
+        (START_TOLERANCE), and that offset alone held the trajectory at its start for good
+        (seen over the wire: q2 2.3 mrad short, 380 000 periods waited)."""
+        from calibration.excitation_design import lagging
+
+        k = self.k
+        then = self.sent[max(0, bisect.bisect_right(self.sent_t, self.t_last) - 1)][1] if self.t_last is not None else k
+        if self.rest_offset is None and self.q_last is not None:
+            self.rest_offset = self.q_cmd[0] - self.q_last
+        return bool((self.t_last is not None and t - self.t_last - self.delay > self.silent_after) or (
+            self.q_last is not None and lagging(self.q_last + self.rest_offset, self.q_cmd[then], self.dq_cmd[then],
+                                                self.margin.lag)))
+
+    def result(self, limits) -> dict:
+        if not self.samples:
+            raise AbortRun(f"{self.arm.name}: no measured_js during the {self.topic_prefix} trajectory")
+        rate, samples = self.rate, self.samples
+        T = np.array([s[0] for s in samples])
+        Q, DQ, TAU = (np.array([s[i] for s in samples], float) for i in (1, 2, 3))
+        sent_k = np.array([x[1] for x in self.sent])
+        met = tracking_met(T, Q, DQ, np.array(self.sent_t), self.q_cmd[sent_k], self.dq_cmd[sent_k], limits)
+        met["periods_waited_for_the_arm"] = self.waited
+        # Keep each sample once (time must increase), and put them on a uniform grid of their
+        # own stamps (the arm's sample times), which the filtering and the decimation assume:
+        # over the wire the samples jitter, and a gap (a publisher held up) is interpolated.
+        keep = np.concatenate([[True], np.diff(T) > 0])
+        t, q, dq, tau = T[keep], Q[keep], DQ[keep], TAU[keep]
+        if len(t) > 1 and not np.allclose(np.diff(t), 1.0 / rate, rtol=1e-3, atol=1e-6):
+            grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate)) + 1) / rate
+
+            def on_grid(x):
+                return np.column_stack([np.interp(grid, t, x[:, j]) for j in range(x.shape[1])])
+
+            t, q, dq, tau = grid, on_grid(q), on_grid(dq), on_grid(tau)
+        return {"t": t, "q": q, "dq": dq, "tau": tau, "rate": rate, "ticks_without_sample": self.ticks_without,
+                "met": met}
 
 
 #: Loop or arm periods (the longer) by which the arm's newest sample may be older than the

@@ -163,10 +163,62 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
         return
     if tool is not None and tool not in TOOL_NAMES:
         raise click.BadParameter(f"no tool {tool!r}; tools: {', '.join(TOOL_NAMES)}", param_hint="--tool")
-    from rig.commands.options import config_from_context
     from rig.sim.world import world_from_config
 
     _ask_priority(nice)  # before any thread starts: Linux keeps a nice value per thread, new ones inherit it
+    cfg, names, rate, console, natnet, natnet_host = _served(ctx, arms, rate, ros_period, plant_model, console, natnet)
+    world = world_from_config(cfg, arms=names, seed=seed)
+    # the object's spec and elements are known (a load cell per element); it starts off the arms
+    object_spec = world.object
+    elements = list(world.object_elements)
+
+    stop = threading.Event()
+
+    def on_signal(signum, _frame):
+        stop.set()
+
+    firmwares, cells, links = _serve_loadcells(cfg, world, elements, loadcell, sim_time)
+
+    import rclpy
+    from rclpy.context import Context
+
+    from rig.sim_server.ros_node import SimServer
+    from rclpy.signals import SignalHandlerOptions
+
+    ros_exit.before_init()
+    context = Context()
+    # Our own handlers stop the loop cleanly; rclpy's would shut the context under it.
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    node = server = None
+    try:
+        node = rclpy.create_node("rig_sim", context=context)
+        ros_exit.after_node()
+        mocap_cfg = dict(cfg.mocap) if mocap and cfg.mocap["driver"] != "none" else None
+        if world.object is not None:
+            world.detach_object()
+        for cell in cells:
+            cell.update()
+        server = SimServer(world, node, list(world.names), ros_period=ros_period, mocap=mocap_cfg, seed=world.seed,
+                           console=console, cells=cells, executor=cfg.ros["executor"], object_spec=object_spec,
+                           tool=tool, sim_time=sim_time, lockstep=lockstep, lockstep_timeout=lockstep_timeout)
+        server.stop = stop
+        if natnet:
+            server.natnet = _serve_natnet(cfg, world, server, natnet_host, natnet_version)
+        # Installed after rclpy is up: its initialisation replaces SIGINT/SIGTERM handlers.
+        signal.signal(signal.SIGINT, on_signal)
+        signal.signal(signal.SIGTERM, on_signal)
+        _say_serving(world, server, rate, sim_time, lockstep, console)
+        stats = server.serve(duration, on_ready=lambda: _say("ready"))
+    finally:
+        _close(server, firmwares, links, node, context)
+    _say_stats(stats, server, rate, sim_time)
+
+
+def _served(ctx, arms, rate, ros_period, plant_model, console, natnet):
+    """The configuration rig sim serves, checked: (cfg, arm names, servo rate Hz, console
+    name, whether NatNet is served, its host)."""
+    from rig.commands.options import config_from_context
+
     cfg = served_config(config_from_context(ctx))
     rate = cfg.rig["rate"] if rate is None else rate
     if rate <= 0:
@@ -203,18 +255,15 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
             raise click.BadParameter(f"the fake Motive serves on this machine's loopback only, and [mocap] server in "
                                      f"{cfg.source} is {cfg.mocap['server']!r}: set it to '127.0.0.1'",
                                      param_hint="--natnet") from None
-    world = world_from_config(cfg, arms=names, seed=seed)
-    # the object's spec and elements are known (a load cell per element); it starts off the arms
-    object_spec = world.object
-    elements = list(world.object_elements)
+    return cfg, names, rate, console, natnet, natnet_host
 
-    stop = threading.Event()
 
-    def on_signal(signum, _frame):
-        stop.set()
-
+def _serve_loadcells(cfg, world, elements, loadcell: bool, sim_time: bool):
+    """One emulated Arduino per object element (its firmware on a pty), and the configured
+    ports linked to them: (firmwares, the cells' loads, links)."""
     from drivers.operator_sim import CellLoad
 
+    object_spec = world.object
     firmwares, cells, links = [], [], []
     if loadcell and cfg.loadcell["driver"] != "none" and object_spec is not None:
         from drivers.loadcell.firmware_process import FirmwareProcess
@@ -256,72 +305,34 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
                 if link:
                     links.append(link)
                     _say(f"loadcell link: {link} -> {pty}")
+    return firmwares, cells, links
 
-    import rclpy
-    from rclpy.context import Context
 
-    from rig.sim_server.ros_node import SimServer
-    from rclpy.signals import SignalHandlerOptions
+def _serve_natnet(cfg, world, server, natnet_host, natnet_version):
+    """The fake Motive on the loopback, fed by the world (started)."""
+    from drivers.natnet.fake_motive import SimMotive, parse_version
 
-    ros_exit.before_init()
-    context = Context()
-    # Our own handlers stop the loop cleanly; rclpy's would shut the context under it.
-    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
-    node = server = None
+    m = cfg.mocap
     try:
-        node = rclpy.create_node("rig_sim", context=context)
-        ros_exit.after_node()
-        mocap_cfg = dict(cfg.mocap) if mocap and cfg.mocap["driver"] != "none" else None
-        if world.object is not None:
-            world.detach_object()
-        for cell in cells:
-            cell.update()
-        server = SimServer(world, node, list(world.names), ros_period=ros_period, mocap=mocap_cfg, seed=world.seed,
-                           console=console, cells=cells, executor=cfg.ros["executor"], object_spec=object_spec,
-                           tool=tool, sim_time=sim_time, lockstep=lockstep, lockstep_timeout=lockstep_timeout)
-        server.stop = stop
-        if natnet:
-            from drivers.natnet.fake_motive import SimMotive, parse_version
+        # Motive's clock counts from before its first frame, as a PC's counter does
+        natnet = SimMotive(world, server.clock, noise=m["noise"], latency=m["latency"],
+                           occlusion=m["occlusion"], rate=m["rate"], seed=world.seed + 1,
+                           host=natnet_host, command_port=m["command_port"], data_port=m["data_port"],
+                           multicast=m["multicast"], version=parse_version(natnet_version),
+                           epoch=time.time() - 3600.0).start()
+    except OSError as exc:
+        raise InputError(
+            f"cannot serve NatNet on {natnet_host}:{m['command_port']} (data {m['data_port']}): "
+            f"{exc.strerror or exc}; another Motive or `rig sim --natnet` serves there: stop it, or set "
+            f"[mocap] command_port and data_port in {cfg.source}") from None
+    _say(f"natnet: {natnet_host}:{m['command_port']} (data {m['data_port']}, "
+         f"{'multicast ' + m['multicast'] if m['multicast'] else 'unicast'}, NatNet {natnet_version}, "
+         f"{m['rate']:g} Hz)")
+    return natnet
 
-            m = cfg.mocap
-            try:
-                # Motive's clock counts from before its first frame, as a PC's counter does
-                server.natnet = SimMotive(world, server.clock, noise=m["noise"], latency=m["latency"],
-                                          occlusion=m["occlusion"], rate=m["rate"], seed=world.seed + 1,
-                                          host=natnet_host, command_port=m["command_port"], data_port=m["data_port"],
-                                          multicast=m["multicast"], version=parse_version(natnet_version),
-                                          epoch=time.time() - 3600.0).start()
-            except OSError as exc:
-                raise InputError(
-                    f"cannot serve NatNet on {natnet_host}:{m['command_port']} (data {m['data_port']}): "
-                    f"{exc.strerror or exc}; another Motive or `rig sim --natnet` serves there: stop it, or set "
-                    f"[mocap] command_port and data_port in {cfg.source}") from None
-            _say(f"natnet: {natnet_host}:{m['command_port']} (data {m['data_port']}, "
-                 f"{'multicast ' + m['multicast'] if m['multicast'] else 'unicast'}, NatNet {natnet_version}, "
-                 f"{m['rate']:g} Hz)")
-        # Installed after rclpy is up: its initialisation replaces SIGINT/SIGTERM handlers.
-        signal.signal(signal.SIGINT, on_signal)
-        signal.signal(signal.SIGTERM, on_signal)
-        print(f"rig sim: serving {', '.join(world.names)} ({server.psms[world.names[0]].tool.name}; servo "
-              f"{rate:g} Hz, ROS period {server.ros_every / rate:g} s; "
-              + ("the wall clock" if not sim_time else "simulated time on /clock" + (", lockstep" if lockstep else ""))
-              + ") on ROS_DOMAIN_ID="
-              f"{os.environ.get('ROS_DOMAIN_ID', '0')}, console {console}, operator on /rig_sim/operator",
-              file=sys.stderr, flush=True)
-        stats = server.serve(duration, on_ready=lambda: _say("ready"))
-    finally:
-        if server is not None:
-            server.close()
-            if server.natnet is not None:
-                server.natnet.close()
-        for fw in firmwares:
-            fw.close()
-        for link in links:
-            try:
-                os.unlink(link)
-            except OSError:
-                pass
-        ros_exit.teardown(node, context)
+
+def _say_stats(stats: dict, server, rate: float, sim_time: bool) -> None:
+    """What rig sim achieved, at exit: rates, real-time factor, lockstep, refusals."""
     target = 1.0 / (server.ros_every / rate)
     common = (f"refused commands {stats['command_errors']}, superseded {stats['superseded']}, dropped (arm not "
               f"ready) {sum(stats['dropped'].values())}, operator requests {sum(server.operator.served.values())}")
@@ -344,3 +355,28 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
     _say(f"measured_js achieved: {rates} (target {target:g} Hz{'' if held else ', NOT held'}); "
          f"{stats['sim_s']:.3f} s simulated in {stats['wall_s']:.3f} s wall; late ticks {stats['late_ticks']} (longest "
          f"{stats['max_lag_s'] * 1e3:.1f} ms behind), re-anchored {stats['slips']}, {common}")
+
+
+def _say_serving(world, server, rate: float, sim_time: bool, lockstep: bool, console: str) -> None:
+    print(f"rig sim: serving {', '.join(world.names)} ({server.psms[world.names[0]].tool.name}; servo "
+          f"{rate:g} Hz, ROS period {server.ros_every / rate:g} s; "
+          + ("the wall clock" if not sim_time else "simulated time on /clock" + (", lockstep" if lockstep else ""))
+          + ") on ROS_DOMAIN_ID="
+          f"{os.environ.get('ROS_DOMAIN_ID', '0')}, console {console}, operator on /rig_sim/operator",
+          file=sys.stderr, flush=True)
+
+
+def _close(server, firmwares, links, node, context) -> None:
+    """Everything rig sim served, closed however it ended; the links to the ptys removed."""
+    if server is not None:
+        server.close()
+        if server.natnet is not None:
+            server.natnet.close()
+    for fw in firmwares:
+        fw.close()
+    for link in links:
+        try:
+            os.unlink(link)
+        except OSError:
+            pass
+    ros_exit.teardown(node, context)

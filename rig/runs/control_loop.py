@@ -56,6 +56,8 @@ class Tick:
     tension: float | None = None               # N: set by the step, checked against the ceiling
     tips: dict = field(default_factory=dict)   # arm -> tool tip in the world (m): set by the step
     compute_s: float | None = None
+    command_t: float | None = None             # the commands' time in the recording (default: t)
+    last: bool = False                         # set by the step: its commands are the loop's last
 
     @contextmanager
     def timed(self) -> Iterator[None]:
@@ -114,6 +116,7 @@ class ControlLoop:
         self.impedance = impedance
         self.loop_time_topic = loop_time_topic
         self.watch = ArmClockWatch(list(self.arms))
+        self._newest: dict = {}
         self.tick_t: list[float] = []
         self.compute_us: list[float] = []
         self.newest_force_t: list[float | None] = [None] * len(self.sensors)
@@ -148,14 +151,20 @@ class ControlLoop:
         js, drained = {}, {}
         for n, arm in self.arms.items():
             if self.read == "drain":
+                # every sample since the last tick (a tick held up by the machine finds
+                # several); an arm with none keeps its newest (a silent stream is the
+                # step's to judge, not a fault of the read)
                 drained[n] = arm.drain_js()
                 for s in drained[n]:
                     rec.joint_state(f"/{n}/measured_js", s.t, s.position, s.velocity, s.effort)
-                js[n] = drained[n][-1] if drained[n] else arm.measured_js()
+                if drained[n]:
+                    self._newest[n] = drained[n][-1]
+                if n in self._newest:
+                    js[n] = self._newest[n]
             else:
                 js[n] = arm.measured_js()
                 rec.joint_state(f"/{n}/measured_js", js[n].t, js[n].position, js[n].velocity, js[n].effort)
-        if js:
+        if len(js) == len(self.arms):
             self.watch.see(t, js)
         return js, drained
 
@@ -189,16 +198,19 @@ class ControlLoop:
                 s = tick.js[n]
                 self.limits.check_arm(n, s.position[:3], s.velocity[:3], s.effort[:3], tick.tips[n])
             if n in commands:
-                self.send({n: commands[n]}, tick.t)
+                self.send({n: commands[n]}, tick.t if tick.command_t is None else tick.command_t)
 
     def run(self, step: Callable[[Tick], dict | None], ticks: int | None = None, progress=None,
-            every: int = 100, on_progress: Callable[[Tick], None] | None = None) -> int:
-        """Run `ticks` periods (None: until the step returns None); returns the ticks done.
-        `progress`: a run step (rig.runs.run.Step) updated every `every` ticks, when
-        `on_progress(tick)` is called too."""
+            every: int = 100, on_progress: Callable[[Tick], None] | None = None, tick_last: bool = False) -> int:
+        """Run `ticks` periods (None: until the step returns None or sets `tick.last`);
+        returns the ticks done. `progress`: a run step (rig.runs.run.Step) updated every
+        `every` ticks, when `on_progress(tick)` is called too. `tick_last`: the clock ticks
+        at the end of each period (read, step, send, tick: commands computed from the state
+        of now), not at its start, and not after a period whose step ended the loop."""
         k = 0
         while ticks is None or k < ticks:
-            self.clock.tick()
+            if not tick_last:
+                self.clock.tick()
             t = self.clock.now()
             js, drained = self._read_arms(t)
             tick = Tick(k, t, js, drained, self._drain_sensors())
@@ -216,10 +228,12 @@ class ControlLoop:
                     progress.update(tick.k)
                 if on_progress is not None:
                     on_progress(tick)
-            if commands is None:
+            if commands is None or tick.last:
                 break
-        if progress is not None:
-            progress.update(ticks if ticks is not None else k)
+            if tick_last:
+                self.clock.tick()
+        if progress is not None and k == ticks:
+            progress.update(ticks)
         return k
 
     def timing(self) -> dict:

@@ -142,6 +142,38 @@ def run_selftest(cfg, duration: float, seed: int | None = None) -> dict:
             tension[k, i] = world.tension(i)
     wall = time.perf_counter() - wall
 
+    checks, arms = _arm_checks(world, errors, targets, duration, q0, q_lift)
+    tension_checks, tensions = _tension_checks(world, tension, targets, t_lift, d_q0, d_lift, distance)
+    checks += tension_checks
+
+    factor = n_steps * world.dt / wall
+    # Slower than real time the simulated rig cannot serve its devices at the rig rate.
+    checks.append(_check("rate", factor >= 1.0, f"{factor:.0f}x real time", ">= 1x (slower, `rig sim` "
+                         "could not keep its streams at the rig rate)",
+                         f"{n_steps} steps at {1 / world.dt:g} Hz in {wall:.3f} s of wall time",
+                         f"{factor:.2f}x real time, below 1x",
+                         value=factor, bound=1.0, units="x real time"))
+
+    failed = [c for c in checks if not c["passed"]]
+    result = {
+        "status": "failed" if failed else "completed",
+        "checks": checks,
+        "arms": arms,
+        "tension": tensions,
+        "lift": LIFT.tolist(),
+        "pre_lift": PRE_LIFT,
+        "tolerance": TOLERANCE.tolist(),
+        "simulated_time": duration,
+        "real_time_factor": factor,
+        "config": cfg.source,
+    }
+    if failed:
+        result["error"] = "; ".join(f"{c['name']}: {c['missed']}" for c in failed)
+    return result
+
+
+def _arm_checks(world, errors: dict, targets: dict, duration: float, q0: dict, q_lift: dict):
+    """Each arm settled at its lift target within TOLERANCE: (checks, per-arm figures)."""
     checks, arms = [], {}
     for n, e in errors.items():
         outside = np.nonzero((np.abs(e) > TOLERANCE).any(axis=1))[0]
@@ -174,7 +206,14 @@ def run_selftest(cfg, duration: float, seed: int | None = None) -> dict:
             else f"in the band only from {settle:.3f} s, after {bound:.3f} s",
             value=settle if within else None, bound=bound, units="s", final_error=final.tolist(),
             tolerance=TOLERANCE.tolist()))
+    return checks, arms
 
+
+def _tension_checks(world, tension, targets: dict, t_lift: dict, d_q0: dict, d_lift: dict, distance: dict):
+    """Each element's tension changed by the lift no more than the joint tolerances allow:
+    (checks, per-element figures)."""
+    elements, obj = world.object_elements, world.object
+    checks = []
     tensions = {}
     for i, (a, b) in enumerate(elements):
         name = f"{a}-{b}"
@@ -204,31 +243,7 @@ def run_selftest(cfg, duration: float, seed: int | None = None) -> dict:
             f"{tension[:, i].min():+.3f} to {tension[:, i].max():+.3f} N while moving",
             f"the lift changed it by {change:+.3f} N, beyond ±{bound:.3f} N",
             value=change, bound=bound, units="N"))
-
-    factor = n_steps * world.dt / wall
-    # Slower than real time the simulated rig cannot serve its devices at the rig rate.
-    checks.append(_check("rate", factor >= 1.0, f"{factor:.0f}x real time", ">= 1x (slower, `rig sim` "
-                         "could not keep its streams at the rig rate)",
-                         f"{n_steps} steps at {1 / world.dt:g} Hz in {wall:.3f} s of wall time",
-                         f"{factor:.2f}x real time, below 1x",
-                         value=factor, bound=1.0, units="x real time"))
-
-    failed = [c for c in checks if not c["passed"]]
-    result = {
-        "status": "failed" if failed else "completed",
-        "checks": checks,
-        "arms": arms,
-        "tension": tensions,
-        "lift": LIFT.tolist(),
-        "pre_lift": PRE_LIFT,
-        "tolerance": TOLERANCE.tolist(),
-        "simulated_time": duration,
-        "real_time_factor": factor,
-        "config": cfg.source,
-    }
-    if failed:
-        result["error"] = "; ".join(f"{c['name']}: {c['missed']}" for c in failed)
-    return result
+    return checks, tensions
 
 
 def _efforts(v) -> str:

@@ -283,9 +283,6 @@ def plot_friction(sweeps: dict, fits: dict, path) -> None:
 
 def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = True) -> dict:
     """The procedure as a function (CLI, tests and bench). Returns the result."""
-    from calibration.friction_fit import FrictionFitError, fit_stribeck, fit_viscous_coulomb
-    from rig.model import model_file
-    from rig.runs import model_results
     from rig.devices.factory import open_rig
 
     arm_name = parameters["arm"]
@@ -319,16 +316,8 @@ def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = Tru
             with run.step(STEPS[3], total=len(speeds)) as st:
                 sweeps = constant_velocity_sweeps(run, arm, clock, dyn, q_ref, speeds, parameters, st)
             with run.step(STEPS[4]):
-                pv = np.array([p["velocity_mean"] for p in sweeps["passes"]])
-                pf = np.array([p["friction_mean"] for p in sweeps["passes"]])
-                fits = {"viscous_coulomb": fit_viscous_coulomb(pv, pf)}
+                fits = _fits(sweeps, ramps)
                 fs_pos, fs_neg = ramps["pos"]["force"], ramps["neg"]["force"]
-                guess = None if fs_pos is None or fs_neg is None else 0.5 * (fs_pos - fs_neg)
-                try:
-                    fits["stribeck"] = fit_stribeck(pv, pf, guess)
-                except FrictionFitError as exc:
-                    fits["stribeck"] = None
-                    fits["stribeck_error"] = str(exc)
             with run.step(STEPS[5]):
                 plots = {}
                 if parameters["plots"]:
@@ -340,40 +329,8 @@ def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = Tru
                     missing = "positive" if fs_pos is None else "negative"
                     raise AbortRun(f"joint 3 did not break away in the {missing} direction up to "
                                    f"{parameters['max_force']} N beyond the compensation: raise --max-force")
-                comp0 = float(ramps["pos"]["compensation"][0])
-                stick = model_file.StickSlip(
-                    joint=3, fs_pos=fs_pos, fs_neg=fs_neg,
-                    # a Stribeck fit that did not converge is reported, never compensated with
-                    # (StickSlip takes the Stribeck curve over the viscous + Coulomb one)
-                    fits={k: v for k, v in fits.items()
-                          if k in ("viscous_coulomb", "stribeck") and v and (k != "stribeck" or v.get("success"))},
-                    deadbands={"velocity": parameters["threshold"], "position": 0.0003},
-                    provenance=model_results.provenance(f"{run.dir / 'run.mcap'} ({arm_name})", run.dir,
-                                                     {"procedure": PROCEDURE, "compensation": comp_info}))
-                (run.dir / model_file.STICK_SLIP_FILENAME).write_text(json.dumps(stick.to_dict(), indent=2) + "\n")
-                origin = provenance.live(cfg, [arm_name], run.dir)
-                own = run.dir / model_file.MODEL_FILENAME
-                if prior is not None:
-                    written = model_file.with_stick_slip(own, prior, stick, {**stick.provenance, **origin}).path
-                    where = f"the identified model {prior.path} plus this run's stick-slip terms"
-                else:
-                    written = model_file.friction_only_model(own, stick, dyn.gravity, dyn.slope,
-                                                             {**stick.provenance, **origin})
-                    where = ("friction terms only: no identified model of this arm yet; a later `rig identify` "
-                             "takes these terms")
-                result = {
-                    "arm": arm_name, "joint": 3, "q_ref": q_ref.tolist(),
-                    "Fs_pos": fs_pos, "Fs_neg": fs_neg,
-                    "Fs_symmetric": 0.5 * (fs_pos - fs_neg), "compensation_bias": 0.5 * (fs_pos + fs_neg),
-                    "compensation": {**comp_info, "joint3_at_start": comp0,
-                                     "note": "ramps are applied on top of g3(q) + Fo3 of this model"},
-                    "breakaway_position": {k: float(r["q"][r["index"]]) for k, r in ramps.items()},
-                    "fits": fits, "passes": sweeps["passes"], "plots": plots,
-                    "model": str(written), "model_kind": where, "stick_slip": stick.to_dict(),
-                    "provenance": origin,
-                    "summary": {"Fs_pos": fs_pos, "Fs_neg": fs_neg, "Fs_symmetric": 0.5 * (fs_pos - fs_neg),
-                                "model": str(written)},
-                }
+                result = _result(run, cfg, arm_name, q_ref, ramps, sweeps, fits, plots, parameters, dyn, comp_info,
+                                 prior)
                 world = getattr(dev, "world", None)
                 if world is not None:
                     result["truth"] = simulated_truth(world, arm_name, dyn, ramps)
@@ -386,6 +343,69 @@ def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = Tru
     finally:
         dev.close()
     return run.result
+
+
+def _fits(sweeps: dict, ramps: dict) -> dict:
+    """Viscous + Coulomb and Stribeck fits of the sweeps' friction (a Stribeck fit that
+    fails is said, under "stribeck_error")."""
+    from calibration.friction_fit import FrictionFitError, fit_stribeck, fit_viscous_coulomb
+
+    pv = np.array([p["velocity_mean"] for p in sweeps["passes"]])
+    pf = np.array([p["friction_mean"] for p in sweeps["passes"]])
+    fits = {"viscous_coulomb": fit_viscous_coulomb(pv, pf)}
+    fs_pos, fs_neg = ramps["pos"]["force"], ramps["neg"]["force"]
+    guess = None if fs_pos is None or fs_neg is None else 0.5 * (fs_pos - fs_neg)
+    try:
+        fits["stribeck"] = fit_stribeck(pv, pf, guess)
+    except FrictionFitError as exc:
+        fits["stribeck"] = None
+        fits["stribeck_error"] = str(exc)
+    return fits
+
+
+def _result(run, cfg, arm_name: str, q_ref, ramps: dict, sweeps: dict, fits: dict, plots: dict, parameters: dict,
+            dyn, comp_info: dict, prior) -> dict:
+    """The stick-slip terms and the model file they go into (written to the run folder),
+    and the result document."""
+    from rig.model import model_file
+    from rig.runs import model_results
+
+    fs_pos, fs_neg = ramps["pos"]["force"], ramps["neg"]["force"]
+    comp0 = float(ramps["pos"]["compensation"][0])
+    stick = model_file.StickSlip(
+        joint=3, fs_pos=fs_pos, fs_neg=fs_neg,
+        # a Stribeck fit that did not converge is reported, never compensated with
+        # (StickSlip takes the Stribeck curve over the viscous + Coulomb one)
+        fits={k: v for k, v in fits.items()
+              if k in ("viscous_coulomb", "stribeck") and v and (k != "stribeck" or v.get("success"))},
+        deadbands={"velocity": parameters["threshold"], "position": 0.0003},
+        provenance=model_results.provenance(f"{run.dir / 'run.mcap'} ({arm_name})", run.dir,
+                                         {"procedure": PROCEDURE, "compensation": comp_info}))
+    (run.dir / model_file.STICK_SLIP_FILENAME).write_text(json.dumps(stick.to_dict(), indent=2) + "\n")
+    origin = provenance.live(cfg, [arm_name], run.dir)
+    own = run.dir / model_file.MODEL_FILENAME
+    if prior is not None:
+        written = model_file.with_stick_slip(own, prior, stick, {**stick.provenance, **origin}).path
+        where = f"the identified model {prior.path} plus this run's stick-slip terms"
+    else:
+        written = model_file.friction_only_model(own, stick, dyn.gravity, dyn.slope,
+                                                 {**stick.provenance, **origin})
+        where = ("friction terms only: no identified model of this arm yet; a later `rig identify` "
+                 "takes these terms")
+    result = {
+        "arm": arm_name, "joint": 3, "q_ref": q_ref.tolist(),
+        "Fs_pos": fs_pos, "Fs_neg": fs_neg,
+        "Fs_symmetric": 0.5 * (fs_pos - fs_neg), "compensation_bias": 0.5 * (fs_pos + fs_neg),
+        "compensation": {**comp_info, "joint3_at_start": comp0,
+                         "note": "ramps are applied on top of g3(q) + Fo3 of this model"},
+        "breakaway_position": {k: float(r["q"][r["index"]]) for k, r in ramps.items()},
+        "fits": fits, "passes": sweeps["passes"], "plots": plots,
+        "model": str(written), "model_kind": where, "stick_slip": stick.to_dict(),
+        "provenance": origin,
+        "summary": {"Fs_pos": fs_pos, "Fs_neg": fs_neg, "Fs_symmetric": 0.5 * (fs_pos - fs_neg),
+                    "model": str(written)},
+    }
+    return result
 
 
 def simulated_truth(world, arm_name: str, dyn, ramps: dict) -> dict:

@@ -145,67 +145,46 @@ def command(ctx, mass1: float, mass2: float, port: str | None, element: int | No
     emit_result(result, as_json, format_report(result))
 
 
+class _Devices:
+    """What a calibration opens (the simulated cell's firmware, the port, the driver, the ROS
+    session, the operator), closed together however the run ends."""
+
+    def __init__(self):
+        self.fake = self.ser = self.lc = self.session = self.operator = None
+
+    def close(self) -> None:
+        if self.lc is not None:
+            self.lc.close()
+        if self.ser is not None:
+            self.ser.close()
+        if self.fake is not None:
+            self.fake.unplug()
+        if self.session is not None:
+            self.session.time.close()  # leave the lockstep (on the wall clock: nothing to leave)
+            self.session.close()
+
+
 def _calibrate(run: Run, cfg, params: dict, element: int | None) -> dict:
     """The steps; the result document with its "status" ("completed" or "failed", with
     "error"). A device or operator error aborts the run (AbortRun), recorded; Ctrl-C too."""
-    port, simulated, baud = params["port"], params["sim"], params["baud"]
+    simulated = params["sim"]
     mass1, mass2, seconds, rate_hz = params["mass1_kg"], params["mass2_kg"], params["seconds"], params["rate_hz"]
     result: dict = {"status": "failed", "parameters": params}
     weights = HangingMass()
-    fake = ser = lc = session = None
-    operator = None
+    dev = _Devices()
 
     def hang(kg: float) -> None:
         if simulated:
             weights.kg = kg  # collect_counts() only takes samples converted from now on
         else:
-            operator.hang_mass(kg, element)
+            dev.operator.hang_mass(kg, element)
             # let it settle: the first conversions may still swing
-            (session.time.sleep if session is not None else time.sleep)(0.1)
+            (dev.session.time.sleep if dev.session is not None else time.sleep)(0.1)
 
     try:
-        import serial
-
         with run.step(STEPS[0]):
-            if simulated:
-                fake = FakeLoadCellFirmware(weights, noise=0.005).start()  # 5 mN rms, like a good bridge
-                ser = serial.Serial(fake.port_path, baudrate=baud)
-            else:
-                from drivers.loadcell.serial_port import open_serial_port
-                from rig.devices.factory import open_operator
-
-                if cfg.operator["driver"] == "ros" or cfg.ros["use_sim_time"]:
-                    from drivers.ros_session import RosSession
-
-                    session = RosSession("rig_loadcell_calibrate", executor=cfg.ros["executor"])
-                    if cfg.ros["use_sim_time"]:
-                        from drivers.time_base import SimTime
-
-                        # the served cell converts on the world's clock: its samples, the
-                        # windows and the timeouts on the same clock, in lockstep
-                        session.time = SimTime(session.node, lockstep=cfg.ros["lockstep"],
-                                               polled=session.executor_time)
-                operator = open_operator(cfg, session)
-                if session is not None:
-                    session.start()
-                    if session.time.simulated and not session.time.wait_heard(cfg.ros["connect_timeout"]):
-                        from drivers.ros_session import domain_text
-
-                        raise AbortRun(f"/clock: no simulated time within {cfg.ros['connect_timeout']:g} s on "
-                                       f"{domain_text()}; [ros] use_sim_time = true follows `rig sim --sim-time`: "
-                                       "start it so (or set use_sim_time = false)")
-                ser = open_serial_port(port, baud)
-            # static loads: a scheduling hiccup is harmless here (a pty on a loaded machine
-            # delivers up to ~0.35 s late), and a pulled cable still stops us at once
-            sim_time = session is not None and session.time.simulated
-            # (on simulated time the world waits for the cell's reader: drivers.time_base)
-            lc = LoadCell(ser, None, rate_hz=rate_hz, stale_timeout=max(0.5, cfg.loadcell["stale_timeout"]),
-                          **({"clock": session.time.now, "time_base": session.time} if sim_time else {}))
-            ident = lc.identity
-            result["device"] = {"port": port or fake.port_path, "protocol": ident.protocol,
-                                "firmware": ".".join(map(str, ident.firmware)), "adc": ident.adc,
-                                "max_rate_hz": ident.max_rate_hz, "simulated": simulated}
-
+            result["device"] = _open(dev, cfg, params, weights)
+        lc = dev.lc
         with run.step(STEPS[1]):
             hang(mass1)
             tare = lc.tare_counts(min(255, max(1, int(rate_hz * min(seconds, 0.5)))))
@@ -230,32 +209,7 @@ def _calibrate(run: Run, cfg, params: dict, element: int | None) -> dict:
                 run.recorder.tension("/loadcell/force", sample.t, forces[-1])
             if len(forces) < 2:
                 raise LoadCellError(f"only {len(forces)} samples in the check with {mass2} kg; is the cell streaming?")
-            measured = statistics.fmean(forces)
-        result.update(
-            status="completed", calibration=cal.to_dict(), points=[p1, p2],
-            tare_counts_mass1=tare, tare_minus_mean_counts=tare - p1["mean_counts"],
-            check={"expected_n": p2["force_n"], "measured_n": measured, "error_n": measured - p2["force_n"],
-                   "std_n": statistics.stdev(forces), "n": len(forces)},
-            stats=vars(lc.stats()))
-        result["summary"] = {"check_error": result["check"]["error_n"], "check_noise": result["check"]["std_n"],
-                             "newtons_per_count": cal.newtons_per_count, "zero_counts": cal.zero_counts,
-                             "cell": "simulated" if simulated else result["device"]["port"]}
-        result["provenance"] = {
-            "cell": {"port": result["device"]["port"], "usb_serial": "" if simulated else usb_serial_number(port),
-                     "adc": ident.adc, "firmware": result["device"]["firmware"], "simulated": simulated},
-            "source": {"run": run.dir.name}, "package_version": package_version(),
-            "time": datetime.now(timezone.utc).isoformat(timespec="seconds")}
-        bound = max(CHECK_BOUND_N, CHECK_BOUND_REL * p2["force_n"])
-        if not abs(result["check"]["error_n"]) <= bound:
-            result["status"] = "failed"
-            result["error"] = (f"check with {mass2} kg read {measured:.4f} N, expected {p2['force_n']:.4f} N: error "
-                               f"{result['check']['error_n'] * 1e3:+.1f} mN beyond {bound * 1e3:.0f} mN (the masses "
-                               "swinging, or a cell that drifts: calibrate again)")
-        if simulated:
-            true_k = 1.0 / fake.model.gain
-            result["truth"] = {"newtons_per_count": true_k, "zero_counts": fake.model.offset,
-                               "gain_error_rel": cal.newtons_per_count / true_k - 1.0,
-                               "zero_error_counts": cal.zero_counts - fake.model.offset}
+        _result(result, run, dev, params, cal, (p1, p2), tare, forces)
     except (LoadCellError, OperatorError, OSError) as exc:
         # the cell, its port or the operator's channel failed: an abort, as in every procedure
         # (the run engine records it with the reason; exit 3)
@@ -264,16 +218,88 @@ def _calibrate(run: Run, cfg, params: dict, element: int | None) -> dict:
         result["status"] = "failed"
         result["error"] = str(exc)
     finally:
-        if lc is not None:
-            lc.close()
-        if ser is not None:
-            ser.close()
-        if fake is not None:
-            fake.unplug()
-        if session is not None:
-            session.time.close()  # leave the lockstep (on the wall clock: nothing to leave)
-            session.close()
+        dev.close()
     return result
+
+
+def _open(dev: _Devices, cfg, params: dict, weights) -> dict:
+    """Open the cell (the simulated one's firmware on a pty, or the configured port, with the
+    operator and, on ROS, the session); returns what the device says of itself."""
+    import serial
+
+    port, simulated, baud = params["port"], params["sim"], params["baud"]
+    if simulated:
+        dev.fake = FakeLoadCellFirmware(weights, noise=0.005).start()  # 5 mN rms, like a good bridge
+        dev.ser = serial.Serial(dev.fake.port_path, baudrate=baud)
+    else:
+        from drivers.loadcell.serial_port import open_serial_port
+        from rig.devices.factory import open_operator
+
+        if cfg.operator["driver"] == "ros" or cfg.ros["use_sim_time"]:
+            from drivers.ros_session import RosSession
+
+            dev.session = RosSession("rig_loadcell_calibrate", executor=cfg.ros["executor"])
+            if cfg.ros["use_sim_time"]:
+                from drivers.time_base import SimTime
+
+                # the served cell converts on the world's clock: its samples, the
+                # windows and the timeouts on the same clock, in lockstep
+                dev.session.time = SimTime(dev.session.node, lockstep=cfg.ros["lockstep"],
+                                           polled=dev.session.executor_time)
+        dev.operator = open_operator(cfg, dev.session)
+        session = dev.session
+        if session is not None:
+            session.start()
+            if session.time.simulated and not session.time.wait_heard(cfg.ros["connect_timeout"]):
+                from drivers.ros_session import domain_text
+
+                raise AbortRun(f"/clock: no simulated time within {cfg.ros['connect_timeout']:g} s on "
+                               f"{domain_text()}; [ros] use_sim_time = true follows `rig sim --sim-time`: "
+                               "start it so (or set use_sim_time = false)")
+        dev.ser = open_serial_port(port, baud)
+    # static loads: a scheduling hiccup is harmless here (a pty on a loaded machine
+    # delivers up to ~0.35 s late), and a pulled cable still stops us at once
+    sim_time = dev.session is not None and dev.session.time.simulated
+    # (on simulated time the world waits for the cell's reader: drivers.time_base)
+    dev.lc = LoadCell(dev.ser, None, rate_hz=params["rate_hz"], stale_timeout=max(0.5, cfg.loadcell["stale_timeout"]),
+                      **({"clock": dev.session.time.now, "time_base": dev.session.time} if sim_time else {}))
+    ident = dev.lc.identity
+    return {"port": port or dev.fake.port_path, "protocol": ident.protocol,
+            "firmware": ".".join(map(str, ident.firmware)), "adc": ident.adc,
+            "max_rate_hz": ident.max_rate_hz, "simulated": simulated}
+
+
+def _result(result: dict, run, dev: _Devices, params: dict, cal, points, tare: float, forces: list) -> None:
+    """The calibration, its check against the second mass, provenance and (simulated) the
+    truth, into `result`; "failed" when the check misses its bound."""
+    simulated, mass2, port = params["sim"], params["mass2_kg"], params["port"]
+    p1, p2 = points
+    measured = statistics.fmean(forces)
+    result.update(
+        status="completed", calibration=cal.to_dict(), points=[p1, p2],
+        tare_counts_mass1=tare, tare_minus_mean_counts=tare - p1["mean_counts"],
+        check={"expected_n": p2["force_n"], "measured_n": measured, "error_n": measured - p2["force_n"],
+               "std_n": statistics.stdev(forces), "n": len(forces)},
+        stats=vars(dev.lc.stats()))
+    result["summary"] = {"check_error": result["check"]["error_n"], "check_noise": result["check"]["std_n"],
+                         "newtons_per_count": cal.newtons_per_count, "zero_counts": cal.zero_counts,
+                         "cell": "simulated" if simulated else result["device"]["port"]}
+    result["provenance"] = {
+        "cell": {"port": result["device"]["port"], "usb_serial": "" if simulated else usb_serial_number(port),
+                 "adc": result["device"]["adc"], "firmware": result["device"]["firmware"], "simulated": simulated},
+        "source": {"run": run.dir.name}, "package_version": package_version(),
+        "time": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+    bound = max(CHECK_BOUND_N, CHECK_BOUND_REL * p2["force_n"])
+    if not abs(result["check"]["error_n"]) <= bound:
+        result["status"] = "failed"
+        result["error"] = (f"check with {mass2} kg read {measured:.4f} N, expected {p2['force_n']:.4f} N: error "
+                           f"{result['check']['error_n'] * 1e3:+.1f} mN beyond {bound * 1e3:.0f} mN (the masses "
+                           "swinging, or a cell that drifts: calibrate again)")
+    if simulated:
+        true_k = 1.0 / dev.fake.model.gain
+        result["truth"] = {"newtons_per_count": true_k, "zero_counts": dev.fake.model.offset,
+                           "gain_error_rel": cal.newtons_per_count / true_k - 1.0,
+                           "zero_error_counts": cal.zero_counts - dev.fake.model.offset}
 
 
 def format_report(result: dict) -> str:

@@ -274,8 +274,6 @@ def verdict_words(result: dict) -> str:
 
 
 def report_text(result: dict) -> str:
-    from calibration.generalisation import IDENTIFIED_CHOICE
-
     b = result["baseline"]
     lines = [f"rig discrepancy: {verdict_words(result)}",
              f"data: {result['data']['source']}",
@@ -316,47 +314,55 @@ def report_text(result: dict) -> str:
                 why.append(f"removes {c['heldout_variance_removed']:.2f} of the held-out residual variance, needs "
                            f"{c['heldout_gain_needed']:.2f} (the generic library explains {c['library_r2']:.2f})")
             lines.append(f"    joint {item['joint']}: closest catalogue effect {c['effect']}, not added: " + "; ".join(why))
-    g = result.get("generalisation")
-    if g:
-        identified = g.get("choice") == IDENTIFIED_CHOICE
-        lines.append(f"written model: the plain model {'identified again with' if identified else '+'} "
-                     f"{', '.join(g['kept']) or 'no effect'}; effects judged on "
-                     f"{g['method']}" + (f" ({g['note']})" if g.get("note") else ""))
-        lines.append("    relative error per joint, plain -> written: "
-                     + ", ".join(f"{a:.3f} -> {b:.3f}" for a, b in zip(g["relative_error"]["plain"],
-                                                                       g["relative_error"]["written"])))
-        if identified:
-            iw = g["identified_with_effects"]
-            lines.append("    written: identified again with the effects' columns in the regressor: gravity "
-                         + ", ".join(f"{v:.3f}" for v in iw["gravity"]) + f" m/s^2, friction slope {iw['slope']:g}; "
-                         "it predicts the other motion better than the plain model on every joint and than the "
-                         "plain model with the effects fitted on top")
-        if g.get("choice", "").startswith("the workflow"):
-            lines.append(f"    written: {g['choice']}: it predicts the other motion better than the plain model on "
-                         "every joint and than the plain model with the confirmed effects")
-        hb = g.get("heldout_block")
-        if hb and hb.get("rel_written"):
-            lines.append("    on the held-out block, plain -> written: "
-                         + ", ".join(f"{a:.3f} -> {b:.3f}" for a, b in zip(hb["rel_plain"], hb["rel_written"])))
-        if g.get("friction_refitted_alone_on_joints"):
-            lines.append(f"    friction of joint(s) {g['friction_refitted_alone_on_joints']} refitted on the training block "
-                         "(Fc, Fv, Fo, Ia; Stribeck excess on joint 3): confirmed on the other motion without an effect")
-        for f in g.get("folded_into_friction") or []:
-            lines.append(f"    {f['effect']}@{f['joint']}: written as joint {f['joint']}'s friction refitted alone: "
-                         f"Fo moved by {f['written']:+.4g} (the effect named {f['named']:+.4g}"
-                         + (f", {f['from']}" if f.get("from") else "") + "); confirmed on the other motion as that term")
-        for d in g["not_confirmed"]:
-            gain = d.get("gain_on_new_motion")
-            lines.append(f"    {d['effect']}@{d['joint']}: {d['why']}"
-                         + (f" (it lowers joint {d['joint']}'s error there by {gain * 100:.1f} %, needs "
-                            f"{g['confirm_gain'] * 100:g} % and {g.get('confirm_absolute', 0):g} of its effort)"
-                            if gain is not None else ""))
-        for d in g["implausible"]:
-            lines.append(f"    {d['effect']}@{d['joint']}: left out, implausible beside the plain model: {d['why']}")
-        lines.append("    guards: " + "; ".join(g["guards"]))
+    if result.get("generalisation"):
+        lines += _generalisation_lines(result["generalisation"])
     lines.append(f"model: {result['model']}")
     lines.append(f"time: {result['seconds']:.1f} s")
     return "\n".join(lines)
+
+
+def _generalisation_lines(g: dict) -> list[str]:
+    """The written model and how its effects were judged on the other motion."""
+    from calibration.generalisation import IDENTIFIED_CHOICE
+
+    lines = []
+    identified = g.get("choice") == IDENTIFIED_CHOICE
+    lines.append(f"written model: the plain model {'identified again with' if identified else '+'} "
+                 f"{', '.join(g['kept']) or 'no effect'}; effects judged on "
+                 f"{g['method']}" + (f" ({g['note']})" if g.get("note") else ""))
+    lines.append("    relative error per joint, plain -> written: "
+                 + ", ".join(f"{a:.3f} -> {b:.3f}" for a, b in zip(g["relative_error"]["plain"],
+                                                                   g["relative_error"]["written"])))
+    if identified:
+        iw = g["identified_with_effects"]
+        lines.append("    written: identified again with the effects' columns in the regressor: gravity "
+                     + ", ".join(f"{v:.3f}" for v in iw["gravity"]) + f" m/s^2, friction slope {iw['slope']:g}; "
+                     "it predicts the other motion better than the plain model on every joint and than the "
+                     "plain model with the effects fitted on top")
+    if g.get("choice", "").startswith("the workflow"):
+        lines.append(f"    written: {g['choice']}: it predicts the other motion better than the plain model on "
+                     "every joint and than the plain model with the confirmed effects")
+    hb = g.get("heldout_block")
+    if hb and hb.get("rel_written"):
+        lines.append("    on the held-out block, plain -> written: "
+                     + ", ".join(f"{a:.3f} -> {b:.3f}" for a, b in zip(hb["rel_plain"], hb["rel_written"])))
+    if g.get("friction_refitted_alone_on_joints"):
+        lines.append(f"    friction of joint(s) {g['friction_refitted_alone_on_joints']} refitted on the training block "
+                     "(Fc, Fv, Fo, Ia; Stribeck excess on joint 3): confirmed on the other motion without an effect")
+    for f in g.get("folded_into_friction") or []:
+        lines.append(f"    {f['effect']}@{f['joint']}: written as joint {f['joint']}'s friction refitted alone: "
+                     f"Fo moved by {f['written']:+.4g} (the effect named {f['named']:+.4g}"
+                     + (f", {f['from']}" if f.get("from") else "") + "); confirmed on the other motion as that term")
+    for d in g["not_confirmed"]:
+        gain = d.get("gain_on_new_motion")
+        lines.append(f"    {d['effect']}@{d['joint']}: {d['why']}"
+                     + (f" (it lowers joint {d['joint']}'s error there by {gain * 100:.1f} %, needs "
+                        f"{g['confirm_gain'] * 100:g} % and {g.get('confirm_absolute', 0):g} of its effort)"
+                        if gain is not None else ""))
+    for d in g["implausible"]:
+        lines.append(f"    {d['effect']}@{d['joint']}: left out, implausible beside the plain model: {d['why']}")
+    lines.append("    guards: " + "; ".join(g["guards"]))
+    return lines
 
 
 def _other_motion(parameters: dict, settings, q, dq, tau, breaks, pieces):
@@ -393,10 +399,8 @@ def _other_motion(parameters: dict, settings, q, dq, tau, breaks, pieces):
 
 def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: bool = True) -> dict:
     from calibration.base_params import base_parameters_of
-    from calibration.datasets import load_csv
     from calibration.discrepancy.settings import Settings
     from calibration.discrepancy.workflow import run_workflow
-    from calibration.effects import describe
     from calibration.generalisation import EffectGate, plain_training_block, workflow_model
     from calibration.prediction import extra_effort, standard_parameters
     from rig.model.model_file import load_model, save_model
@@ -410,15 +414,7 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
     with Run(PROCEDURE, parameters=parameters, config=None, steps=list(STEPS), root=run_root,
              progress=progress) as rn:
         with rn.step(STEPS[0]):
-            pieces = None
-            if parameters["csv"]:
-                data = load_csv(parameters["csv"], rate, parameters["joints"])
-                q, dq, tau, source, breaks = data.q, data.dq, data.tau, str(parameters["csv"]), []
-            else:
-                record = load_run_pieces(run_dir, parameters["arm"], rate, settings)
-                q, dq, tau, source, breaks = record.q, record.dq, record.tau, record.source, record.breaks
-                pieces = {"seconds": record.pieces, "dropped_seconds": record.dropped, "breaks": breaks,
-                          "pause_longer_than_s": PAUSE_CUTOFF_PERIODS / settings.cutoff}
+            q, dq, tau, source, breaks, pieces = _load(parameters, run_dir, rate, settings)
             # The workflow names effects on the whole record; the plain model and the written
             # model's parameters are fitted without the other motion (`_other_motion`).
             all_q, all_dq, all_tau, all_breaks = q, dq, tau, breaks
@@ -462,21 +458,7 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
                 gate.doc["note"] = split_note
             heldout = _heldout_figures(effect_gate, gate, result)
             gate.doc["heldout_block"] = heldout
-            model_path = save_model(
-                rn.dir / "model.json", standard=written.standard, names=plain.names, slope=written.slope,
-                gravity=written.gravity, stribeck=written.stribeck,
-                gravity_source="given model" if given is not None else "estimated",
-                validation={"other_motion": gate.doc["method"], "choice": gate.doc["choice"],
-                            "relative_error_plain": gate.doc["relative_error"]["plain"],
-                            "relative_error_written": gate.doc["relative_error"]["written"],
-                            "heldout_rms_plain": heldout["rms_plain"], "heldout_rms_written": heldout["rms_written"],
-                            "note": "plain: the model `rig identify` fits on the same training data (or the given "
-                                    "model); written: this file; relative errors on the other motion"},
-                provenance_info=provenance(source, rn.dir, {"procedure": PROCEDURE}),
-                extra={"effects": written.effects, "effects_catalogue": describe()["version"],
-                       "plain_model": str(plain.path),
-                       "effects_note": "torques of the effects add to the rigid-body model: "
-                                       "calibration.effects.effects_torque(effects, q, dq, tau_model)"})
+            model_path = _save_written(rn, written, plain, gate, heldout, given is not None, source)
             pairs = w.residual_pairs(result) if parameters["plots"] else []
             result.pop("_reid")
             kept = gate.doc["kept"]
@@ -491,6 +473,42 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
                 result["plots"].update(plot_generalisation(gate.doc, rn.dir))
             rn.finish(result)
     return rn.result
+
+
+def _load(parameters: dict, run_dir, rate: float, settings):
+    """(q, dq, tau, source, breaks, pieces) of a CSV, or of a run's recording in pieces."""
+    from calibration.datasets import load_csv
+
+    if parameters["csv"]:
+        data = load_csv(parameters["csv"], rate, parameters["joints"])
+        return data.q, data.dq, data.tau, str(parameters["csv"]), [], None
+    record = load_run_pieces(run_dir, parameters["arm"], rate, settings)
+    pieces = {"seconds": record.pieces, "dropped_seconds": record.dropped, "breaks": record.breaks,
+              "pause_longer_than_s": PAUSE_CUTOFF_PERIODS / settings.cutoff}
+    return record.q, record.dq, record.tau, record.source, record.breaks, pieces
+
+
+def _save_written(rn, written, plain, gate, heldout: dict, given: bool, source: str):
+    """The model the gate chose, with its effects, written to the run folder (model.json)."""
+    from calibration.effects import describe
+    from rig.model.model_file import save_model
+    from rig.runs.model_results import provenance
+
+    return save_model(
+        rn.dir / "model.json", standard=written.standard, names=plain.names, slope=written.slope,
+        gravity=written.gravity, stribeck=written.stribeck,
+        gravity_source="given model" if given else "estimated",
+        validation={"other_motion": gate.doc["method"], "choice": gate.doc["choice"],
+                    "relative_error_plain": gate.doc["relative_error"]["plain"],
+                    "relative_error_written": gate.doc["relative_error"]["written"],
+                    "heldout_rms_plain": heldout["rms_plain"], "heldout_rms_written": heldout["rms_written"],
+                    "note": "plain: the model `rig identify` fits on the same training data (or the given "
+                            "model); written: this file; relative errors on the other motion"},
+        provenance_info=provenance(source, rn.dir, {"procedure": PROCEDURE}),
+        extra={"effects": written.effects, "effects_catalogue": describe()["version"],
+               "plain_model": str(plain.path),
+               "effects_note": "torques of the effects add to the rigid-body model: "
+                               "calibration.effects.effects_torque(effects, q, dq, tau_model)"})
 
 
 def _heldout_figures(gate, result, workflow_result: dict) -> dict:

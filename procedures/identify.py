@@ -208,13 +208,7 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
     table = validation_table(outcome, val)
     train_table = validation_table(outcome, train)
     sdp = outcome.fits["sdp"]
-    plots = {}
-    if parameters["plots"]:
-        for name, data, title in (("figure_5_2_training.png", train, "Training trajectory (Figure 5.2 style)"),
-                                  ("figure_5_3_validation.png", val, f"Validation: {val_source} (Figure 5.3 style)")):
-            preds = {m: predict(outcome, data, m) for m in ("ols", "wls", "sdp")}
-            plot_torques(data.t - data.t[0], data.tau, preds, run.dir / name, title)
-            plots[name] = str(run.dir / name)
+    plots = _torque_plots(run, outcome, train, val, val_source) if parameters["plots"] else {}
     gravity = {"vector": outcome.gravity.tolist(), "source": outcome.gravity_source}
     if "gravity_tilt_deg" in outcome.selection:
         gravity.update(tilt_deg=outcome.selection["gravity_tilt_deg"],
@@ -278,6 +272,22 @@ def _finish_fit(run, outcome: FitOutcome, train, val, val_source: str, source: s
         result["position_friction"] = profile
     if identified:
         result["effects_identified"] = identified
+    return _with_notes(result, source, extra)
+
+
+def _torque_plots(run, outcome, train, val, val_source: str) -> dict:
+    """Figures 5.2 and 5.3: measured and predicted torques on training and validation."""
+    plots = {}
+    for name, data, title in (("figure_5_2_training.png", train, "Training trajectory (Figure 5.2 style)"),
+                              ("figure_5_3_validation.png", val, f"Validation: {val_source} (Figure 5.3 style)")):
+        preds = {m: predict(outcome, data, m) for m in ("ols", "wls", "sdp")}
+        plot_torques(data.t - data.t[0], data.tau, preds, run.dir / name, title)
+        plots[name] = str(run.dir / name)
+    return plots
+
+
+def _with_notes(result: dict, source: str, extra: dict | None) -> dict:
+    """The published figures a CSV fit is compared with, and what the caller adds."""
     if source == "csv":
         result["published_7dof"] = {"sdp": list(PUBLISHED_7DOF),
                                     "note": "WPI package, 7-DOF model, a different unseen test trajectory of the "
@@ -374,7 +384,6 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
     """`rig identify` on the rig (or the simulated rig). Returns the result."""
     from calibration.datasets import processed
     from calibration.blas_threads import blas_threads
-    from calibration.excitation_design import check
     from rig.devices.factory import open_rig
     from rig.model.psm_kinematics import JointLimits
 
@@ -397,21 +406,9 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
             # The design is computed before the devices are opened: it takes seconds of CPU
             # that a connected driver would otherwise have to share.
             with run.step(STEPS_LIVE[0], total=parameters["starts"]) as st:
-                design = design_excitation(parameters, g_config, plant_of(cfg, arm_name),
-                                           progress=lambda k, n, c: (st.update(k), say(f"start {k}/{n}: cond {c:.1f}")))
-                say((f"found the design in the cache ({design['lookup_seconds']:.3f} s): " if design["cached"] else
-                     f"designed in {design['figures']['design_seconds']:.1f} s and cached: ") + design["path"])
+                design = _design(cfg, arm_name, parameters, g_config, limits, st, say)
                 traj, vtraj = design["excitation"], design["validation"]
                 margin, vmargin = design["margin"], design["validation_margin"]
-                say("margins kept from the limits, measured on the arm's simulated plant at "
-                    f"{margin.rate:g} Hz ({margin.safety:g} x its tracking, the {margin.stall:g} s stall test, the "
-                    f"sensors): position {_fmt3(margin.position)} rad, rad, m; velocity {_fmt3(margin.velocity)} "
-                    "rad/s, rad/s, m/s")
-                st.update(parameters["starts"])
-                for tr, m, what in ((traj, margin, "excitation"), (vtraj, vmargin, "validation")):
-                    problem = check(tr, m, limits.q_min, limits.q_max, limits.dq_max, cfg.rig["rate"], what)
-                    if problem:
-                        raise AbortRun(problem)
             dev = open_rig(cfg, [arm_name], seed=seed, uses=())
             clock = dev.clock
             # one arm moves alone: nothing may tie it to another (the object is taken off)
@@ -440,15 +437,7 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
                 outcome, more = _fit(train, gmode, smode, g_config, parameters, terms, say)
                 left_out = left_out + more
             with run.step(STEPS_LIVE[6]):
-                figures = {k: v for k, v in design["figures"].items() if k != "starts"}
-                extra = {**({"effects_left_out": left_out} if left_out else {}), "arm": arm_name,
-                         "excitation": {"cached": design["cached"], "cache_file": design["path"],
-                                        "lookup_seconds": design["lookup_seconds"], "trajectory": traj.to_dict(),
-                                        "margin": margin.to_dict(), "met": rec_x["met"], **figures},
-                         "validation_trajectory": vtraj.to_dict(), "validation_margin": vmargin.to_dict(),
-                         "validation_met": rec_v["met"], "rig_rate": clock.rate,
-                         "ticks_without_sample": {"excitation": rec_x["ticks_without_sample"],
-                                                  "validation": rec_v["ticks_without_sample"]}}
+                extra = _live_extra(design, rec_x, rec_v, left_out, arm_name, clock.rate)
                 if parameters["plots"]:
                     plot_trajectory(rec_x["t"] - rec_x["t"][0], rec_x["q"], rec_x["dq"], run.dir / "figure_5_1_excitation.png",
                                     f"Excitation trajectory as measured ({parameters['frequency']} Hz, "
@@ -471,6 +460,47 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
         if dev is not None:  # after the run's exit has held the arm
             dev.close()
     return run.result
+
+
+def _design(cfg, arm_name: str, parameters: dict, g_config, limits, st, say) -> dict:
+    """The excitation and validation trajectories with their margins, designed (or found in
+    the cache) and checked against every limit. The design is computed before the devices
+    are opened: it takes seconds of CPU that a connected driver would otherwise have to share."""
+    from calibration.excitation_design import check
+
+    design = design_excitation(parameters, g_config, plant_of(cfg, arm_name),
+                               progress=lambda k, n, c: (st.update(k), say(f"start {k}/{n}: cond {c:.1f}")))
+    say((f"found the design in the cache ({design['lookup_seconds']:.3f} s): " if design["cached"] else
+         f"designed in {design['figures']['design_seconds']:.1f} s and cached: ") + design["path"])
+    traj, vtraj = design["excitation"], design["validation"]
+    margin, vmargin = design["margin"], design["validation_margin"]
+    say("margins kept from the limits, measured on the arm's simulated plant at "
+        f"{margin.rate:g} Hz ({margin.safety:g} x its tracking, the {margin.stall:g} s stall test, the "
+        f"sensors): position {_fmt3(margin.position)} rad, rad, m; velocity {_fmt3(margin.velocity)} "
+        "rad/s, rad/s, m/s")
+    st.update(parameters["starts"])
+    for tr, m, what in ((traj, margin, "excitation"), (vtraj, vmargin, "validation")):
+        problem = check(tr, m, limits.q_min, limits.q_max, limits.dq_max, cfg.rig["rate"], what)
+        if problem:
+            raise AbortRun(problem)
+    return design
+
+
+def _live_extra(design: dict, rec_x: dict, rec_v: dict, left_out: list, arm_name: str, rate: float) -> dict:
+    """What a live identification adds to its result: the trajectories, their margins and
+    what the arm met."""
+    traj, vtraj = design["excitation"], design["validation"]
+    margin, vmargin = design["margin"], design["validation_margin"]
+    figures = {k: v for k, v in design["figures"].items() if k != "starts"}
+    extra = {**({"effects_left_out": left_out} if left_out else {}), "arm": arm_name,
+             "excitation": {"cached": design["cached"], "cache_file": design["path"],
+                            "lookup_seconds": design["lookup_seconds"], "trajectory": traj.to_dict(),
+                            "margin": margin.to_dict(), "met": rec_x["met"], **figures},
+             "validation_trajectory": vtraj.to_dict(), "validation_margin": vmargin.to_dict(),
+             "validation_met": rec_v["met"], "rig_rate": rate,
+             "ticks_without_sample": {"excitation": rec_x["ticks_without_sample"],
+                                      "validation": rec_v["ticks_without_sample"]}}
+    return extra
 
 
 def earlier_stick_slip(cfg, arm_name: str):

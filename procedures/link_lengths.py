@@ -283,6 +283,17 @@ def fit_link_lengths(q1: Capture, q2: Capture, q3: Capture, arm: str, bodies: di
               "z2_zR_deg": float(np.rad2deg(axis_angle(z2.direction, zR.direction))),
               "insertion_z1_deg": float(np.rad2deg(axis_angle(u_W, z1_in_2.direction))),
               "insertion_z2_deg": float(np.rad2deg(axis_angle(u_W, z2.direction)))}
+    fits = _fit_details(ax1, ax2, axR, z3, z4)
+    # plain-fit lengths too, for the two distances that use only fixed axes
+    plain = {"l4": axis_distance(ax2["fits"]["plain"], axR["fits"]["plain"], "plane")[0]}
+    return {"lengths": {k: {"value": v[0], "std": v[1]} for k, v in lengths.items()},
+            "lengths_plain_fit": plain, "dh": dh, "axes": axes, "angles": angles, "fits": fits,
+            "_W2": W2}
+
+
+def _fit_details(ax1: dict, ax2: dict, axR: dict, z3, z4) -> dict:
+    """Per axis: each fit's spread and residual, and the plain fit against the
+    bias-compensated one (fixed axes), or the SARA fit's (passive joints)."""
     fits = {}
     for key, ax in (("z1_yaw", ax1), ("z2_pitch", ax2), ("zR_rcm_pitch", axR)):
         fits[key] = {"body": ax["body"], "points": ax["source"]}
@@ -300,11 +311,7 @@ def fit_link_lengths(q1: Capture, q2: Capture, q3: Capture, arm: str, bodies: di
                      "point_std": f.point_std, "range_deg": float(np.rad2deg(f.range)),
                      "residual_rms": f.residual_rms, "singular_ratio": f.singular_ratio,
                      "frames": f.n_frames}
-    # plain-fit lengths too, for the two distances that use only fixed axes
-    plain = {"l4": axis_distance(ax2["fits"]["plain"], axR["fits"]["plain"], "plane")[0]}
-    return {"lengths": {k: {"value": v[0], "std": v[1]} for k, v in lengths.items()},
-            "lengths_plain_fit": plain, "dh": dh, "axes": axes, "angles": angles, "fits": fits,
-            "_W2": W2}
+    return fits
 
 
 def _relative(Wa: np.ndarray, Wb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -89,10 +89,15 @@ class ArmFault(DeviceFault):
     `reason` the arm's last error message, if it sent one.
     """
 
-    def __init__(self, text: str, topic: str, state: OperatingState | None = None, reason: str = ""):
+    def __init__(self, text: str, topic: str, state: OperatingState | None = None, reason: str = "",
+                 arm: str | None = None):
         self.topic = topic
-        self.state = state
+        self.operating_state = state
         self.reason = reason
+        self.arm = arm
+        # DeviceFault's structured field: the state's name ("FAULT", "DISABLED", "PAUSED",
+        # "ENABLED" when it was unhomed), None when no state came
+        self.state = None if state is None else state.state
         super().__init__(text)
 
 

@@ -916,7 +916,7 @@ class RosArm:
             text += f" ({seen})"
         if error:
             text += f"; its last error: {error}"
-        return ArmFault(text, self.topic["operating_state"], st, error)
+        return ArmFault(text, self.topic["operating_state"], st, error, arm=self.name)
 
     def _fault_raised(self, st: OperatingState) -> ArmFault:
         """The ArmFault for a run whose arm left ENABLED and homed (composed once)."""
@@ -934,7 +934,7 @@ class RosArm:
         text = (f"{self.topic['operating_state']}: {self.name} {what} during the run ({st.describe()})"
                 + (f": {error}" if error else "") + "; it no longer obeys commands. Check the arm at the dVRK "
                 "console (or `rig sim`), then re-run")
-        self._fault_error = ArmFault(text, self.topic["operating_state"], st, error)
+        self._fault_error = ArmFault(text, self.topic["operating_state"], st, error, arm=self.name)
         return self._fault_error
 
     # -- console ------------------------------------------------------------------------

@@ -84,10 +84,44 @@ class Arm(Protocol):
 
     def hold(self) -> None: ...
 
+    def power_on(self) -> None:
+        """Enable the drives (the arm holds where it is); an arm already on stays as it is."""
+        ...
+
+    def published_rate(self) -> float:
+        """Hz at which the arm publishes measured_js as its own clock stamps them; 0.0 when
+        every tick of the rig clock has a fresh sample (an in-process arm)."""
+        ...
+
+    @property
+    def supports_servo_ci(self) -> bool:
+        """Whether the arm runs a Cartesian impedance of its own (`ImpedanceArm`)."""
+        ...
+
+
+@runtime_checkable
+class ImpedanceArm(Arm, Protocol):
+    """An arm that closes a Cartesian impedance in its own servo loop (the dVRK's servo_ci);
+    an `Arm` whose `supports_servo_ci` is true has these too."""
+
+    def measured_arm(self) -> tuple[np.ndarray, np.ndarray]:
+        """The whole arm's newest measured positions and velocities, in the dVRK's order."""
+        ...
+
+    def servo_ci(self, position, orientation=None, stiffness=(0.0, 0.0, 0.0), damping=(0.0, 0.0, 0.0),
+                 bias=(0.0, 0.0, 0.0), **torque) -> None: ...
+
 
 @runtime_checkable
 class ForceSensor(Protocol):
     """A tension sensor between the tool tips."""
+
+    #: where it is connected (its port), "" for the simulated one
+    name: str
+
+    def stream_age(self) -> float:
+        """s since its driver last received a sample (the stream's own silence)."""
+        ...
 
     def read(self) -> ForceSample:
         """The newest sample; raises if the stream is stale or disconnected."""
@@ -113,6 +147,12 @@ class Tracker(Protocol):
     def latest(self) -> TrackerFrame: ...
 
     def close(self) -> None: ...
+
+    #: the rigid bodies it tracks, by name
+    bodies: tuple[str, ...] | list[str]
+
+    #: its counters (frames, incomplete, late, dropped, ...): lost frames are reported, never hidden
+    stats: object
 
 
 @runtime_checkable

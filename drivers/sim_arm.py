@@ -213,6 +213,15 @@ class SimArm:
         self.powered = True
         self.world.hold(self.name)
 
+    def published_rate(self) -> float:
+        """0.0: in process, every tick of the rig clock has a fresh sample (drivers.interfaces.Arm)."""
+        return 0.0
+
+    @property
+    def supports_servo_ci(self) -> bool:
+        """The in-process arm takes efforts and positions, not a Cartesian impedance."""
+        return False
+
     # -- console ----------------------------------------------------------------------
     def power_on(self) -> None:
         """Enable the drives: the arm holds where it is."""

@@ -166,7 +166,7 @@ def run_calibrate_rcm(cfg, parameters: dict, run_root=None, progress: bool = Tru
             dev.person.confirm("Mount a marker body on each tool and clear the workspace")
             results, fits, truths = {}, {}, {}
             for a in arms:
-                bodies = arm_bodies(a, getattr(dev.tracker, "bodies", ()))
+                bodies = arm_bodies(a, dev.tracker.bodies)
                 caps = measure_rcm_phases(dev, run, a, parameters, sorted(set(bodies.values())))
                 with run.step(f"{STEPS[4]} ({a})"):
                     res, fit = calibrate_arm(caps, a, bodies, parameters)

@@ -272,15 +272,15 @@ ARM_LOOP_MAX_RATE = 100.0
 def _pace_at_published_rate(rig, names, master) -> None:
     """The arm-impedance path's loop runs at the rate the arms publish, at most
     ARM_LOOP_MAX_RATE and [rig] rate: every tick has a fresh state of every arm
-    (rig.devices.clock.StreamClock); refuses, in one line, a slave whose arm cannot run servo_ci."""
+    (rig.devices.clock.StreamClock or SimTimeClock: ROS arms); refuses, in one line, a slave whose
+    arm cannot run servo_ci."""
     for n in names:
-        if n != master and not getattr(rig.arms[n], "supports_servo_ci", False):
+        if n != master and not rig.arms[n].supports_servo_ci:
             raise AbortRun(f"{n} cannot run servo_ci (crtk_msgs/CartesianImpedance not available); "
                            "use --slave-control effort")
-    rates = [rig.arms[n].published_rate() for n in names if hasattr(rig.arms[n], "published_rate")]
+    rates = [rig.arms[n].published_rate() for n in names]
     heard = min(r for r in rates if r > 0) if any(r > 0 for r in rates) else rig.clock.rate
-    if hasattr(rig.clock, "set_rate"):
-        rig.clock.set_rate(min(rig.clock.rate, ARM_LOOP_MAX_RATE, float(round(heard))), min_fraction=0.9)
+    rig.clock.set_rate(min(rig.clock.rate, ARM_LOOP_MAX_RATE, float(round(heard))), min_fraction=0.9)
 
 
 @dataclass
@@ -495,9 +495,7 @@ def _dry_run(run, rig, setup: Setup) -> dict:
 
 def _power_and_home(run, rig, setup: Setup) -> None:
     for n in setup.names:
-        arm = rig.arms[n]
-        if hasattr(arm, "power_on"):
-            arm.power_on()
+        rig.arms[n].power_on()
     if rig.world is None:
         # a real (or served) rig is wherever the last procedure left it: with the object
         # off, bring every arm to its configured start q0, where the object fits between

@@ -166,7 +166,7 @@ def check_stale_tension(sensors, age: float, timeout: float, loop_limit: float, 
     silent = max(s.stream_age() for s in sensors)
     if silent <= timeout and age <= loop_limit:
         return
-    cells = ", ".join(str(getattr(s, "name", None) or f"element {k}") for k, s in enumerate(sensors))
+    cells = ", ".join(str(s.name or f"element {k}") for k, s in enumerate(sensors))
     if silent > timeout:
         raise AbortRun(f"load cell stale: {silence_text(silent, rate, 'sample')}, beyond the stale timeout "
                        f"{1000 * timeout:.0f} ms ({setting}). " + starved_text(

@@ -301,9 +301,7 @@ def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = Tru
             arm = run.claim(dev.arms[arm_name])
             q_ref = np.array([0.0, 0.0, parameters["q3"]])
             with run.step(STEPS[0]):
-                power = getattr(arm, "power_on", None)
-                if power is not None:
-                    power()
+                arm.power_on()
                 move_to(arm, q_ref, "the ramps' start", timeout=15.0)
                 q_ref = np.array([0.0, 0.0, float(arm.measured_js().position[JOINT])])
             ramps = {}
@@ -331,9 +329,8 @@ def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = Tru
                                    f"{parameters['max_force']} N beyond the compensation: raise --max-force")
                 result = _result(run, cfg, arm_name, q_ref, ramps, sweeps, fits, plots, parameters, dyn, comp_info,
                                  prior)
-                world = getattr(dev, "world", None)
-                if world is not None:
-                    result["truth"] = simulated_truth(world, arm_name, dyn, ramps)
+                if dev.world is not None:
+                    result["truth"] = simulated_truth(dev.world, arm_name, dyn, ramps)
                 # a breakaway is a force against the motion: up for the positive ramp, down
                 # for the negative; anything else is a measurement that went wrong
                 missed = None if fs_pos > 0 > fs_neg else (

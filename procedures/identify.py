@@ -417,9 +417,7 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
                 raise AbortRun(f"the rig runs at {clock.rate:g} Hz, the margins were measured at {cfg.rig['rate']:g} Hz")
             arm = run.claim(dev.arms[arm_name])
             with run.step(STEPS_LIVE[1]):
-                power = getattr(arm, "power_on", None)
-                if power is not None:
-                    power()
+                arm.power_on()
                 reach_start(arm, traj.sample([0.0])[0][0], "excitation", say)
             n = int(round(parameters["duration"] * clock.rate)) + 1
             with run.step(STEPS_LIVE[2], total=n) as st:
@@ -452,9 +450,8 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
                                      provenance.live(cfg, [arm_name], run.dir), extra, stick_slip=stick)
                 if parameters["plots"]:
                     result["plots"]["figure_5_1_excitation.png"] = str(run.dir / "figure_5_1_excitation.png")
-                world = getattr(dev, "world", None)
-                if world is not None:
-                    result["truth"] = simulated_truth(world, arm_name, outcome, val)
+                if dev.world is not None:
+                    result["truth"] = simulated_truth(dev.world, arm_name, outcome, val)
                 run.finish(result, *missed_purpose(result))
     finally:
         if dev is not None:  # after the run's exit has held the arm

@@ -202,8 +202,7 @@ DELAY_WINDOW = 0.5
 
 def _stream_period(arm) -> float:
     """s between the arm's measured_js messages as it publishes them (0 when it does not say)."""
-    rate = getattr(arm, "published_rate", None)
-    r = rate() if callable(rate) else 0.0
+    r = arm.published_rate()
     return 1.0 / r if r > 0 else 0.0
 
 

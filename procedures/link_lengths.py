@@ -563,10 +563,7 @@ def run_link_lengths(cfg, parameters: dict, run_root=None, progress: bool = True
                 dev.person.confirm(f"Mount the marker bodies {', '.join(all_bodies)} and clear the "
                                    f"workspace of {arm_name}")
                 dev.person.detach_object()
-                for fn in ("power_on",):
-                    f = getattr(arm, fn, None)
-                    if f is not None:
-                        f()
+                arm.power_on()
                 home = Collector("home", all_bodies)
                 move_capture(dev, run, arm, [np.array([0.0, 0.0, q3h])], home)
             phases = {}

@@ -251,10 +251,9 @@ class Devices:
 def tracker_stats(tracker) -> dict:
     """The tracker's counters (frames, incomplete, late, dropped...; drivers.mocap.MocapStats)
     for a run's result: frames lost on the way are reported, never hidden (docs/recordings.md)."""
-    st = getattr(tracker, "stats", None)
-    if st is None:
+    if tracker is None:
         return {}
-    return {k: v for k, v in vars(st).items() if isinstance(v, (int, float, dict))}
+    return {k: v for k, v in vars(tracker.stats).items() if isinstance(v, (int, float, dict))}
 
 
 def open_devices(cfg, seed: int | None = None, arms: list[str] | None = None) -> Devices:

@@ -122,7 +122,7 @@ def rcm_frames_from_calibration(cfg, dev, run, arms: list[str], parameters: dict
     frames = {}
     with run.step(STEPS[1]):
         for a in arms:
-            bodies = arm_bodies(a, getattr(dev.tracker, "bodies", ()))
+            bodies = arm_bodies(a, dev.tracker.bodies)
             caps = measure_rcm_phases(dev, run, a, p, sorted(set(bodies.values())))
             res, _ = calibrate_arm(caps, a, bodies, p)
             frames[a] = np.array(res["rcm_frame"])

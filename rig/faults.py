@@ -18,7 +18,19 @@ import math
 
 
 class DeviceFault(RuntimeError):
-    """A device fault; str(fault) is one line for a person (device, what happened, what to check)."""
+    """A device fault; str(fault) is one line for a person (device, what happened, what to check).
+
+    `fields()`: the same fault for a program (the run engine records it in the run's stop
+    record and result, `rig runs RUN` reads it): `arm`, its operating `state`, the `joint`
+    (1-3) and the `limit` it concerns, where the fault knows them."""
+
+    arm: str | None = None
+    state: str | None = None
+    joint: int | None = None
+    limit: str | None = None
+
+    def fields(self) -> dict:
+        return {k: getattr(self, k) for k in ("arm", "state", "joint", "limit") if getattr(self, k) is not None}
 
 
 def rate_of(times) -> float:

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shutil
 import sys
 import textwrap
@@ -19,6 +18,7 @@ import click
 from rig.commands.exit_codes import InputError
 from rig.runs import run_owner
 from rig.runs.paths import procedure_of, run_dirs, run_time, runs_root
+from rig.runs.recorded_run import find_run
 from rig.runs.recording import decode_metadata
 from rig.sealed_json import result_json
 
@@ -358,21 +358,6 @@ def _statuses(ctx, param, values: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(dict.fromkeys(out))
 
 
-def find_run(run: str) -> Path:
-    """A run folder from its path (or the path of its result.json or run.mcap) or its name
-    under runs_root(), like `rig export` and `rig discrepancy` take it."""
-    for c in (Path(run), runs_root() / run):
-        if c.is_file() and c.name in ("result.json", "run.mcap"):
-            c = c.parent
-        if c.is_dir():
-            if not ((c / "result.json").exists() or (c / "run.mcap").exists()):
-                raise InputError(f"{c} is not a run folder (no result.json or run.mcap); "
-                                           f"'rig runs' lists the runs under {runs_root()}")
-            return c.resolve()
-    raise InputError(f"no run '{run}' under {runs_root()}, and no such folder; "
-                               f"'rig runs' lists the runs")
-
-
 def _flatten(value, prefix: str = "") -> list[tuple[str, str]]:
     """Nested dicts and lists of dicts as (`a.b[0].c`, shown value) pairs; a list of plain
     values stays one value."""
@@ -427,7 +412,7 @@ def run_detail(run_dir: Path) -> dict:
                    "steps": stop.get("steps") or {}}
     held, hold_errors = _holds(result.get("held") or stop.get("held") or [],
                                result.get("hold_errors") or stop.get("hold_errors") or [],
-                               result.get("error") or stop.get("error") or "")
+                               result.get("fault") or stop.get("fault"))
     info.update({
         "result_file": str(result_file) if result_file.exists() else None,
         "timings": timings,
@@ -444,26 +429,24 @@ def run_detail(run_dir: Path) -> dict:
     return info
 
 
-#: how an ArmFault names an arm that stopped obeying (drivers.dvrk_arm): "PSM1 went to FAULT"
-_DISOBEYED = re.compile(r"\b(?P<arm>[A-Za-z]\w*) (?P<what>went to FAULT|was disabled|was paused|is FAULT|is DISABLED"
-                        r"|is PAUSED)")
+#: an arm's operating states in which it obeys no command (drivers.crtk.OperatingState)
+_DISOBEYING = ("FAULT", "DISABLED", "PAUSED")
 
 
-def _holds(held: list, hold_errors: list, error: str) -> tuple[list[str], list[dict]]:
+def _holds(held: list, hold_errors: list, fault: dict | None) -> tuple[list[str], list[dict]]:
     """(arms held, arms not held) of a run. The run engine records an arm that obeys no
-    command (FAULT, DISABLED, PAUSED) among the hold errors with its state; a run recorded
-    before it did lists such an arm as held: the run's error names it (an ArmFault line),
-    and it is moved to the errors here."""
+    command (FAULT, DISABLED, PAUSED) among the hold errors with its state; where the
+    fault that ended the run (its structured fields: arm, state) names an arm that obeyed
+    no command and the run still lists it as held, it is moved to the errors here."""
     held = [str(a) for a in held]
     errors = [e if isinstance(e, dict) else {"arm": "", "error": str(e)} for e in hold_errors]
-    for m in _DISOBEYED.finditer(error or ""):
-        arm = m.group("arm")
-        if arm in held:
-            held.remove(arm)
-            what = m.group("what")
-            errors.append({"arm": arm, "state": what.split()[-1],
-                           "error": f"{arm} {what} (the run's error): it obeyed no command, the hold included "
-                                    "(recorded as held by an older rig)"})
+    fault = fault if isinstance(fault, dict) else {}
+    arm, state = fault.get("arm"), fault.get("state")
+    if arm in held and state in _DISOBEYING:
+        held.remove(arm)
+        errors.append({"arm": arm, "state": state,
+                       "error": f"{arm} is {state} (the fault that ended the run): it obeyed no command, the hold "
+                                "included"})
     return held, errors
 
 

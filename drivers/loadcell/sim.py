@@ -38,6 +38,7 @@ class SimForceSensor:
         self.world = world
         self.clock = clock
         self.element = element
+        self.name = ""   # no port: a line about it names its element
         self.model = LoadCellDeviceModel(lambda: world.tension(element), clock.now, noise=noise,
                                          drift=drift, rate_hz=int(round(rate)), seed=seed)
         self.model.streaming = True

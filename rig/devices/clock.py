@@ -24,6 +24,8 @@ class Clock(Protocol):
     """The rig's time line."""
 
     rate: float  # Hz, one tick per period
+    overruns: int  # ticks that came late (0 on the simulated rig's clock: it is never late)
+    skipped: int   # periods skipped to catch up (0 on the simulated rig's clock)
 
     def now(self) -> float:
         """Seconds on this clock."""
@@ -36,6 +38,14 @@ class Clock(Protocol):
     def add_listener(self, fn: Listener) -> None:
         """Call `fn(now)` after every tick (fakes emit their samples from here)."""
         ...
+
+
+@runtime_checkable
+class PacedClock(Clock, Protocol):
+    """A clock that waits on its sources (the ROS arms' streams, or the world's /clock): a
+    loop slower than [rig] rate can pace it (StreamClock, SimTimeClock)."""
+
+    def set_rate(self, rate: float, min_fraction: float | None = None) -> None: ...
 
 
 class _Listeners:
@@ -108,6 +118,8 @@ class SimClock(_Listeners):
         self.world = world
         self.rate = 1.0 / world.dt
         self.period = world.dt
+        self.overruns = 0   # a tick is the physics step: never late, nothing skipped
+        self.skipped = 0
 
     def now(self) -> float:
         return self.world.t

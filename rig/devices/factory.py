@@ -23,28 +23,35 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING
 
+from drivers.interfaces import Arm, ForceSensor, Operator, Tracker
 from rig.config import ConfigError
-from rig.devices.clock import SimClock, SimTimeClock, StreamClock
+from rig.devices.clock import Clock, SimClock, SimTimeClock, StreamClock
 from rig.faults import DeviceFault
+
+if TYPE_CHECKING:  # imported where a rig is opened: ROS and the world load only when used
+    from drivers.ros_session import RosSession
+    from rig.sim.world import SimWorld
 
 
 @dataclass
 class Rig:
-    """What a procedure drives. `world` is the simulated world (None on the real rig)."""
+    """What a procedure drives, each device by its interface (drivers.interfaces): a procedure
+    calls what the interface promises and probes for nothing. `world` is the simulated
+    world (None on the real rig): a procedure reads it for the simulated truth only."""
 
-    clock: Any
-    arms: dict[str, Any]
-    force: Any | None = None
+    clock: Clock
+    arms: dict[str, Arm]
+    force: ForceSensor | None = None
     # One force sensor per object element, in the world's element order. The simulated rig
     # puts a load cell on every element (three arms hold a triangle); a real rig has the
     # one configured load cell, on element `loadcell.element`.
-    forces: dict = field(default_factory=dict)
-    tracker: Any | None = None
-    world: Any | None = None
-    session: Any | None = None  # the RosSession of ROS arms
-    operator: Any | None = None  # who does the manual steps (drivers.operator)
+    forces: dict[int, ForceSensor] = field(default_factory=dict)
+    tracker: Tracker | None = None
+    world: SimWorld | None = None
+    session: RosSession | None = None  # the RosSession of ROS arms
+    operator: Operator | None = None  # who does the manual steps (drivers.operator)
     _closers: list = field(default_factory=list, repr=False)
 
     @property

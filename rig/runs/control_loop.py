@@ -120,8 +120,8 @@ class ControlLoop:
         self.tick_t: list[float] = []
         self.compute_us: list[float] = []
         self.newest_force_t: list[float | None] = [None] * len(self.sensors)
-        self._overruns0 = getattr(clock, "overruns", 0)
-        self._skipped0 = getattr(clock, "skipped", 0)
+        self._overruns0 = clock.overruns
+        self._skipped0 = clock.skipped
 
     @property
     def recorder(self):
@@ -240,8 +240,8 @@ class ControlLoop:
         """The raw figures of the ticks done: times (s), compute (us), the clock's overruns
         and skipped periods since the loop was made, and the arms' clock (ArmClockWatch)."""
         return {"t": np.asarray(self.tick_t), "compute_us": np.asarray(self.compute_us),
-                "overruns": getattr(self.clock, "overruns", 0) - self._overruns0,
-                "skipped": getattr(self.clock, "skipped", 0) - self._skipped0,
+                "overruns": self.clock.overruns - self._overruns0,
+                "skipped": self.clock.skipped - self._skipped0,
                 "repeated_js": self.watch.repeated, "arm_clock_jumps": self.watch.jumps,
                 "arm_clock_jump_max": self.watch.jump_max,
                 "sample_age_ms": np.asarray(self.watch.ages_ms[:len(self.tick_t)])}

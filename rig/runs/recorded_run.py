@@ -17,18 +17,28 @@ class ExportError(InputError):
     pass
 
 
-def resolve_run(run: str) -> Path:
-    """A run folder from a path or a folder name under runs_root()."""
-    candidates = [Path(run), runs_root() / run]
-    for c in candidates:
+def find_run(run: str, needs: str | None = None) -> Path:
+    """The one rule by which every command takes a run: a run folder from its path (or the
+    path of its result.json or run.mcap) or its name under runs_root(). `needs`: the file
+    the caller reads ("run.mcap"); a run folder without it is refused. Raises ExportError
+    (an InputError: exit 5) with one line naming the run and `rig runs`."""
+    for c in (Path(run), runs_root() / run):
+        if c.is_file() and c.name in ("result.json", "run.mcap"):
+            c = c.parent
         if c.is_dir():
-            if not (c / "run.mcap").exists():
-                raise ExportError(f"{c} has no run.mcap: is it a run folder?")
-            return c
-        if c.is_file() and c.suffix == ".mcap":
-            return c.parent
-    raise ExportError(f"no run '{run}': not a folder, and not a run under {runs_root()} "
-                      f"(list them with 'rig runs')")
+            if not ((c / "result.json").exists() or (c / "run.mcap").exists()):
+                raise ExportError(f"{c} is not a run folder (no result.json or run.mcap); "
+                                  f"'rig runs' lists the runs under {runs_root()}")
+            if needs is not None and not (c / needs).exists():
+                raise ExportError(f"{c} has no {needs} (the run's recording): 'rig runs' lists the runs that have "
+                                  "one")
+            return c.resolve()
+    raise ExportError(f"no run '{run}' under {runs_root()}, and no such folder; 'rig runs' lists the runs")
+
+
+def resolve_run(run: str) -> Path:
+    """A run folder with its recording (find_run, needing run.mcap)."""
+    return find_run(run, needs="run.mcap")
 
 
 def read_run(run_dir: Path, topics=None) -> Recording:

@@ -50,14 +50,21 @@ DECLARED_STATUSES = ("completed", "failed", "dry-run")
 class AbortRun(Exception):
     """Stop the run safely: a limit was hit, a sensor went stale, the user asked.
 
-    `reason` is one line for a person ("joint 2 velocity 1.9 rad/s above limit 1.5").
+    `reason` is one line for a person ("joint 2 velocity 1.9 rad/s above limit 1.5");
+    `arm`, `joint` (1-3) and `limit` (which limit: "velocity", "effort", "tension", ...) the
+    same for a program, where the check knows them (`fields()`, as rig.faults.DeviceFault's).
     The run engine sets `run_dir` when the exception leaves a Run.
     """
 
-    def __init__(self, reason: str):
+    def __init__(self, reason: str, *, arm: str | None = None, joint: int | None = None, limit: str | None = None):
         super().__init__(reason)
         self.reason = reason
+        self.arm, self.joint, self.limit = arm, joint, limit
+        self.state = None
         self.run_dir: Path | None = None
+
+    def fields(self) -> dict:
+        return {k: getattr(self, k) for k in ("arm", "state", "joint", "limit") if getattr(self, k) is not None}
 
 
 class Step:
@@ -251,6 +258,9 @@ class Run:
         stop_extra = {"held": held, "hold_errors": hold_errors, "steps": self._step_times}
         if stopped_in:
             stop_extra["step"] = stopped_in
+        fault = fault_fields(exc)
+        if fault:
+            stop_extra["fault"] = fault
         recorder_error = None
         try:
             self.recorder.close(status, reason, extra=stop_extra)
@@ -273,6 +283,8 @@ class Run:
             doc["error"] = reason
             if stopped_in:
                 doc["step"] = stopped_in
+            if fault:
+                doc["fault"] = fault
         tick = self._loop_timing()
         if tick:
             doc.setdefault("loop_tick", tick)
@@ -460,6 +472,12 @@ def _disobeying_state(arm) -> str | None:
         return None
     describe = getattr(st, "describe", None)
     return describe() if callable(describe) else str(getattr(st, "state", st))
+
+
+def fault_fields(exc: BaseException | None) -> dict:
+    """What ended a run, for a program: the arm, its state, the joint and the limit (an
+    AbortRun's or a DeviceFault's `fields()`); {} for anything else."""
+    return exc.fields() if isinstance(exc, (AbortRun, DeviceFault)) else {}
 
 
 def classify(exc: BaseException | None) -> tuple[str, str | None]:

@@ -36,13 +36,13 @@ class SafetyLimits:
             what = "measured effort" if measured else "commanded effort"
             unit = "N" if j == 2 else "N m"  # joint 3 is the insertion (prismatic)
             raise AbortRun(f"{name}: joint {j + 1} {what} {effort[j]:+.2f} {unit}, beyond its limit "
-                           f"+/-{ceiling[j]:.2f} {unit}")
+                           f"+/-{ceiling[j]:.2f} {unit}", arm=name, joint=j + 1, limit=what)
 
     def check_arm(self, name: str, q: np.ndarray, dq: np.ndarray, effort: np.ndarray | None,
                   tip_world: np.ndarray) -> None:
         problem = self.joints.violation(q, dq / self.velocity_margin if self.velocity_margin else dq)
         if problem:
-            raise AbortRun(f"{name}: {problem}")
+            raise AbortRun(f"{name}: {problem}", arm=name, limit="joint")
         if effort is not None:
             self.check_effort(name, effort, measured=True)
         out = (tip_world < self.workspace_min) | (tip_world > self.workspace_max)
@@ -50,11 +50,12 @@ class SafetyLimits:
             axis = "xyz"[int(np.argmax(out))]
             raise AbortRun(f"{name}: tool tip {axis} = {tip_world['xyz'.index(axis)]:.3f} m outside the "
                            f"workspace box [{self.workspace_min['xyz'.index(axis)]:.3f}, "
-                           f"{self.workspace_max['xyz'.index(axis)]:.3f}] m")
+                           f"{self.workspace_max['xyz'.index(axis)]:.3f}] m", arm=name, limit="workspace")
 
     def check_tension(self, tension: float) -> None:
         if tension > self.tension_ceiling:
-            raise AbortRun(f"tension {tension:.2f} N above the ceiling {self.tension_ceiling:.2f} N")
+            raise AbortRun(f"tension {tension:.2f} N above the ceiling {self.tension_ceiling:.2f} N",
+                           limit="tension")
 
     def plan_violation(self, name: str, q_path: np.ndarray, dq_path: np.ndarray,
                        tips_world: np.ndarray) -> str | None:

@@ -213,14 +213,34 @@ def test_an_arm_is_asked_its_state_before_it_is_listed_held(monkeypatch, tmp_pat
     assert [e["arm"] for e in saved["hold_errors"]] == ["PSM1"] and saved["hold_errors"][0]["state"] == "FAULT, homed"
 
 
-def test_a_run_recorded_before_says_the_faulted_arm_was_not_held(monkeypatch, tmp_path):
-    """The run engine used to list an arm in FAULT as held; its error names the fault."""
+def test_a_run_whose_fault_names_an_arm_in_fault_does_not_call_it_held(monkeypatch, tmp_path):
+    """The fault that ended a run is recorded with its fields (arm, state): an arm it names
+    in FAULT is not listed held, whatever the list says."""
     run = tmp_path / "logs" / "20261126T120000000000Z-friction-ramp"
     run.mkdir(parents=True)
     (run / "result.json").write_text(json.dumps({
-        "status": "aborted", "held": ["PSM1"],
+        "status": "aborted", "held": ["PSM1"], "fault": {"arm": "PSM1", "state": "FAULT"},
         "error": "/PSM1/operating_state: PSM1 went to FAULT during the run (FAULT, homed): PSM1: joint 1 at "
                  "1.62 rad, past its limit; it no longer obeys commands"}))
     detail = [" ".join(line.split()) for line in _rig("runs", run.name).stdout.splitlines()]
     assert not any(line.startswith("arms held") for line in detail), detail
-    assert any(line.startswith("not held PSM1 went to FAULT") for line in detail), detail
+    assert any(line.startswith("not held PSM1 is FAULT") for line in detail), detail
+
+
+def test_a_run_records_the_fields_of_the_fault_that_ended_it(monkeypatch, tmp_path):
+    from drivers.crtk import ArmFault, OperatingState
+    from rig.runs.safety import SafetyLimits
+    import numpy as np
+
+    with pytest.raises(AbortRun):
+        with Run("cooperative", progress=False) as run:
+            SafetyLimits().check_effort("PSM2", np.array([0.0, 9.0, 0.0]))
+    saved = json.loads((run.dir / "result.json").read_text())
+    assert saved["fault"] == {"arm": "PSM2", "joint": 2, "limit": "commanded effort"}
+    fault = ArmFault("PSM1 went to FAULT", "/PSM1/operating_state",
+                     OperatingState(t=0.0, state="FAULT", is_homed=True, is_busy=False), arm="PSM1")
+    with pytest.raises(ArmFault):
+        with Run("cooperative", progress=False) as run:
+            raise fault
+    saved = json.loads((run.dir / "result.json").read_text())
+    assert saved["fault"] == {"arm": "PSM1", "state": "FAULT"}

@@ -17,6 +17,7 @@ from rig.runs.safety import SafetyLimits
 
 class Clock:
     rate = 100.0
+    overruns = skipped = 0
 
     def __init__(self):
         self.k = 0

@@ -62,7 +62,7 @@ def _model_file(directory: Path, name: str, standard, names, slope, gravity, str
 def _plain(rec, directory: Path, name: str):
     """`rig identify --csv`'s model of the training block of ``rec`` (a model file) and its gravity."""
     from calibration.discrepancy.settings import Settings
-    from calibration.generalisation import plain_fit, plain_training_block
+    from calibration.plain_model import plain_fit, plain_training_block
 
     train = plain_training_block(rec.q, rec.dq, rec.tau, rec.rate, Settings().heldout)
     out = plain_fit(train)
@@ -114,7 +114,8 @@ def _run_case(args):
     from calibration.base_params import base_parameters_of
     from calibration.discrepancy.settings import Settings
     from calibration.discrepancy.workflow import run_workflow
-    from calibration.generalisation import EffectGate, Motion, plain_training_block, workflow_model
+    from calibration.generalisation import EffectGate, Motion
+    from calibration.plain_model import plain_training_block, workflow_model
     from calibration.hidden_effects import HiddenCase, generate
     from calibration.prediction import extra_effort, standard_parameters
     from procedures.discrepancy import estimate_gravity
@@ -199,7 +200,7 @@ def _identified_with_effects(written, q, dq, tau, rate: float, breaks, tmp: Path
     from dataclasses import replace
 
     from calibration.discrepancy.settings import Settings
-    from calibration.generalisation import plain_training_block
+    from calibration.plain_model import plain_training_block
     from calibration.identification import DEADBAND, effect_terms, fit_identification, fit_with_effects
 
     terms, _ = effect_terms(written.effects, name)

@@ -57,6 +57,8 @@ import numpy as np
 from calibration.discrepancy.settings import DiscrepancyError, Settings
 from calibration.discrepancy.workflow import Discrepancy
 from calibration.effects import CATALOGUE, payload_standard_delta
+from calibration.effect_reidentification import identified_choice, identified_with
+from calibration.plain_model import _relative
 from calibration.signals import settling_samples
 
 #: An effect stays only if removing it makes its joint's relative error on other motion
@@ -95,31 +97,6 @@ class GateResult:
     doc: dict = field(default_factory=dict)
     refit_joints: list = field(default_factory=list)   # 1-based: friction refitted without an effect
     model: object = None   # the workflow's model when it was chosen (see EffectGate.run)
-
-
-def plain_training_block(q, dq, tau, rate: float, heldout: float, breaks=(), source: str = "the data"):
-    """The training block as `rig identify --csv` takes it, processed with its filter: the
-    first 1 - ``heldout`` of the record less a guard of one settling length (several pieces:
-    each filtered on its own, the first share of their samples)."""
-    from calibration.datasets import JointData, processed, split_blocks
-    from calibration.identification import CUTOFF_HZ, FILTER_ORDER
-
-    data = JointData(np.arange(len(q)) / rate, np.asarray(q, float), np.asarray(dq, float),
-                     np.asarray(tau, float), rate, source)
-    if len(breaks):
-        from calibration.datasets import pieces_training_block
-
-        return pieces_training_block(data, breaks, CUTOFF_HZ, FILTER_ORDER, heldout)
-    train_all, _ = split_blocks(processed(data, CUTOFF_HZ, FILTER_ORDER), heldout)
-    guard = min(settling_samples(rate, CUTOFF_HZ, FILTER_ORDER), train_all.n_samples // 4)
-    return train_all.rows(slice(0, train_all.n_samples - guard), f"minus a {guard}-sample guard")
-
-
-def plain_fit(train):
-    """`rig identify --csv`'s fit at its defaults on processed training data: a FitOutcome."""
-    from calibration.identification import DEADBAND, fit_identification
-
-    return fit_identification(train, "auto", "auto", deadband=DEADBAND, parallel=True, stribeck=True)
 
 
 class EffectGate:
@@ -371,53 +348,9 @@ class EffectGate:
 
     # -- the rigid body identified again with the effects ---------------------------------------
     def identified_with(self, subset):
-        """The plain model identified again on its training block with ``subset``'s effects in
-        the regressor (`calibration.identification.fit_identification(effects=...)`): the
-        gravity direction, friction slope, Stribeck velocity and rigid body chosen with the
-        effects' columns beside them, the effects' amplitudes fitted with them (at the
-        workflow's non-linear parameters). A plain model fitted without an effect has taken up
-        what it could of it everywhere: an unmodelled spring on the insertion joint tilted
-        the chosen gravity by 26 degrees on the simulated rig and left joints 1-2 predicted 4-8
-        times worse than without the spring; fitted together, every joint came back to its
-        floor. A delay's column is built from the plain model's torque; a play, which needs
-        the model's mass matrix too, is carried with the parameters fitted on top of the plain
-        model; effects that are terms of the rigid body (an offset, a payload) are taken up
-        by it. A stiction effect on joint 3 replaces the Stribeck column. Returns (model file in memory, the effects it carries, reasons of
-        the effects whose amplitudes left the catalogue's range) or None when no effect of
-        ``subset`` can be identified this way (or its columns and the rigid body's are not
-        separable on the training motion). Cached."""
-        from calibration.base_params import RankDeficientError
-        from calibration.identification import DEADBAND, STRIBECK_JOINT, EffectTerm, fit_identification
-
-        key = ("identified",) + self._key(subset)
-        if key in self._cache:
-            return self._cache[key]
-        torque = self._plain_torque()
-        terms = [EffectTerm(a.effect, a.joint, a.grid, tuple(bool(x) for x in a.free), torque) for a in subset
-                 if EffectTerm.identifiable(a.effect, with_model_torque=True)]
-        out = None
-        if terms:
-            stribeck = not any(t.effect == "stiction" and t.joint - 1 == STRIBECK_JOINT for t in terms)
-            try:
-                fit = fit_identification(self.training, "auto", "auto", deadband=DEADBAND, parallel=True,
-                                         stribeck=stribeck, effects=terms)
-            except RankDeficientError:
-                # an effect's columns and the rigid body's are not separable on this motion
-                self._cache[key] = None
-                return None
-            entries = fit.effect_entries("identified with the rigid body (rig discrepancy)")
-            implausible = [f"{e['name']}@{e['joint']}: {why}" for e in entries
-                           if (why := CATALOGUE[e["name"]].sanity(e["params"], e["joint"])) is not None]
-            carried = [a for a in subset if not EffectTerm.identifiable(a.effect, with_model_torque=True)
-                       and not CATALOGUE[a.effect].in_rigid_body_model and a.effect != "payload"]
-            on_top = self.fit(subset)["entries"]
-            entries += [e for a, e in zip(subset, on_top) if any(a is c for c in carried)]
-            sdp = fit.fits["sdp"]
-            out = (_model_in_memory(self.plain, sdp.pi, fit.slope, fit.gravity, fit.stribeck(), entries),
-                   [a for a in subset if EffectTerm.identifiable(a.effect, with_model_torque=True)] + carried,
-                   implausible)
-        self._cache[key] = out
-        return out
+        """The plain model identified again with ``subset``'s effects in the regressor
+        (calibration.effect_reidentification.identified_with). Cached."""
+        return identified_with(self, subset)
 
     def _plain_torque(self):
         """``(q, dq, ddq) -> (n, 3)``: the plain model's rigid-body and friction effort (the
@@ -431,39 +364,8 @@ class EffectGate:
         return torque
 
     def _identified_choice(self, kept, dropped, plain, written):
-        """The best of the plain model identified again with ``kept``, and with ``kept`` and
-        the identifiable effects ``dropped`` as not confirmed, on the other motions: written
-        when it predicts every joint no worse than the plain model and the whole at least
-        CONFIRM_GAIN better than ``written`` (a larger set only when at least CONFIRM_GAIN
-        better than the smaller). Returns (model, effects, relative errors, tried) or None."""
-        from calibration.identification import EffectTerm
-
-        sets = [list(kept)]
-        extra = [a for a in dropped if EffectTerm.identifiable(a.effect, with_model_torque=True)
-                 and not any(a is k for k in kept)]
-        if extra:
-            sets.append(list(kept) + extra)
-        best, tried = None, []
-        for subset in sets:
-            got = self.identified_with(subset)
-            if got is None:
-                continue
-            model, effects, implausible = got
-            if implausible:
-                # an amplitude out of range: those effects out, the others identified again
-                bad = {x.split(":")[0] for x in implausible}
-                subset = [a for a in subset if f"{a.effect}@{a.joint}" not in bad]
-                got = self.identified_with(subset)
-                if got is None or got[2]:
-                    tried.append({"effects": [f"{a.effect}@{a.joint}" for a in effects], "implausible": implausible})
-                    continue
-                model, effects, _ = got
-            rel = np.mean([_relative(model, m, self.settings) for m in self.motions], axis=0)
-            tried.append({"effects": [f"{a.effect}@{a.joint}" for a in effects], "relative_error": rel.tolist()})
-            ok = np.all(rel <= plain) and rel.sum() < (1.0 - CONFIRM_GAIN) * written.sum()
-            if ok and (best is None or rel.sum() < (1.0 - CONFIRM_GAIN) * best[2].sum()):
-                best = (model, effects, rel)
-        return None if best is None else best + (tried,), tried
+        """calibration.effect_reidentification.identified_choice."""
+        return identified_choice(self, kept, dropped, plain, written)
 
     # -- the gate ------------------------------------------------------------------------------
     def run(self) -> GateResult:
@@ -653,46 +555,6 @@ class EffectGate:
 
 IDENTIFIED_CHOICE = ("the plain model identified again with the confirmed effects (gravity, friction slope, "
                      "Stribeck velocity and rigid body chosen with the effects' columns in the regressor)")
-
-
-def _model_in_memory(plain, standard, slope: float, gravity, stribeck, effects):
-    """A model file (in memory, on ``plain``'s path and provenance) with these standard
-    parameters (82,), smooth-sign slope, gravity (3,), Stribeck term ({"Fst", "vs"} or None)
-    and effects entries, laid out as `rig.model.model_file.save_model` writes it."""
-    import tempfile
-    from pathlib import Path
-
-    from rig.model.model_file import load_model, save_model
-
-    with tempfile.TemporaryDirectory() as tmp:
-        m = load_model(save_model(Path(tmp) / "model.json", standard=standard, names=plain.names, slope=slope,
-                                  gravity=gravity, stribeck=stribeck, gravity_source="estimated",
-                                  provenance_info=plain.document.get("provenance", {}),
-                                  extra={"effects": list(effects)}))
-    return replace(m, path=plain.path)
-
-
-def _relative(model, motion: Motion, settings: Settings) -> np.ndarray:
-    from calibration.prediction import predict
-
-    return np.asarray(predict(model, motion.q, motion.dq, motion.tau, motion.rate, settings,
-                              motion.source).figures("all")["relative_error"], float)
-
-
-def workflow_model(plain, workflow, result: dict):
-    """The workflow's own model (its rigid body fitted again with its effects, physically
-    consistent: `Discrepancy.augmented`) as a model file in memory, on ``plain``'s
-    document: with an identified baseline its smooth-sign slope and no Stribeck excess (the
-    workflow's baseline has none); with a given one, the given model's terms and effects."""
-    pi, entries = workflow.augmented(result)
-    doc = copy.deepcopy(plain.document)
-    doc["standard_parameters"] = dict(doc.get("standard_parameters", {}), values=np.asarray(pi).tolist())
-    if workflow.mode == "identified":
-        doc["friction"] = {"slope": float(workflow.slope)}
-        doc["effects"] = entries
-        return replace(plain, standard=np.asarray(pi, float), slope=float(workflow.slope), document=doc)
-    doc["effects"] = list(plain.effects) + entries
-    return replace(plain, standard=np.asarray(pi, float), document=doc)
 
 
 def _term_name(term) -> str:

@@ -109,7 +109,7 @@ def identify_plain(q, dq, tau, rate: float, settings, source: str = "the data", 
     that block, when the caller has it already (`calibration.generalisation.plain_training_block`)."""
     from calibration.base_params import RankDeficientError
     from calibration.discrepancy.settings import DiscrepancyError
-    from calibration.generalisation import plain_fit, plain_training_block
+    from calibration.plain_model import plain_fit, plain_training_block
 
     if train is None:
         train = plain_training_block(q, dq, tau, rate, settings.heldout, breaks,
@@ -401,7 +401,8 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
     from calibration.base_params import base_parameters_of
     from calibration.discrepancy.settings import Settings
     from calibration.discrepancy.workflow import run_workflow
-    from calibration.generalisation import EffectGate, plain_training_block, workflow_model
+    from calibration.generalisation import EffectGate
+    from calibration.plain_model import plain_training_block, workflow_model
     from calibration.prediction import extra_effort, standard_parameters
     from rig.model.model_file import load_model, save_model
     from rig.runs.model_results import provenance

@@ -78,8 +78,8 @@ import numpy as np
 
 from calibration.datasets import load_timed_csv
 from calibration.identification import (CUTOFF_HZ, DEADBAND, FILTER_ORDER, FitOutcome, fit_identification,
-                                        fit_with_effects, predict,
-                                        validation_table)
+                                        fit_with_effects)
+from calibration.identification_validation import predict, validation_table
 from procedures.identify_options import effects_from, parse_gravity, parse_position_friction, parse_slope
 from procedures.identify_plots import plot_torques, plot_trajectory
 from procedures.identify_report import PUBLISHED_7DOF, _fmt3, missed_purpose, report_text, table_5_1

@@ -20,6 +20,7 @@ from rig.runs import run_owner
 from rig.runs.paths import procedure_of, run_dirs, run_time, runs_root
 from rig.runs.recorded_run import find_run
 from rig.runs.recording import decode_metadata
+from rig.runs_setup import arms_of, cooperative_setup, setup_text, source_arms
 from rig.sealed_json import result_json
 
 
@@ -69,131 +70,6 @@ def _metadata_from_mcap(path: Path) -> dict[str, dict]:
     return out
 
 
-def source_arms(provenance) -> list[str]:
-    """Names of the arms a result comes from, from its provenance's "arms" (a list of
-    {"name": ...} or of names); [] without one."""
-    if not isinstance(provenance, dict):
-        return []
-    arms = provenance.get("arms")
-    if isinstance(arms, (str, dict)):
-        arms = [arms]
-    if not isinstance(arms, list):
-        return []
-    names = []
-    for arm in arms:
-        name = arm.get("name") if isinstance(arm, dict) else arm
-        if name is not None:
-            names.append(str(name))
-    return names
-
-
-def _arms_of(result: dict, start: dict) -> list[str]:
-    """The arms a run used: those its result's provenance names (where the result comes
-    from), else those the result names ("arms", "arm"), else those it held or tried to
-    hold, else the arm its parameters name on a live rig; [] for none (a fit of a CSV file,
-    a load-cell calibration)."""
-    names = source_arms(result.get("provenance"))
-    if names:
-        return names
-    arms = result.get("arms")
-    if isinstance(arms, list) and arms and all(isinstance(a, str) for a in arms):
-        return list(arms)
-    if isinstance(result.get("arm"), str) and result["arm"]:
-        return [result["arm"]]
-    tried = list(result.get("held") or []) + [e.get("arm") for e in result.get("hold_errors") or []
-                                              if isinstance(e, dict) and e.get("arm")]
-    if tried:
-        return list(dict.fromkeys(map(str, tried)))
-    config = start.get("config") if isinstance(start.get("config"), dict) else {}
-    arm = (start.get("parameters") or {}).get("arm") if isinstance(start.get("parameters"), dict) else None
-    arm = arm.get("value") if isinstance(arm, dict) else arm
-    if config.get("arms") and isinstance(arm, str) and arm:  # a live run (a fit of a file records no rig)
-        return list(config["arms"]) if arm == "all" else [arm]
-    return []
-
-
-def _cooperative_command(start: dict) -> dict:
-    """The options of the `rig cooperative` command line a run was started with (its start
-    record's argv), defaults included, parsed by the command itself; {} for a run started
-    otherwise (a test or a bench calling the procedure) or when the command cannot load."""
-    argv = str(start.get("argv") or "").split()
-    if not argv or not (Path(argv[0]).name == "rig" or argv[0].endswith(("rig/cli.py", "rig.cli"))):
-        return {}
-    try:
-        args = argv[argv.index("cooperative", 1) + 1:]
-        from procedures.cooperative import command
-
-        with command.make_context("cooperative", args, resilient_parsing=True) as ctx:
-            return dict(ctx.params)
-    except Exception:  # noqa: BLE001 - an old or odd command line: the list shows what the result says
-        return {}
-
-
-def _vector(value) -> list[float] | None:
-    """[x, y, z] from a list or a "x,y,z" string; None if it is neither."""
-    try:
-        v = [float(x) for x in (value.split(",") if isinstance(value, str) else value)]
-    except (TypeError, ValueError):
-        return None
-    return v if len(v) == 3 else None
-
-
-def cooperative_setup(result: dict, start: dict) -> dict:
-    """What a cooperative run held and did: object, force_n, mode, arms, master, move_m,
-    rotate_rad, rate_hz (the loop's). From its result; what the result lacks (an aborted
-    run's, or the move, which the result does not record) from its start record: the
-    configuration snapshot (object, arms, rate), the parameters (force) and the command
-    line. A field nothing records is None."""
-    config = start.get("config") if isinstance(start.get("config"), dict) else {}
-    obj = config.get("object") if isinstance(config.get("object"), dict) else {}
-    params = start.get("parameters") if isinstance(start.get("parameters"), dict) else {}
-    cmd = _cooperative_command(start)
-    arms = result.get("arms") if isinstance(result.get("arms"), list) else None
-    if not arms:
-        arms = ([a.strip() for a in cmd["arms"].split(",")] if cmd.get("arms") else obj.get("arms")) or []
-    force = result.get("force", params.get("force"))
-    force = force.get("value") if isinstance(force, dict) else force
-    timing = result.get("loop_timing") if isinstance(result.get("loop_timing"), dict) else {}
-    rig = config.get("rig") if isinstance(config.get("rig"), dict) else {}
-    return {
-        "object": result.get("object") or obj.get("kind"),
-        "force_n": force if isinstance(force, (int, float)) else None,
-        "mode": result.get("mode") or cmd.get("mode"),
-        "arms": list(arms),
-        # the command takes the last arm as the master when --master is not given
-        "master": result.get("master") or cmd.get("master") or (arms[-1] if cmd and arms else None),
-        "move_m": _vector(result.get("move", cmd.get("move"))),
-        "rotate_rad": _vector(result.get("rotate", cmd.get("rotate"))),
-        "rate_hz": timing.get("rate_hz") or rig.get("rate"),
-    }
-
-
-def setup_text(setup: dict) -> str:
-    """A cooperative setup in a few words: "spring 5 N, impedance, PSM2 moves +50,0,0 mm, 1000 Hz"."""
-    if not setup:
-        return ""
-    parts = []
-    if setup.get("object"):
-        force = setup.get("force_n")
-        parts.append(setup["object"] + (f" {force:g} N" if force is not None else ""))
-    if setup.get("mode"):
-        parts.append(setup["mode"])
-    move = setup.get("move_m")
-    motion = ""
-    if move is not None:
-        motion = ",".join(f"{1000 * v:+.4g}" if v else "0" for v in move) + " mm"
-    turn = setup.get("rotate_rad")
-    if turn is not None and any(turn):
-        motion += (" and turns " if motion else "turns ") + ",".join(f"{v:+.3g}" if v else "0" for v in turn) + " rad"
-    if setup.get("master"):
-        parts.append(f"{setup['master']} moves {motion}" if motion else f"master {setup['master']}")
-    elif motion:
-        parts.append(f"the master moves {motion}")
-    if setup.get("rate_hz"):
-        parts.append(f"{setup['rate_hz']:g} Hz")
-    return ", ".join(parts)
-
-
 def _loadcell_calibrate_figures(result: dict, info: dict) -> None:
     """Duration and key figures of a loadcell-calibrate result written before it ran as a
     recorded run (no timings, no summary: "started" and "finished" times, "check" and
@@ -215,7 +91,7 @@ def _loadcell_calibrate_figures(result: dict, info: dict) -> None:
 def run_info(run_dir: Path, result: dict | None = None) -> dict:
     """What `rig runs` shows for one run folder (`result`: its result.json, if read already).
 
-    "arms": the arms the run used (see _arms_of); "setup": what a cooperative run held and
+    "arms": the arms the run used (see arms_of); "setup": what a cooperative run held and
     did (cooperative_setup), {} for the other procedures."""
     when = run_time(run_dir)
     info = {"run": run_dir.name, "run_dir": str(run_dir),
@@ -272,9 +148,9 @@ def run_info(run_dir: Path, result: dict | None = None) -> dict:
         info["setup"] = cooperative_setup(result, start_record())
         info["arms"] = info["setup"]["arms"]
     else:
-        info["arms"] = _arms_of(result, {})
+        info["arms"] = arms_of(result, {})
         if not info["arms"] and (run_dir / "run.mcap").exists():
-            info["arms"] = _arms_of(result, start_record())
+            info["arms"] = arms_of(result, start_record())
     return info
 
 

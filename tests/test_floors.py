@@ -12,7 +12,7 @@ PACKAGES = ("rig", "drivers", "procedures", "calibration")
 
 #: module prefix -> floor (the longest prefix wins); docs/floors.md draws the same table
 FLOORS = {
-    "rig.cli": 4, "rig.runs_cli": 4, "rig.export_cli": 4, "rig.plot_cli": 4,
+    "rig.cli": 4, "rig.runs_cli": 4, "rig.runs_setup": 4, "rig.export_cli": 4, "rig.plot_cli": 4,
     "procedures": 3,
     "rig.config": 2, "rig.devices": 2, "rig.runs": 2, "rig.commands": 2, "rig.sim_server": 2,
     "drivers": 1, "calibration": 1, "rig.sim": 1, "rig.control": 1,

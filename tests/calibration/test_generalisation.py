@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from calibration.discrepancy.settings import Settings
-from calibration.generalisation import NOT_CONFIRMED, EffectGate, Motion, plain_fit, plain_training_block
+from calibration.generalisation import NOT_CONFIRMED, EffectGate, Motion
+from calibration.plain_model import plain_fit, plain_training_block
 from calibration.hidden_effects import HiddenCase, draw_case_parameters
 from calibration.prediction import predict
 from tests.sim_cache import recorded

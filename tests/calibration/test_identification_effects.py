@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from calibration.discrepancy.settings import Settings
-from calibration.generalisation import plain_training_block
+from calibration.plain_model import plain_training_block
 from calibration.hidden_effects import HiddenCase, draw_case_parameters
 from calibration.identification import DEADBAND, EffectTerm, fit_identification
 from tests.sim_cache import recorded

@@ -51,7 +51,7 @@ def test_steps_lists_without_moving(tmp_path):
 
 def test_fit_refuses_an_occluded_body():
     from calibration.fit_error import FitError
-    from procedures.link_lengths import fit_fixed_axis
+    from procedures.link_lengths_fit import fit_fixed_axis
     from calibration.captures import Capture
 
     n = 200

@@ -59,6 +59,19 @@ class Recorder:
         return value
 
 
+def until(read, done, limit: float = 30.0):
+    """What `read()` returns once `done(value)` holds, or after `limit` s (the caller's
+    assertion then fails on it). This rig sim runs on the wall clock, as against a real
+    console: on a loaded machine a fixed sleep measures the machine; a wait for what the
+    command does measures the command."""
+    t0 = time.monotonic()
+    while True:
+        value = read()
+        if done(value) or time.monotonic() - t0 > limit:
+            return value
+        time.sleep(0.01)
+
+
 def run(ral, arm_name: str, system_name: str) -> dict:
     import crtk
     import dvrk
@@ -137,9 +150,12 @@ def run(ral, arm_name: str, system_name: str) -> dict:
         psm.servo_jp(g)
         rate.sleep()
     time.sleep(1.0)
+    until(psm.measured_jp, lambda v: numpy.allclose(v[0], start, atol=2e-3))  # the sine's end reached
     rec("after_servo_jp.measured_jp", psm.measured_jp)
+    before, _ = psm.setpoint_jp()
     rec("servo_jr", psm.servo_jr, numpy.array([0.0, 0.0, 0.01, 0.0, 0.0, 0.0]))
     time.sleep(0.5)
+    until(psm.setpoint_jp, lambda v: abs(v[0][2] - before[2]) > 0.005)  # the console has taken it
     rec("after_servo_jr.setpoint_jp", psm.setpoint_jp)
     rec("after_servo_jr.measured_jp", psm.measured_jp)
     # cartesian: move_cp 2 cm in x, then servo_cp back in 1 s

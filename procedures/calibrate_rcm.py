@@ -35,10 +35,10 @@ from calibration.pivot import PivotFit
 from calibration.rcm import DEFAULTS, METHODS, arm_bodies, calibrate_arm, pivot_all
 from calibration.registration import pose_error
 from procedures.mocap_capture import RCM_PHASES, lissajous, measure_rcm_phases, open_devices, tracker_stats
-from rig.commands.abort import exit_on_abort
 from rig.commands.exit_codes import EXIT_INPUT, EXIT_MISSED, InputError
-from rig.commands.options import config_from_context, json_option, yes_option
-from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.options import config_from_context
+from rig.commands.parameters import Parameter
+from rig.commands.procedure import procedure_command
 from rig.commands.report import emit_result, exit_for_status
 from rig.model import psm_kinematics as K
 from rig.runs import provenance
@@ -222,17 +222,11 @@ def run_from_csv(path: str, body: str, parameters: dict, run_root=None, progress
     return run.result
 
 
-@click.command(name=PROCEDURE)
-@with_parameters(PARAMETERS)
+@procedure_command(PROCEDURE, STEPS, PARAMETERS)
 @click.option("--from-csv", "from_csv", type=click.Path(dir_okay=False, exists=True), default=None,
               help="Calibrate offline from an OptiTrack Motive CSV export (m or mm, quaternions).")
 @click.option("--body", default=None, help="Rigid body of the tool in the --from-csv file.")
-@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
-@yes_option
-@json_option
-@click.pass_context
-@exit_on_abort
-def command(ctx, parameters, from_csv, body, list_steps: bool, as_json: bool) -> None:
+def command(ctx, parameters, from_csv, body, as_json: bool) -> None:
     """Remote centre of motion by pivot calibration (appendix A.2, Table 6.1).
 
     Sweeps q1 and q2 with q3 held and tracks the tool body; fits b_tip and b_post (the RCM)
@@ -241,10 +235,6 @@ def command(ctx, parameters, from_csv, body, list_steps: bool, as_json: bool) ->
     offset (mm); result.json and --json give them in m, at least {"rcm": [x, y, z],
     "tip_offset": [x, y, z], "rms": r}. Saves rcm.png (Figure 6.2).
     """
-    if list_steps:
-        for i, s in enumerate(STEPS, 1):
-            click.echo(f"{i}. {s}")
-        return
     if (from_csv is None) != (body is None):
         raise click.UsageError("--from-csv and --body go together (the file and the tool's rigid body name)")
     try:

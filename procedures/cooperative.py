@@ -30,10 +30,10 @@ from procedures.cooperative_live import KEY_STEP_M, KEY_STEP_N, KEY_STEP_RAD, SL
 from procedures.cooperative_loop import ServoCI, TensionHold, plot_hint
 from procedures.cooperative_report import (_figures, _filter_delays, _force_hold_figures, _loop_timing, _missed,
                                            _slave_control_text, format_report)
-from rig.commands.abort import exit_on_abort
 from rig.commands.exit_codes import InputError
-from rig.commands.options import config_from_context, json_option, yes_option
-from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.options import config_from_context
+from rig.commands.parameters import Parameter
+from rig.commands.procedure import procedure_command
 from rig.commands.report import emit_result, exit_for_status
 from rig.runs import provenance
 from rig.runs.control_loop import ControlLoop
@@ -70,8 +70,7 @@ def _vector(text: str | None, what: str) -> np.ndarray:
     return v
 
 
-@click.command(name="cooperative")
-@with_parameters(PARAMETERS)
+@procedure_command("cooperative", STEPS, PARAMETERS)
 @click.option("--move", default="0.05,0,0", show_default=True, metavar="DX,DY,DZ",
               help="Master motion in the world frame, m (the slaves follow, eq. 6.2).")
 @click.option("--rotate", default="0,0,0", show_default=True, metavar="RX,RY,RZ",
@@ -108,13 +107,8 @@ def _vector(text: str | None, what: str) -> np.ndarray:
 @click.option("--interactive", is_flag=True, help=f"Steer from the keyboard (a small terminal UI): wasdrf move {1000 * KEY_STEP_M:g} mm, ijkluo "
                    f"rotate {KEY_STEP_RAD:g} rad, +/- change the tension by {KEY_STEP_N:g} N (ramped in like "
                    "--ros-commands).")
-@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
-@yes_option
-@json_option
-@click.pass_context
-@exit_on_abort
 def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, model_path, force_model, slave_control,
-            seed, dry_run, ros_commands, interactive, list_steps, as_json):
+            seed, dry_run, ros_commands, interactive, as_json):
     """Cooperative manipulation with force tracking (thesis 6.3, 7.7).
 
     Holds FORCE newtons of tension on the object between the tool tips while the master
@@ -123,9 +117,6 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
     each tool tip's Cartesian tracking of its plan (mm). `rig plot RUN` draws the
     figures again from the recording, an aborted run's too.
     """
-    if list_steps:
-        click.echo("\n".join(f"{i + 1}. {name}" for i, name in enumerate(STEPS)))
-        return
     if force_model and not model_path:
         raise click.UsageError("--force-model applies to a --model FILE: give the file")
     if interactive and not sys.stdin.isatty():  # before anything is powered or moved

@@ -50,10 +50,9 @@ from pathlib import Path
 import click
 import numpy as np
 
-from rig.commands.abort import exit_on_abort
 from rig.commands.exit_codes import EXIT_INPUT
-from rig.commands.options import json_option
-from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.parameters import Parameter
+from rig.commands.procedure import procedure_command
 from rig.commands.report import emit_result
 from rig.runs.recorded_joints import PAUSE_CUTOFF_PERIODS, load_run_pieces
 from rig.runs.run import Run
@@ -556,20 +555,12 @@ def plot_generalisation(doc: dict, path_dir: Path) -> dict:
     return out
 
 
-@click.command(name=PROCEDURE)
+@procedure_command(PROCEDURE, STEPS, PARAMETERS, steps_help="List the steps and exit.", yes=False, context=False)
 @click.argument("run_dir", required=False)
-@with_parameters(PARAMETERS)
-@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit.")
-@json_option
-@exit_on_abort
-def command(run_dir, parameters, list_steps: bool, as_json: bool) -> None:
+def command(run_dir, parameters, as_json: bool) -> None:
     """Find where the model and the measurement disagree, name the missing effect from the
     catalogue, add it and show the held-out gap shrink. RUN_DIR or --csv FILE.
     """
-    if list_steps:
-        for i, s in enumerate(STEPS, 1):
-            click.echo(f"{i}. {s}")
-        return
     if bool(run_dir) == bool(parameters["csv"]):
         raise click.UsageError("give either RUN_DIR or --csv FILE")
     from calibration.base_params import RankDeficientError

@@ -30,10 +30,10 @@ import sys
 import click
 import numpy as np
 
-from rig.commands.abort import exit_on_abort
 from rig.commands.exit_codes import InputError
-from rig.commands.options import config_from_context, json_option, yes_option
-from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.options import config_from_context
+from rig.commands.parameters import Parameter
+from rig.commands.procedure import procedure_command
 from rig.commands.report import emit_result, exit_for_status
 from rig.control.arm_command import ArmCommand, CommandKind
 from rig.runs import provenance
@@ -458,24 +458,14 @@ def report_text(r: dict) -> str:
     return "\n".join(lines)
 
 
-@click.command(name=PROCEDURE)
-@with_parameters(PARAMETERS)
-@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
-@yes_option
-@json_option
-@click.pass_context
-@exit_on_abort
-def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
+@procedure_command(PROCEDURE, STEPS, PARAMETERS)
+def command(ctx, parameters, as_json: bool) -> None:
     """Stick-slip force ramps and constant-velocity friction sweeps of joint 3 (thesis 5.6).
 
     Finds the breakaway forces Fs+ and Fs- (N, beyond the model's gravity and offset
     compensation), fits viscous, Coulomb and Stribeck friction, and writes them into the
     latest identified model file for the compensation of 7.5.1. SI units.
     """
-    if list_steps:
-        for i, s in enumerate(STEPS, 1):
-            click.echo(f"{i}. {s}")
-        return
     from calibration.friction_fit import FrictionFitError
     from rig.model.model_file import ModelFileError
 

@@ -84,10 +84,10 @@ from procedures.identify_options import effects_from, parse_gravity, parse_posit
 from procedures.identify_plots import plot_torques, plot_trajectory
 from procedures.identify_report import PUBLISHED_7DOF, _fmt3, missed_purpose, report_text, table_5_1
 from procedures.identify_trajectories import design_excitation, plant_of, reach_start, stream_trajectory
-from rig.commands.abort import exit_on_abort
 from rig.commands.exit_codes import InputError
-from rig.commands.options import config_from_context, json_option, yes_option
-from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.options import config_from_context
+from rig.commands.parameters import Parameter
+from rig.commands.procedure import procedure_command
 from rig.commands.report import emit_result, exit_for_status
 from rig.runs import provenance
 from rig.runs.run import AbortRun, Run
@@ -563,14 +563,8 @@ def _data_errors():
     return (DataError, SignalError, RankDeficientError)
 
 
-@click.command(name=PROCEDURE)
-@with_parameters(PARAMETERS)
-@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
-@yes_option
-@json_option
-@click.pass_context
-@exit_on_abort
-def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
+@procedure_command(PROCEDURE, lambda kwargs: STEPS_CSV if kwargs["parameters"]["csv"] else STEPS_LIVE, PARAMETERS)
+def command(ctx, parameters, as_json: bool) -> None:
     """Dynamic identification of PSM joints 1-3 (thesis 5.1-5.5), live or from a CSV.
 
     Live: designs (or reuses, from ~/.cache/dvrk-rig or $RIG_CACHE) the optimal
@@ -580,10 +574,6 @@ def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
     result.json and Figure 5.2/5.3-style PNGs to the run folder. SI units.
     """
     offline = bool(parameters["csv"])
-    if list_steps:
-        for i, s in enumerate(STEPS_CSV if offline else STEPS_LIVE, 1):
-            click.echo(f"{i}. {s}")
-        return
     if parameters["validate_csv"] and not offline:
         raise click.UsageError("--validate-csv needs --csv")
     errors = _data_errors()

@@ -63,10 +63,10 @@ from calibration.captures import Capture, body_points
 from calibration.fit_error import FitError
 from procedures.link_lengths_fit import fit_link_lengths
 from procedures.mocap_capture import Collector, move_capture, open_devices, settle, tracker_stats
-from rig.commands.abort import exit_on_abort
 from rig.commands.exit_codes import InputError
-from rig.commands.options import config_from_context, json_option, yes_option
-from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.options import config_from_context
+from rig.commands.parameters import Parameter
+from rig.commands.procedure import procedure_command
 from rig.commands.report import emit_result, exit_for_status
 from rig.model import psm_kinematics as K
 from rig.runs import provenance
@@ -317,14 +317,8 @@ def run_link_lengths(cfg, parameters: dict, run_root=None, progress: bool = True
     return run.result
 
 
-@click.command(name=PROCEDURE)
-@with_parameters(PARAMETERS)
-@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
-@yes_option
-@json_option
-@click.pass_context
-@exit_on_abort
-def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
+@procedure_command(PROCEDURE, STEPS, PARAMETERS)
+def command(ctx, parameters, as_json: bool) -> None:
     """Joint axes and link lengths of a PSM from motion capture (thesis 4.1.1, A.1).
 
     Sweeps q1 (q2 = 0), q2 (q1 = 0) and a q3 stroke, fits each joint axis between pairs
@@ -333,10 +327,6 @@ def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
     the DH lengths they imply, in m with 1-sigma uncertainties. Saves result.json and
     link_lengths.png in the run folder.
     """
-    if list_steps:
-        for i, s in enumerate(STEPS, 1):
-            click.echo(f"{i}. {s}")
-        return
     cfg = config_from_context(ctx)
     try:
         result = run_link_lengths(cfg, parameters)

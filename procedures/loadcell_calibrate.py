@@ -27,9 +27,9 @@ from drivers.loadcell.force_calibration import STANDARD_GRAVITY, LoadCellCalibra
 from drivers.loadcell.serial_driver import LoadCell
 from drivers.loadcell.serial_port import usb_serial_number
 from drivers.operator import OperatorError
-from rig.commands.abort import exit_on_abort
 from rig.commands.exit_codes import EXIT_MISSED, InputError
-from rig.commands.options import config_from_context, yes_option
+from rig.commands.options import config_from_context
+from rig.commands.procedure import procedure_command
 from rig.commands.report import emit_result
 from rig.devices.loadcell_calibrations import CALIBRATION_PROCEDURE
 from rig.runs.recording import package_version
@@ -70,7 +70,9 @@ def _point(mass_kg: float, counts: list[int]) -> dict:
             "std_counts": std, "sem_counts": std / math.sqrt(len(counts)), "n": len(counts)}
 
 
-@click.command(name="loadcell-calibrate")
+@procedure_command("loadcell-calibrate", STEPS, steps_help="List the steps and exit without running.",
+                   json_help="Print the result (result.json) on stdout and the report on stderr.",
+                   order=("steps", "json", "yes"))
 @click.option("--mass1", type=float, default=0.0, show_default=True,
               help="First known mass hanging from the cell (kg); 0 = nothing attached.")
 @click.option("--mass2", type=float, default=0.5, show_default=True,
@@ -87,23 +89,13 @@ def _point(mass_kg: float, counts: list[int]) -> dict:
               help="Averaging time at each mass (s).")
 @click.option("--rate", "rate_hz", type=click.IntRange(1, 1000), default=500, show_default=True,
               help="Sample rate (Hz).")
-@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without running.")
-@click.option("--json", "as_json", is_flag=True,
-              help="Print the result (result.json) on stdout and the report on stderr.")
-@yes_option
-@click.pass_context
-@exit_on_abort
 def command(ctx, mass1: float, mass2: float, port: str | None, element: int | None, sim: bool, baud: int | None,
-            seconds: float, rate_hz: int, list_steps: bool, as_json: bool) -> None:
+            seconds: float, rate_hz: int, as_json: bool) -> None:
     """Two-point load-cell calibration with known masses (kg), stored for later runs.
 
     Forces are m g with g = 9.80665 m/s^2, in N. The calibration maps ADC counts to
     tension in N and is saved to logs/<UTC time>-loadcell-calibrate/result.json.
     """
-    if list_steps:
-        for i, s in enumerate(STEPS, 1):
-            click.echo(f"{i}. {s}")
-        return
     if port and sim:
         raise click.UsageError("give either --port or --sim, not both")
     if mass1 < 0 or mass2 < 0 or mass1 == mass2:

@@ -33,10 +33,10 @@ from calibration.fit_error import FitError
 from calibration.rcm import DEFAULTS as RCM_DEFAULTS, arm_bodies, calibrate_arm
 from calibration.registration import invert, pose_error, register_from_touch_points
 from procedures.mocap_capture import Collector, measure_rcm_phases, open_devices, settle
-from rig.commands.abort import exit_on_abort
 from rig.commands.exit_codes import InputError
-from rig.commands.options import config_from_context, json_option, yes_option
-from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.options import config_from_context
+from rig.commands.parameters import Parameter
+from rig.commands.procedure import procedure_command
 from rig.commands.report import emit_result, exit_for_status
 from rig.model import psm_kinematics as K
 from rig.runs import provenance
@@ -215,22 +215,12 @@ def report(result: dict) -> str:
     return "\n".join(lines)
 
 
-@click.command(name=PROCEDURE)
-@with_parameters(PARAMETERS)
-@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without moving anything.")
-@yes_option
-@json_option
-@click.pass_context
-@exit_on_abort
-def command(ctx, parameters, list_steps: bool, as_json: bool) -> None:
+@procedure_command(PROCEDURE, STEPS, PARAMETERS)
+def command(ctx, parameters, as_json: bool) -> None:
     """Base-to-base registration of the arms (thesis 7.7.1), saved for `rig cooperative`.
 
     Transforms are 4x4 (m); the reference is the first arm of the configuration.
     """
-    if list_steps:
-        for i, s in enumerate(STEPS, 1):
-            click.echo(f"{i}. {s}")
-        return
     try:
         result = run_register(config_from_context(ctx), parameters)
     except FitError as exc:

@@ -30,6 +30,7 @@ import click
 
 from drivers import ros_exit
 from rig.commands.exit_codes import InputError
+from rig.commands.procedure import procedure_command
 from rig.sim_server.ros_node import DVRK_ROS_PERIOD
 
 STEPS = ("build the simulated world", "start the load cell on a pty", "create the ROS 2 node and topics",
@@ -84,7 +85,8 @@ def _ask_priority(nice: int) -> None:
              "on a busy machine the simulated arms may fall behind the wall clock")
 
 
-@click.command(name="sim")
+@procedure_command("sim", STEPS, steps_help="List the steps and exit.", yes=False, json=False, abort=False,
+                   echo=_say)
 @click.option("--arms", default=None, help="Comma-separated arms to serve (default: every arm of the configuration, e.g. PSM1,PSM2).")
 @click.option("--duration", type=float, default=None, help="Stop after this many seconds (default: until Ctrl-C or SIGTERM).")
 @click.option("--rate", type=float, default=None,
@@ -133,10 +135,8 @@ def _ask_priority(nice: int) -> None:
               help="With --lockstep: seconds of wall time a procedure may go silent (a live one repeats its "
                    "answer five times a second, computing or waiting) before the world steps on without it: a killed "
                    "procedure never freezes rig sim; it rejoins with its next answer.")
-@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit.")
-@click.pass_context
 def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, natnet, natnet_version, console,
-            plant_model, nice, sim_time, lockstep, lockstep_timeout, list_steps):
+            plant_model, nice, sim_time, lockstep, lockstep_timeout):
     """Serve the simulated rig as whole dVRK PSMs on their ROS 2 topics (/<ARM>/measured_js ...
     every ROS_PERIOD s), mocap poses on /mocap/<body>/pose and the load cell on a pty, paced
     to the wall clock. The dVRK's own Python client (dvrk_python, crtk) drives it unmodified.
@@ -151,10 +151,6 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
     measured_js rate at exit. Use ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE to choose
     who sees it.
     """
-    if list_steps:
-        for i, s in enumerate(STEPS, 1):
-            _say(f"{i}. {s}")
-        return
     from rig.model.psm_tool import TOOL_NAMES
 
     if tool == "list":

@@ -115,7 +115,7 @@ def rcm_frames_from_calibration(cfg, dev, run, arms: list[str], parameters: dict
         found = provenance.find(CALIBRATE_RCM, cfg, arms=arms,
                                 usable=lambda run, data: all(a in frames_of(data) for a in arms))
         for line in found.skipped:
-            run._write(f"rig {PROCEDURE}: {line}\n")
+            run.say(f"rig {PROCEDURE}: {line}")
         if found.run_dir is not None:
             return frames_of(found.data), str(found.run_dir)
     p = dict(RCM_DEFAULTS)

@@ -16,7 +16,7 @@ their targets) and, for every run that did not end cleanly, its exit and last li
 that ended before it held the object (a connect failure on a starved machine) had no kill:
 it is counted on its own row and left out of the others. `--keep DIR` writes the whole
 stderr of every run that ended badly; with `ulimit -c unlimited` the cores of a crash are
-what gdb reads (drivers/ros_exit.py tells what one showed).
+what gdb reads (drivers/common/ros_exit.py tells what one showed).
 """
 
 from __future__ import annotations

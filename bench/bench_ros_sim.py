@@ -29,7 +29,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _table import print_table  # noqa: E402
 
-from drivers.dvrk_arm import RosArm  # noqa: E402
+from drivers.arm.dvrk_arm import RosArm  # noqa: E402
 
 #: RosArm's default stale-data watchdog, s.
 WATCHDOG = inspect.signature(RosArm).parameters["watchdog"].default

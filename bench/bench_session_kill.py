@@ -1,11 +1,11 @@
 """A library's ROS 2 session outliving a SIGKILLed `rig sim`: its participant deleted or parked (issue 44).
 
 Each run: a fresh `rig sim` (built-in rig, `--ros-period 0.001`) on a claimed ROS domain; a
-library process (drivers.ros_session.RosSession, as a test or a notebook uses it) subscribes
+library process (drivers.common.ros_session.RosSession, as a test or a notebook uses it) subscribes
 to every stream rig sim publishes; once they flow, rig sim is SIGKILLed after a random 0-0.3 s, and the
 session is closed after a further random 0-1.5 s (the listener must first find the dead
 peer's port broken: that is the state in which Fast DDS 2.14's shared-memory teardown
-crashed, drivers/ros_exit.py). A run is clean when the library process printed "closed"
+crashed, drivers/common/ros_exit.py). A run is clean when the library process printed "closed"
 and exited 0 (its interpreter's end included); a crash is a death by a signal the process
 raises itself (SIGSEGV, SIGBUS, SIGABRT), counted apart from one sent from outside.
 
@@ -13,7 +13,7 @@ Ways (`--ways`, comma-separated):
   destroy  the library's teardown before issue 44: stop the executors, destroy the nodes,
            shut the context down (the participant is deleted)
   park     `RosSession.close()` now: the participant parked past the interpreter's end
-           (drivers/ros_exit.py)
+           (drivers/common/ros_exit.py)
 A third way, a transport that cannot crash (UDP only), could not be measured: with
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST rmw_fastrtps 8.4 maps shared memory whatever
 FASTDDS_BUILTIN_TRANSPORTS=UDPv4 or a default XML profile (userTransports UDPv4 on
@@ -33,7 +33,7 @@ destroy_node), park 0 (parking then did not yet end the process ahead of the C++
 destructors). Then a trial with every stream (110) subscribed: the parked session died of
 SIGSEGV after its interpreter's end (no Python stack: Fast DDS's participant factory
 deleting what was parked), so a library's process now ends ahead of those destructors
-(drivers/ros_exit.py). Round 2, every stream, 40 runs each: destroy 0, park 0 (one run
+(drivers/common/ros_exit.py). Round 2, every stream, 40 runs each: destroy 0, park 0 (one run
 ended by a SIGTERM from outside), and 6 more park runs 0. Round 3, every stream, 30 runs
 each: destroy 0, park 0. In all: destroyed 1 crash in 110 runs; parked as now 0 in 75. The crash is rare (a kill must land in a write into
 this process's port): these counts bound it, they do not measure it well.
@@ -67,7 +67,7 @@ from tests.ros_domains import claim_domain  # noqa: E402
 LIBRARY = r"""
 import json, os, sys, time
 import numpy as np
-from drivers.ros_session import RosSession
+from drivers.common.ros_session import RosSession
 from sensor_msgs.msg import JointState
 
 window = float(sys.argv[1])

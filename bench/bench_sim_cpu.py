@@ -60,7 +60,7 @@ def client(arms: list[str]) -> int:
     import rclpy
     from rclpy.qos import QoSProfile
 
-    from drivers.ros_session import make_executor
+    from drivers.common.ros_session import make_executor
 
     types = {"measured_cp": "geometry_msgs.msg.PoseStamped", "setpoint_cp": "geometry_msgs.msg.PoseStamped",
              "measured_cv": "geometry_msgs.msg.TwistStamped", "measured_cf": "geometry_msgs.msg.WrenchStamped",
@@ -104,7 +104,7 @@ def client(arms: list[str]) -> int:
         t0, c0 = mark[0]
         dt = time.monotonic() - t0
         print(" ".join(f"{a}={(counts[a] - c0[a]) / dt:.1f}" for a in arms), flush=True)
-    os._exit(0)  # noqa: SLF001 - no participant teardown (drivers/ros_exit.py says why)
+    os._exit(0)  # noqa: SLF001 - no participant teardown (drivers/common/ros_exit.py says why)
 
 
 def measure(n_arms: int, period: float, with_client: bool, seconds: float, env: dict, code: Path) -> dict:

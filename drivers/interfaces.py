@@ -157,7 +157,7 @@ class Tracker(Protocol):
 
 @runtime_checkable
 class Operator(Protocol):
-    """Who does the steps of a procedure that need hands (drivers.operator): a person at the
+    """Who does the steps of a procedure that need hands (drivers.operator.driver): a person at the
     console on the real rig, the simulation on the simulated one. Each call returns when done."""
 
     def confirm(self, message: str) -> None:

@@ -192,8 +192,8 @@ def run_calibrate_rcm(cfg, parameters: dict, run_root=None, progress: bool = Tru
 
 def run_from_csv(path: str, body: str, parameters: dict, run_root=None, progress: bool = True) -> dict:
     """Pivot calibration of `body` from a Motive CSV export (no arm moves, no RCM frame)."""
-    from drivers.motive_csv import MotiveCsvError, read_motive_csv
-    from drivers.quaternion import matrix_to_quat_xyzw
+    from drivers.mocap.motive_csv import MotiveCsvError, read_motive_csv
+    from drivers.common.quaternion import matrix_to_quat_xyzw
 
     try:
         take = read_motive_csv(path)

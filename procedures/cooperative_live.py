@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-from drivers import ros_exit
+from drivers.common import ros_exit
 from rig.commands.exit_codes import InputError
 
 #: Live increments: per key press, and the slew rates the controller ramps them in at

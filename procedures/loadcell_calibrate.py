@@ -6,7 +6,7 @@ through the two points (force = m g, g = 9.80665 m/s^2) is the calibration. It i
 On the simulated rig the firmware fake is loaded with the masses by the procedure itself,
 and the result also reports the fake's true gain so the fit can be judged. On a rig.toml
 with `[loadcell] driver = "serial"` the configured port is calibrated and the rig's
-operator (drivers.operator) hangs the masses: the person at the console, or `rig sim`'s
+operator (drivers.operator.driver) hangs the masses: the person at the console, or `rig sim`'s
 simulated operator.
 """
 
@@ -26,7 +26,7 @@ from drivers.loadcell.firmware_fake import FakeLoadCellFirmware
 from drivers.loadcell.force_calibration import STANDARD_GRAVITY, LoadCellCalibration
 from drivers.loadcell.serial_driver import LoadCell
 from drivers.loadcell.serial_port import usb_serial_number
-from drivers.operator import OperatorError
+from drivers.operator.driver import OperatorError
 from rig.commands.exit_codes import EXIT_MISSED, InputError
 from rig.commands.options import config_from_context
 from rig.commands.procedure import procedure_command
@@ -228,11 +228,11 @@ def _open(dev: _Devices, cfg, params: dict, weights) -> dict:
         from rig.devices.factory import open_operator
 
         if cfg.operator["driver"] == "ros" or cfg.ros["use_sim_time"]:
-            from drivers.ros_session import RosSession
+            from drivers.common.ros_session import RosSession
 
             dev.session = RosSession("rig_loadcell_calibrate", executor=cfg.ros["executor"])
             if cfg.ros["use_sim_time"]:
-                from drivers.time_base import SimTime
+                from drivers.common.time_base import SimTime
 
                 # the served cell converts on the world's clock: its samples, the
                 # windows and the timeouts on the same clock, in lockstep
@@ -243,7 +243,7 @@ def _open(dev: _Devices, cfg, params: dict, weights) -> dict:
         if session is not None:
             session.start()
             if session.time.simulated and not session.time.wait_heard(cfg.ros["connect_timeout"]):
-                from drivers.ros_session import domain_text
+                from drivers.common.ros_session import domain_text
 
                 raise AbortRun(f"/clock: no simulated time within {cfg.ros['connect_timeout']:g} s on "
                                f"{domain_text()}; [ros] use_sim_time = true follows `rig sim --sim-time`: "
@@ -252,7 +252,7 @@ def _open(dev: _Devices, cfg, params: dict, weights) -> dict:
     # static loads: a scheduling hiccup is harmless here (a pty on a loaded machine
     # delivers up to ~0.35 s late), and a pulled cable still stops us at once
     sim_time = dev.session is not None and dev.session.time.simulated
-    # (on simulated time the world waits for the cell's reader: drivers.time_base)
+    # (on simulated time the world waits for the cell's reader: drivers.common.time_base)
     dev.lc = LoadCell(dev.ser, None, rate_hz=params["rate_hz"], stale_timeout=max(0.5, cfg.loadcell["stale_timeout"]),
                       **({"clock": dev.session.time.now, "time_base": dev.session.time} if sim_time else {}))
     ident = dev.lc.identity

@@ -14,7 +14,7 @@ Tracker, and a Clock), so the same code drives the real rig and the simulated on
   bridges publish PoseStamped per body), three virtual points rigidly attached to the
   pose, so the thesis's three-marker fits run on either;
 * `open_devices`: the clock, arms, tracker and operator of a configuration (the operator,
-  drivers.operator, does the steps a person does on the real rig: mount bodies, touch a
+  drivers.operator.driver, does the steps a person does on the real rig: mount bodies, touch a
   point).
 
 Units: m, rad (joint 3 in m), s.
@@ -31,7 +31,7 @@ import numpy as np
 
 from calibration.captures import Capture
 from drivers.interfaces import TrackerFrame
-from drivers.quaternion import matrix_to_quat_xyzw
+from drivers.common.quaternion import matrix_to_quat_xyzw
 from rig.commands.exit_codes import InputError
 from rig.runs.run import AbortRun
 
@@ -227,7 +227,7 @@ def settle(rig, run, collector: Collector, arms: list, duration: float) -> None:
 
 
 # ------------------------------------------------------------------------------ people
-# The steps that need a person are asked of the rig's operator (drivers.operator): the
+# The steps that need a person are asked of the rig's operator (drivers.operator.driver): the
 # console on the real rig, `rig sim`'s operator over ROS 2, or the in-process simulation.
 
 
@@ -249,7 +249,7 @@ class Devices:
 
 
 def tracker_stats(tracker) -> dict:
-    """The tracker's counters (frames, incomplete, late, dropped...; drivers.mocap.MocapStats)
+    """The tracker's counters (frames, incomplete, late, dropped...; drivers.mocap.ros_tracker.MocapStats)
     for a run's result: frames lost on the way are reported, never hidden (docs/recordings.md)."""
     if tracker is None:
         return {}

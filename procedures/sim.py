@@ -28,7 +28,7 @@ import time
 
 import click
 
-from drivers import ros_exit
+from drivers.common import ros_exit
 from rig.commands.exit_codes import InputError
 from rig.commands.procedure import procedure_command
 from rig.sim_server.ros_node import DVRK_ROS_PERIOD
@@ -257,7 +257,7 @@ def _served(ctx, arms, rate, ros_period, plant_model, console, natnet):
 def _serve_loadcells(cfg, world, elements, loadcell: bool, sim_time: bool):
     """One emulated Arduino per object element (its firmware on a pty), and the configured
     ports linked to them: (firmwares, the cells' loads, links)."""
-    from drivers.operator_sim import CellLoad
+    from drivers.operator.sim import CellLoad
 
     object_spec = world.object
     firmwares, cells, links = [], [], []

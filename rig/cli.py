@@ -89,9 +89,9 @@ def main(ctx: click.Context, config_path: str | None) -> None:
 
 
 def run() -> None:
-    """The `rig` program: the command, then the process's end through `drivers.ros_exit.leave`
+    """The `rig` program: the command, then the process's end through `drivers.common.ros_exit.leave`
     (a command that used ROS 2 leaves its DDS participants to the process's end)."""
-    from drivers import ros_exit
+    from drivers.common import ros_exit
 
     ros_exit.end_with_process()
     try:

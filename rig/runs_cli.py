@@ -305,7 +305,7 @@ def run_detail(run_dir: Path) -> dict:
     return info
 
 
-#: an arm's operating states in which it obeys no command (drivers.crtk.OperatingState)
+#: an arm's operating states in which it obeys no command (drivers.arm.crtk.OperatingState)
 _DISOBEYING = ("FAULT", "DISABLED", "PAUSED")
 
 

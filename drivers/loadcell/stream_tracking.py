@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from drivers.clock_offset import BlockMinima, envelope_line
+from drivers.common.clock_offset import BlockMinima, envelope_line
 
 
 class SequenceTracker:

@@ -75,10 +75,10 @@ class _StreamingLoadCell(abc.ABC):
     def __init__(self, calibration: LoadCellCalibration | None, stale_timeout: float,
                  clock: Callable[[], float], on_sample: Callable[[ForceSample, float], None] | None,
                  buffer_size: int, name: str, time_base=None) -> None:
-        from drivers.time_base import WallTime
+        from drivers.common.time_base import WallTime
 
         self.calibration = calibration
-        #: the clock of the command and connect timeouts (`drivers.time_base`; `clock` stamps
+        #: the clock of the command and connect timeouts (`drivers.common.time_base`; `clock` stamps
         #: the samples): simulated time when the rig follows `rig sim --sim-time`
         self.time_base = time_base if time_base is not None else WallTime()
         #: clock() at which the reader last found the transport empty with everything before

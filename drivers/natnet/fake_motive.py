@@ -9,7 +9,7 @@ multicast stream leaves through the loopback interface with a TTL of 0, so no da
 leaves the machine. The bytes are those of `drivers.natnet` (NATNET_PROTOCOL.md) in the
 bitstream version it is given (3.0, 3.1, 4.0, 4.1).
 
-`SimMotive` is Motive watching the simulated rig: a `drivers.mocap_sim.SimTracker` on the
+`SimMotive` is Motive watching the simulated rig: a `drivers.mocap.sim.SimTracker` on the
 world's clock (marker noise, the rigid-body solve, occlusion and latency, as the in-process
 fake tracker) whose delivered frames `pump()` hands to a FakeMotive. An occluded body stays
 in its frame with the tracking-valid flag cleared (position 0, identity orientation, mean
@@ -42,7 +42,7 @@ from drivers.natnet.wire_format import (MARKER_HAS_MODEL, MARKER_MODEL_SOLVED, M
                                         NAT_DISCONNECT, NAT_KEEPALIVE, NAT_REQUEST, NAT_REQUEST_FRAMEOFDATA,
                                         NAT_REQUEST_MODELDEF, NAT_RESPONSE, NAT_UNRECOGNIZED_REQUEST, RB_TRACKING_VALID,
                                         supported, version_text)
-from drivers.quaternion import XYZW, reorder_quaternion
+from drivers.common.quaternion import XYZW, reorder_quaternion
 
 #: Motive releases and the bitstream they stream by default
 MOTIVE_FOR = {(3, 0): (2, 1, 0, 0), (3, 1): (2, 3, 0, 0), (4, 0): (3, 0, 0, 0), (4, 1): (3, 1, 0, 0)}
@@ -231,7 +231,7 @@ class FakeMotive:
 
     # -- data channel (the caller's thread) -------------------------------------------
     def frame_of(self, frame, captured: float, sent: float) -> FrameOfData:
-        """The NatNet frame of a `drivers.mocap_sim.SimFrame` captured at `captured` and sent
+        """The NatNet frame of a `drivers.mocap.sim.SimFrame` captured at `captured` and sent
         at `sent` (caller's timeline, s)."""
         if self._first is None:
             self._first = captured
@@ -314,7 +314,7 @@ class SimMotive:
 
     def __init__(self, world, clock, *, noise: float = 0.00025, latency: float = 0.005, occlusion: float = 0.0,
                  rate: float = 120.0, seed: int = 0, bodies: list[str] | None = None, **server):
-        from drivers.mocap_sim import SimTracker
+        from drivers.mocap.sim import SimTracker
 
         self.clock = clock
         self.tracker = SimTracker(world, clock, noise=noise, latency=latency, occlusion=occlusion, rate=rate,

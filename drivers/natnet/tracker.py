@@ -37,9 +37,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from drivers.clock_offset import BlockMinima, envelope_line
+from drivers.common.clock_offset import BlockMinima, envelope_line
 from drivers.interfaces import Pose, TrackerFrame
-from drivers.mocap import MocapStaleError
+from drivers.mocap.ros_tracker import MocapStaleError
 from drivers.natnet.errors import NatNetConnectError, NatNetDecodeError, NatNetError, NatNetVersionError
 from drivers.natnet.frame_of_data import FrameOfData, decode_frame
 from drivers.natnet.messages import (ConnectRequest, ServerInfo, decode_server_info, encode_connect, pack_message,
@@ -49,7 +49,7 @@ from drivers.natnet.udp import UdpTransport
 from drivers.natnet.wire_format import (MARKER_OCCLUDED, NAT_DISCONNECT, NAT_FRAMEOFDATA, NAT_KEEPALIVE,
                                         NAT_MESSAGESTRING, NAT_MODELDEF, NAT_REQUEST_MODELDEF, NAT_RESPONSE,
                                         NAT_SERVERINFO, NAT_UNRECOGNIZED_REQUEST, supported, version_text)
-from drivers.quaternion import quat_xyzw_to_matrix
+from drivers.common.quaternion import quat_xyzw_to_matrix
 from rig.faults import rate_of, silence_text, starved_text
 
 

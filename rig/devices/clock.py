@@ -248,7 +248,7 @@ LATE_SAMPLE = 2.0
 
 
 class SimTimeClock(_Listeners):
-    """Simulated time from a simulator's /clock, in lockstep (`drivers.time_base.SimTime`).
+    """Simulated time from a simulator's /clock, in lockstep (`drivers.common.time_base.SimTime`).
 
     `tick()` answers the period the loop has just acted on (its commands are sent), so the
     world steps on; it answers each period the loop skips once that period's samples have

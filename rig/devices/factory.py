@@ -31,7 +31,7 @@ from rig.devices.clock import Clock, SimClock, SimTimeClock, StreamClock
 from rig.faults import DeviceFault
 
 if TYPE_CHECKING:  # imported where a rig is opened: ROS and the world load only when used
-    from drivers.ros_session import RosSession
+    from drivers.common.ros_session import RosSession
     from rig.sim.world import SimWorld
 
 
@@ -51,7 +51,7 @@ class Rig:
     tracker: Tracker | None = None
     world: SimWorld | None = None
     session: RosSession | None = None  # the RosSession of ROS arms
-    operator: Operator | None = None  # who does the manual steps (drivers.operator)
+    operator: Operator | None = None  # who does the manual steps (drivers.operator.driver)
     _closers: list = field(default_factory=list, repr=False)
 
     @property
@@ -114,7 +114,7 @@ def open_rig(cfg, arms: list[str] | None = None, *, seed: int | None = None,
                          "run `rig sim` to serve the simulated ones over ROS 2 instead")
     if drivers == {"sim"}:
         rig = _open_simulated(cfg, names, seed, uses)
-        from drivers.operator_sim import SimOperator
+        from drivers.operator.sim import SimOperator
 
         rig.operator = SimOperator(rig.world, rig.arms)
         return rig
@@ -136,10 +136,10 @@ def _stderr(line: str) -> None:
 
 def _open_simulated(cfg, names: list[str], seed: int | None, uses) -> Rig:
     from drivers.loadcell.sim import SimForceSensor
-    from drivers.mocap_sim import SimTracker
+    from drivers.mocap.sim import SimTracker
     from rig.sim.world import world_from_config
 
-    from drivers.sim_arm import SimArm
+    from drivers.arm.sim import SimArm
 
     if "mocap" in uses and cfg.mocap["driver"] == "natnet":
         raise ConfigError(f"{cfg.source}: mocap.driver = 'natnet' needs ROS arms on the wall clock; run `rig sim "
@@ -166,7 +166,7 @@ def _open_simulated(cfg, names: list[str], seed: int | None, uses) -> Rig:
 def open_operator(cfg, session=None):
     """The operator of a rig with real (or `rig sim`) devices: `rig sim`'s over ROS 2 when
     `[operator] driver = "ros"` (on `session`'s control node), else the person at the console."""
-    from drivers.operator import ConsoleOperator, RosOperator
+    from drivers.operator.driver import ConsoleOperator, RosOperator
 
     if cfg.operator["driver"] == "ros":
         if session is None:
@@ -186,8 +186,8 @@ def _once_stopped(session, close):
 
 
 def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
-    from drivers.dvrk_arm import RosArm
-    from drivers.ros_session import RosSession
+    from drivers.arm.dvrk_arm import RosArm
+    from drivers.common.ros_session import RosSession
 
     session = RosSession("rig", executor=cfg.ros["executor"])
     rig = Rig(clock=None, arms={})
@@ -195,7 +195,7 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
     rig._closers.append(session.close)
     try:
         if cfg.ros["use_sim_time"]:
-            from drivers.time_base import SimTime
+            from drivers.common.time_base import SimTime
 
             # every wait, timeout and stream age on the simulator's /clock; the loop's ticks
             # answer its periods (lockstep)
@@ -216,7 +216,7 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
             rig._closers.append(_once_stopped(session, arm.close))
         m = cfg.mocap
         if "mocap" in uses and m["driver"] == "ros":
-            from drivers.mocap import RosMocapTracker
+            from drivers.mocap.ros_tracker import RosMocapTracker
             from rig.sim.world import default_marker_bodies
 
             bodies = [mb.name for n in names for mb in default_marker_bodies(n)] + ["world"]
@@ -242,8 +242,8 @@ def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
         # destroys its endpoints on the node it spins (RosSession.stop)
         rig._closers.append(session.stop)
         if session.time.simulated and not session.time.wait_heard(cfg.ros["connect_timeout"]):
-            from drivers.ros_session import domain_text
-            from drivers.time_base import CLOCK_TOPIC
+            from drivers.common.ros_session import domain_text
+            from drivers.common.time_base import CLOCK_TOPIC
 
             raise ConnectError(f"{CLOCK_TOPIC}: no simulated time within {cfg.ros['connect_timeout']:g} s on "
                                f"{domain_text()}; [ros] use_sim_time = true in {cfg.source} follows `rig sim "
@@ -276,7 +276,7 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say, loop_rate: flo
     topic, the ROS domain and what to check. Returns {stream: rate in Hz} measured over a
     short window after the first messages.
     """
-    from drivers.ros_session import domain_text
+    from drivers.common.ros_session import domain_text
 
     deadline = time.monotonic() + timeout
     shown = time.monotonic()
@@ -313,7 +313,7 @@ def connect(rig: Rig, cfg, names: list[str], timeout: float, say, loop_rate: flo
     ready_arms(rig, names, timeout, say)
     op_wait = getattr(rig.operator, "wait_for_server", None)
     if op_wait is not None and not op_wait(max(0.0, deadline - time.monotonic())):
-        from drivers.operator import REQUEST_TOPIC
+        from drivers.operator.driver import REQUEST_TOPIC
 
         raise ConnectError(f"{REQUEST_TOPIC}: nobody serves the simulated operator on {domain_text()}; start "
                            "`rig sim`, or set [operator] driver = 'console' in rig.toml for a person at this terminal")
@@ -404,7 +404,7 @@ def ready_arms(rig: Rig, names: list[str], timeout: float, say) -> None:
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    from drivers.ros_session import domain_text
+    from drivers.common.ros_session import domain_text
 
     arms = {n: rig.arms[n] for n in names}
     grace_end = time.monotonic() + STATE_GRACE

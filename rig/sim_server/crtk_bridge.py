@@ -1,11 +1,11 @@
 """The CRTK ROS 2 interface of one served dVRK PSM: its topics, services and events, as the dVRK bridges them.
 
-`ArmBridge` puts a `drivers.sim_psm.SimPSM` and its operating state
-(`drivers.sim_arm_state.SimArmState`) on the topics that jhu-cisst/cisst-ros's CRTK bridge
+`ArmBridge` puts a `drivers.arm.sim_psm.SimPSM` and its operating state
+(`drivers.arm.sim_arm_state.SimArmState`) on the topics that jhu-cisst/cisst-ros's CRTK bridge
 (`mts_ros_crtk_bridge_provided.cpp`) gives a dVRK 2.4 PSM under /<arm>:
 
 * published every ROS period while someone subscribes (and only then built), as CDR bytes
-  written straight from the arm's arrays (`drivers.cdr`): measured_js, setpoint_js,
+  written straight from the arm's arrays (`drivers.common.cdr`): measured_js, setpoint_js,
   measured_cp, setpoint_cp, local/measured_cp, local/setpoint_cp, measured_cv,
   local/measured_cv, body/measured_cf, spatial/measured_cf, body/jacobian,
   spatial/jacobian (std_msgs/Float64MultiArray, 6 x 6, row major), jaw/measured_js,
@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers import cdr
+from drivers.common import cdr
 
 #: topics published every ROS period (while subscribed)
 STREAMS = ("measured_js", "setpoint_js", "measured_cp", "setpoint_cp", "local/measured_cp", "local/setpoint_cp",
@@ -48,7 +48,7 @@ MOVES = ("move_jp", "move_jr", "move_cp", "jaw/move_jp")
 
 
 def pose_to_matrix(pose) -> np.ndarray:
-    from drivers.quaternion import quat_xyzw_to_matrix
+    from drivers.common.quaternion import quat_xyzw_to_matrix
 
     o, p = pose.orientation, pose.position
     T = np.eye(4)
@@ -58,7 +58,7 @@ def pose_to_matrix(pose) -> np.ndarray:
 
 
 def matrix_to_pose(T: np.ndarray, pose) -> None:
-    from drivers.quaternion import matrix_to_quat_xyzw
+    from drivers.common.quaternion import matrix_to_quat_xyzw
 
     pose.position.x, pose.position.y, pose.position.z = (float(v) for v in T[:3, 3])
     o = pose.orientation
@@ -67,7 +67,7 @@ def matrix_to_pose(T: np.ndarray, pose) -> None:
 
 def _quat(T: np.ndarray) -> list[float]:
     """(qx, qy, qz, qw) of a 4x4 pose's rotation, w >= 0."""
-    from drivers.quaternion import matrix_to_quat_xyzw
+    from drivers.common.quaternion import matrix_to_quat_xyzw
 
     return matrix_to_quat_xyzw(T[:3, :3]).tolist()
 
@@ -82,7 +82,7 @@ def _turned(a: list[float], b: list[float]) -> list[float]:
 
 
 def _quat_matrix(q) -> np.ndarray:
-    from drivers.quaternion import quat_xyzw_to_matrix
+    from drivers.common.quaternion import quat_xyzw_to_matrix
 
     v = np.array([q.x, q.y, q.z, q.w], float)
     if not np.any(v):  # an all-zero quaternion (a message left at its defaults): identity
@@ -91,8 +91,8 @@ def _quat_matrix(q) -> np.ndarray:
 
 
 def impedance_from_msg(m):
-    """A crtk_msgs/CartesianImpedance as `drivers.sim_psm.Impedance`."""
-    from drivers.sim_psm import Impedance
+    """A crtk_msgs/CartesianImpedance as `drivers.arm.sim_psm.Impedance`."""
+    from drivers.arm.sim_psm import Impedance
 
     def gains(g):
         return tuple(np.array([v.x, v.y, v.z], float) for v in (g.p, g.d, g.bias, g.deadband))

@@ -1,8 +1,8 @@
 """The simulator's side of lockstep: who follows its clock, and the wait for their answers.
 
 `rig sim --sim-time` publishes its world's time on /clock once per ROS period. A process
-that follows it (`drivers.time_base.SimTime`) answers each period on
-`drivers.time_base.ANSWER_TOPIC`; `Lockstep.wait(t)` returns once every such process has
+that follows it (`drivers.common.time_base.SimTime`) answers each period on
+`drivers.common.time_base.ANSWER_TOPIC`; `Lockstep.wait(t)` returns once every such process has
 answered the period at `t` (a process in hold mode: that period, unless the next one its
 loop acts on is later; in free mode: within `free_lead` s of it, so its executor may
 pipeline) and the commands its answers
@@ -10,7 +10,7 @@ count have all been received. A process that says `bye` leaves; one silent for `
 of wall time while the world waits on it is let go (logged, counted in `lost`) and
 rejoins with its next answer: a killed procedure never freezes the world for good. A
 process that holds the world while it computes (or waits, free, for its load cell's
-reader) repeats its last answer every `drivers.time_base.HEARTBEAT` s from its executor
+reader) repeats its last answer every `drivers.common.time_base.HEARTBEAT` s from its executor
 thread, so only a dead or starved one goes silent that long. While it waits, the
 simulator repeats its newest /clock as often (`repeat`), so that a process that has
 answered tells a simulator waiting for another from one that died.
@@ -30,7 +30,7 @@ import threading
 import time
 from dataclasses import dataclass
 
-from drivers.time_base import HEARTBEAT
+from drivers.common.time_base import HEARTBEAT
 
 #: s of wall time a follower may leave the world waiting without a word (no answer, no
 #: repeat of one) before it is let go. Every live follower speaks every HEARTBEAT s, so
@@ -81,7 +81,7 @@ class Lockstep:
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from std_msgs.msg import Header
 
-        from drivers.time_base import ANSWER_TOPIC
+        from drivers.common.time_base import ANSWER_TOPIC
 
         self.timeout = float(timeout)
         self.free_lead_ns = int(round(free_lead * 1e9))

@@ -2,8 +2,8 @@
 
 `SimServer` is what `rig sim` runs, in one process, paced to the wall clock:
 
-* every simulated arm as a whole dVRK 2.4 PSM (`drivers.sim_psm.SimPSM` behind its
-  operating state `drivers.sim_arm_state.SimArmState`) on the CRTK topics of
+* every simulated arm as a whole dVRK 2.4 PSM (`drivers.arm.sim_psm.SimPSM` behind its
+  operating state `drivers.arm.sim_arm_state.SimArmState`) on the CRTK topics of
   `rig.sim_server.crtk_bridge.ArmBridge`: the streams every ROS period (`ros_period`, as
   `dvrk_system -p`), each only while it has a subscriber (looked up at 10 Hz, and at once
   from the publisher's matched event), written straight to CDR bytes, the events (operating_state, error, warning, status, goal_reached, the
@@ -13,9 +13,9 @@
   string_to_speech are accepted and logged; /console/teleop/... (enable, set_scale,
   select, unselect; scale, selected, unselected published latched) as the dVRK's console;
 * the mocap system as geometry_msgs/PoseStamped on /<prefix>/<body>/pose at the mocap
-  rate, while any body's topic has a subscriber (`drivers.mocap_sim.SimTracker`: noise,
+  rate, while any body's topic has a subscriber (`drivers.mocap.sim.SimTracker`: noise,
   occlusion, latency; an occluded body is not published in that frame);
-* the operator's side channel (`drivers.operator_sim.OperatorServer`): the manual steps
+* the operator's side channel (`drivers.operator.sim.OperatorServer`): the manual steps
   of a procedure done by the simulation, and the faults a test injects.
 
 Threads: the main thread applies the received commands, runs each arm's servo loop
@@ -61,10 +61,10 @@ class SimServer:
         from rclpy.qos import DurabilityPolicy, QoSProfile
         from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, String
 
-        from drivers.operator_sim import OperatorServer, SimOperator
-        from drivers.sim_arm import SimArm
-        from drivers.sim_arm_state import SimArmState
-        from drivers.sim_psm import SimPSM
+        from drivers.operator.sim import OperatorServer, SimOperator
+        from drivers.arm.sim import SimArm
+        from drivers.arm.sim_arm_state import SimArmState
+        from drivers.arm.sim_psm import SimPSM
         from rig.devices.clock import SimClock
         from rig.sim_server.crtk_bridge import ArmBridge
         from rig.model.psm_tool import tool as tool_named
@@ -137,7 +137,7 @@ class SimServer:
         self._mocap = mocap
         self._seed = seed
         if mocap is not None:
-            from drivers.mocap import pose_topic
+            from drivers.mocap.ros_tracker import pose_topic
             from rig.sim.world import default_marker_bodies
 
             bodies = [mb.name for n in world.names for mb in default_marker_bodies(n)] + ["world"]
@@ -153,7 +153,7 @@ class SimServer:
         self.slips = 0
         self.stop = threading.Event()
         self._epoch0 = time.time() - world.t
-        from drivers.ros_session import make_executor
+        from drivers.common.ros_session import make_executor
 
         self._executor = make_executor(executor, node.context)
         self._executor.add_node(node)
@@ -266,7 +266,7 @@ class SimServer:
             b.refresh_watched()
         watched = any(p.get_subscription_count() > 0 for p in self._mocap_pub.values())
         if watched and self.tracker is None:
-            from drivers.mocap_sim import SimTracker
+            from drivers.mocap.sim import SimTracker
 
             m = self._mocap
             self.tracker = SimTracker(self.world, self.clock, noise=m["noise"], latency=m["latency"],
@@ -281,7 +281,7 @@ class SimServer:
         self.mocap_unplugged = True
 
     def _publish_mocap(self) -> None:
-        from drivers.cdr import write_pose_stamped
+        from drivers.common.cdr import write_pose_stamped
 
         frames = self.tracker.frames()
         if self.mocap_unplugged:

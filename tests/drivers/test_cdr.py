@@ -13,7 +13,7 @@ from geometry_msgs.msg import PoseStamped  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
-from drivers import cdr  # noqa: E402
+from drivers.common import cdr  # noqa: E402
 
 
 def _pose_msg(rng, frame: str) -> PoseStamped:
@@ -106,7 +106,7 @@ def test_the_arm_driver_counts_and_drops_bytes_that_are_not_a_joint_state(ros_en
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    from drivers.dvrk_arm import RosArm
+    from drivers.arm.dvrk_arm import RosArm
 
     ctx = Context()
     rclpy.init(context=ctx)

@@ -16,7 +16,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from drivers import cdr
+from drivers.common import cdr
 
 FRAMES = ["", "w", "ab", "abc", "PSM1_base", "a_longer_frame_name", "ü"]
 #: stamps in ns: zero, under a second, a wall-clock stamp, the largest int32 second, a negative one

@@ -12,19 +12,19 @@ import numpy as np
 import pytest
 import serial
 
-from drivers.dvrk_arm import RosArm
+from drivers.arm.dvrk_arm import RosArm
 from drivers.interfaces import Arm, ForceSample, ForceSensor, ImpedanceArm, Operator, Tracker
 from drivers.loadcell.can import CanLoadCell
 from drivers.loadcell.firmware_fake import FakeLoadCellFirmware
 from drivers.loadcell.force_calibration import LoadCellCalibration
 from drivers.loadcell.serial_driver import LoadCell
 from drivers.loadcell.sim import SimForceSensor
-from drivers.mocap import RosMocapTracker
-from drivers.mocap_sim import SimTracker
+from drivers.mocap.ros_tracker import RosMocapTracker
+from drivers.mocap.sim import SimTracker
 from drivers.natnet.tracker import NatNetTracker
-from drivers.operator import ConsoleOperator, RosOperator
-from drivers.operator_sim import SimOperator
-from drivers.sim_arm import SimArm
+from drivers.operator.driver import ConsoleOperator, RosOperator
+from drivers.operator.sim import SimOperator
+from drivers.arm.sim import SimArm
 
 #: interface -> the real drivers and the twin that stand for it
 IMPLEMENTATIONS = {

@@ -28,9 +28,9 @@ import pytest
 import rclpy  # noqa: E402  (a declared dependency: a broken install fails here)
 from rclpy.context import Context  # noqa: E402
 
-from drivers import ros_exit  # noqa: E402
-from drivers.crtk import StaleStream  # noqa: E402
-from drivers.dvrk_arm import RosArm  # noqa: E402
+from drivers.common import ros_exit  # noqa: E402
+from drivers.arm.crtk import StaleStream  # noqa: E402
+from drivers.arm.dvrk_arm import RosArm  # noqa: E402
 from drivers.interfaces import Arm  # noqa: E402
 from rig.model import psm_kinematics as K  # noqa: E402
 from tests.ros_domains import claim_domain, ros_environment  # noqa: E402
@@ -88,7 +88,7 @@ def _rig_sim():
             arm.close()
     finally:
         # parked, not destroyed: the last test SIGKILLs rig sim mid-stream, after which deleting
-        # the participant crashed this process (drivers/ros_exit.py)
+        # the participant crashed this process (drivers/common/ros_exit.py)
         ros_exit.teardown(tuple(nodes.values()), ctx)
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)

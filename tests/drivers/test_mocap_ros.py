@@ -23,7 +23,7 @@ from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 
-from drivers.mocap import MocapStaleError, RosMocapTracker  # noqa: E402
+from drivers.mocap.ros_tracker import MocapStaleError, RosMocapTracker  # noqa: E402
 
 pytestmark = pytest.mark.ros
 

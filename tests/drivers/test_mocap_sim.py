@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from drivers.interfaces import Tracker
-from drivers.mocap_sim import (SimTracker, kabsch, matrix_from_quaternion, quaternion_from_matrix,
+from drivers.mocap.sim import (SimTracker, kabsch, matrix_from_quaternion, quaternion_from_matrix,
                                record_to_motive_csv)
-from drivers.motive_csv import read_motive_csv
-from drivers.sim_arm import SimArm
+from drivers.mocap.motive_csv import read_motive_csv
+from drivers.arm.sim import SimArm
 from rig import config
 from rig.devices.clock import SimClock
 from rig.sim.world import world_from_config

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from drivers.motive_csv import MotiveCsvError, read_motive_csv, write_motive_csv
-from drivers.quaternion import (matrix_to_quat_xyzw, quat_xyzw_to_matrix, reorder_quaternion,
+from drivers.mocap.motive_csv import MotiveCsvError, read_motive_csv, write_motive_csv
+from drivers.common.quaternion import (matrix_to_quat_xyzw, quat_xyzw_to_matrix, reorder_quaternion,
                                 wxyz_to_xyzw, xyzw_to_wxyz)
 
 # A Motive 2.x export as Motive writes it (hand-typed from the documented layout):

@@ -1,4 +1,4 @@
-"""The simulated operator's client over ROS 2 (drivers.operator.RosOperator): a request
+"""The simulated operator's client over ROS 2 (drivers.operator.driver.RosOperator): a request
 that waits for `rig sim`'s person ends at once on the rig's device fault (`watch`), not
 only on the reply or the operator's timeout."""
 
@@ -10,8 +10,8 @@ import pytest
 
 import rclpy  # noqa: E402,F401  (a declared dependency: a broken install fails here)
 
-from drivers.operator import REQUEST_TOPIC, OperatorError, RosOperator  # noqa: E402
-from drivers.ros_session import RosSession  # noqa: E402
+from drivers.operator.driver import REQUEST_TOPIC, OperatorError, RosOperator  # noqa: E402
+from drivers.common.ros_session import RosSession  # noqa: E402
 
 pytestmark = pytest.mark.ros
 

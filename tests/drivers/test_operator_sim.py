@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from drivers.operator import OperatorError
-from drivers.operator_sim import CellLoad, SimOperator
+from drivers.operator.driver import OperatorError
+from drivers.operator.sim import CellLoad, SimOperator
 from rig import config
 from rig.sim.world import world_from_config
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from drivers.quaternion import matrix_to_quat_xyzw, quat_xyzw_to_matrix
+from drivers.common.quaternion import matrix_to_quat_xyzw, quat_xyzw_to_matrix
 
 
 def test_one_matrix_gives_the_same_quaternion_as_a_batch():
@@ -31,7 +31,7 @@ def test_small_and_large_stacks_and_single_quaternions_agree_with_scipy():
     """The plain-float paths (one quaternion; stacks of up to SMALL_BATCH matrices) give
     scipy's rotations, for quaternions that are not unit too, and every branch of the
     matrix conversion (w, x, y or z the largest component) is taken."""
-    from drivers.quaternion import SMALL_BATCH
+    from drivers.common.quaternion import SMALL_BATCH
 
     rng = np.random.default_rng(7)
     q = rng.normal(size=(50, 4)) * rng.uniform(0.2, 5.0, size=(50, 1))

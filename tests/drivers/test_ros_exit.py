@@ -1,4 +1,4 @@
-"""A `rig` command's process leaves its DDS participant to its end (drivers.ros_exit, issue 37):
+"""A `rig` command's process leaves its DDS participant to its end (drivers.common.ros_exit, issue 37):
 deleting it after a peer died mid-write crashed the procedure in Fast DDS's shared-memory
 teardown. The command's process still ends with its code, its words flushed, its exit
 handlers run and its own shared-memory segment removed; a library's session is parked past
@@ -21,8 +21,8 @@ REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 
 SCRIPT = textwrap.dedent("""
     import atexit, os, sys
-    from drivers import ros_exit
-    from drivers.ros_session import RosSession
+    from drivers.common import ros_exit
+    from drivers.common.ros_session import RosSession
     ros_exit.end_with_process()
     atexit.register(lambda: print("exit handler ran", flush=True))
     session = RosSession("ros_exit_test")
@@ -61,8 +61,8 @@ def test_a_commands_process_parks_its_participant_and_ends_with_its_code(ros_env
 
 LIBRARY = textwrap.dedent("""
     import os
-    from drivers import ros_exit
-    from drivers.ros_session import RosSession
+    from drivers.common import ros_exit
+    from drivers.common.ros_session import RosSession
     session = RosSession("ros_exit_lib")
     from std_msgs.msg import Float64
     session.node.create_subscription(Float64, "/ros_exit_lib/x", lambda m: None, 10)
@@ -94,7 +94,7 @@ def test_a_library_session_is_parked_past_the_interpreters_end(ros_env):
 
 
 def test_leave_without_a_parked_participant_is_sys_exit(monkeypatch):
-    from drivers import ros_exit
+    from drivers.common import ros_exit
 
     monkeypatch.setattr(ros_exit, "_parked", [])
     monkeypatch.delitem(sys.modules, "rclpy", raising=False)

@@ -8,7 +8,7 @@ import pytest
 
 import rclpy  # noqa: E402,F401  (a declared dependency: a broken install fails here)
 
-from drivers.ros_session import RosSession  # noqa: E402
+from drivers.common.ros_session import RosSession  # noqa: E402
 from rig.devices.factory import _once_stopped  # noqa: E402
 
 pytestmark = pytest.mark.ros
@@ -46,7 +46,7 @@ def test_stop_ends_the_spin_thread_then_endpoints_can_go(ros_env, kind):
     session.node.destroy_subscription(sub)
     session.node.destroy_publisher(pub)
     session.close()
-    # parked until the process ends, not deleted (drivers/ros_exit.py)
-    from drivers import ros_exit
+    # parked until the process ends, not deleted (drivers/common/ros_exit.py)
+    from drivers.common import ros_exit
 
     assert ros_exit._parked[-1] == ((session.control, session.node), session.context)

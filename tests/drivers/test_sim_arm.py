@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from drivers.interfaces import Arm
-from drivers.sim_arm import JointTrajectory, SimArm
+from drivers.arm.sim import JointTrajectory, SimArm
 from rig import config
 from rig.devices.clock import SimClock, WallClock
 from rig.model import psm_kinematics as K

@@ -1,4 +1,4 @@
-"""The dVRK's operating state as rig sim serves it (drivers.sim_arm_state), in-process on the
+"""The dVRK's operating state as rig sim serves it (drivers.arm.sim_arm_state), in-process on the
 simulated clock: the transitions, the dropped commands and their throttled warning, busy,
 the faults. Over the wire: tests/hil/test_operating_state.py."""
 
@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.sim_arm import SimArm
-from drivers.sim_arm_state import HOMING, NOT_READY_PERIOD, POWERING, SimArmState
+from drivers.arm.sim import SimArm
+from drivers.arm.sim_arm_state import HOMING, NOT_READY_PERIOD, POWERING, SimArmState
 from rig import config
 from rig.devices.clock import SimClock
 from rig.sim.world import world_from_config

@@ -1,4 +1,4 @@
-"""The whole simulated dVRK PSM (drivers.sim_psm) in-process: its control modes against the
+"""The whole simulated dVRK PSM (drivers.arm.sim_psm) in-process: its control modes against the
 dVRK's semantics and its numbers against the kinematics (rig.model.psm_arm_kinematics). Over the
 wire, with the dVRK's own client: tests/hil/test_dvrk_client.py."""
 
@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.sim_arm_state import SimArmState
-from drivers.sim_psm import Impedance, SimPSM
+from drivers.arm.sim_arm_state import SimArmState
+from drivers.arm.sim_psm import Impedance, SimPSM
 from rig import config
 from rig.devices.clock import SimClock
 from rig.model.psm_arm_kinematics import PSMKinematics

@@ -5,7 +5,7 @@ import pytest
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 
-from drivers.time_base import ClockStopped, SimTime, parse_clock
+from drivers.common.time_base import ClockStopped, SimTime, parse_clock
 from rig.sim_server.lockstep import parse_answer
 
 

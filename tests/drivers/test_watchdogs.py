@@ -19,10 +19,10 @@ import time
 
 import pytest
 
-from drivers.crtk import StaleStream
+from drivers.arm.crtk import StaleStream
 from drivers.loadcell.errors import LoadCellDisconnected
 from drivers.loadcell.serial_driver import LoadCell
-from drivers.mocap import MocapStaleError
+from drivers.mocap.ros_tracker import MocapStaleError
 from rig import config
 from rig.faults import rate_of, silence_text
 from tests.drivers.loadcell.test_loadcell_protocol import CAL, OPENING, ExpectedProtocolPort, frames
@@ -172,7 +172,7 @@ def _pose(stamp_ns: int):
 
 def test_a_stale_mocap_body_says_for_how_long_at_what_rate_and_names_the_key(monkeypatch):
     import geometry_msgs.msg  # noqa: F401  (a declared dependency)
-    from drivers.mocap import RosMocapTracker
+    from drivers.mocap.ros_tracker import RosMocapTracker
 
     monkeypatch.setenv("ROS_DOMAIN_ID", "42")
     monkeypatch.delenv("ROS_AUTOMATIC_DISCOVERY_RANGE", raising=False)
@@ -264,7 +264,7 @@ def test_a_stale_ros_arm_says_for_how_long_at_the_rate_it_was_published(ros_env)
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import JointState
 
-    from drivers.dvrk_arm import RosArm
+    from drivers.arm.dvrk_arm import RosArm
 
     ctx = Context()
     rclpy.init(context=ctx)

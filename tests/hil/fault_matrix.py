@@ -88,8 +88,8 @@ class _Person:
     takes a second or more: longer than some steps, e.g. register's touches)."""
 
     def __init__(self, domain: int):
-        from drivers.operator import RosOperator
-        from drivers.ros_session import RosSession
+        from drivers.operator.driver import RosOperator
+        from drivers.common.ros_session import RosSession
 
         self._env = ros_environment(domain)
         self._env.__enter__()
@@ -113,7 +113,7 @@ class _Person:
         when it did not answer): the truth a run's "held" is judged against."""
         from crtk_msgs.srv import TriggerOperatingState
 
-        from drivers.crtk import OperatingState
+        from drivers.arm.crtk import OperatingState
 
         out = {}
         for arm in arms:

@@ -280,8 +280,8 @@ HOLDING = "hold the tension while moving ["
 
 
 def test_load_cell_unplugged_mid_run(cooperative_ready):
-    from drivers.ros_session import RosSession
-    from drivers.operator import RosOperator
+    from drivers.common.ros_session import RosSession
+    from drivers.operator.driver import RosOperator
 
     served = cooperative_ready
 
@@ -304,11 +304,11 @@ def test_load_cell_unplugged_mid_run(cooperative_ready):
 def test_rig_sim_killed_mid_run_is_seen_by_its_clock(served):
     """It kills the module's rig sim (the next test gets a fresh one). On simulated time a
     dead simulator stops the clock every age is counted on: the procedure sees the clock
-    stand still while it waits for it (drivers.time_base.STALL s of wall time), in one line
+    stand still while it waits for it (drivers.common.time_base.STALL s of wall time), in one line
     naming /clock. The wall clock's watchdog is the fault matrix's (tests/hil/fault_matrix.py)."""
     import re
 
-    from drivers.time_base import STALL
+    from drivers.common.time_base import STALL
 
     # the chain's identify options: killed once the excitation streams
     out = served.run(*IDENTIFY, when=("run the excitation trajectory [", served.kill))

@@ -17,8 +17,8 @@ pytestmark = [pytest.mark.ros, pytest.mark.hil]
 
 @pytest.mark.parametrize("console", ["/system", "/console"])
 def test_auto_finds_the_console_rig_sim_serves(tmp_path, ros_env, console):
-    from drivers.dvrk_arm import RosArm
-    from drivers.ros_session import RosSession
+    from drivers.arm.dvrk_arm import RosArm
+    from drivers.common.ros_session import RosSession
 
     with ServedRig(tmp_path, ros_env, toml='[arms.PSM1]\ndriver = "ros"\n',
                    sim_args=("--console", console, "--no-loadcell", "--no-mocap")):

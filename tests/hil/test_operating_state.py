@@ -44,9 +44,9 @@ class _Client:
         from std_msgs.msg import String
 
         from crtk_msgs.msg import OperatingState
-        from drivers.dvrk_arm import RosArm
-        from drivers.operator import RosOperator
-        from drivers.ros_session import RosSession
+        from drivers.arm.dvrk_arm import RosArm
+        from drivers.operator.driver import RosOperator
+        from drivers.common.ros_session import RosSession
 
         self.session = RosSession("state_test")
         node = self.session.node
@@ -124,7 +124,7 @@ def _ready_psm2(served: ServedRig):
 
 
 def test_a_never_enabled_arm_drops_commands_warns_and_does_not_move(served):
-    from drivers.sim_arm_state import NOT_READY_PERIOD
+    from drivers.arm.sim_arm_state import NOT_READY_PERIOD
 
     c = _fresh(served, ("PSM2 enabled",)).client
     arm = c.arm
@@ -157,7 +157,7 @@ def test_a_never_enabled_arm_drops_commands_warns_and_does_not_move(served):
 
 
 def test_enable_and_home_through_rosarm_within_the_timeout(served):
-    from drivers.sim_arm_state import HOMING
+    from drivers.arm.sim_arm_state import HOMING
 
     c = _fresh(served, ("PSM2 enabled",)).client
     served.changed.add("PSM2 enabled")
@@ -203,7 +203,7 @@ def test_move_jp_waits_on_is_busy(served):
 
 
 def test_servo_watchdog_faults_an_arm_whose_servo_commands_stop(served):
-    from drivers.crtk import ArmFault
+    from drivers.arm.crtk import ArmFault
 
     c = _ready_psm2(served)
     arm = c.arm

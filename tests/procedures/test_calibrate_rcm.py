@@ -23,7 +23,7 @@ def test_calibrate_rcm_cli_meets_target_against_truth():
 
 def _take(tmp_path, units: str, rotation_deg: float = 65.0, occluded: float = 0.0):
     """A Motive export of the simulated PSM1 tool body pivoting about its RCM."""
-    from drivers.mocap_sim import SimTracker, record_to_motive_csv
+    from drivers.mocap.sim import SimTracker, record_to_motive_csv
     from rig import config
     from rig.devices.clock import SimClock
     from rig.sim.world import world_from_config

@@ -85,7 +85,7 @@ def test_effort_ceiling_aborts_and_every_moved_arm_holds(monkeypatch):
     from rig.runs.run import AbortRun
 
     held = []
-    from drivers import sim_arm
+    from drivers.arm import sim as sim_arm
 
     orig_hold = sim_arm.SimArm.hold
 
@@ -257,8 +257,8 @@ def test_samples_not_reaching_the_loop_for_the_stale_timeout_abort_naming_the_lo
 
 
 def test_stale_arm_stream_aborts(monkeypatch):
-    from drivers import sim_arm
-    from drivers.crtk import StaleStream
+    from drivers.arm import sim as sim_arm
+    from drivers.arm.crtk import StaleStream
 
     original = sim_arm.SimArm.measured_js
     state = {"calls": 0}

@@ -2,7 +2,7 @@
 
 `emulate` runs what `rig cooperative` does over the wire against `rig sim`, with the
 wire's timing made exact and repeatable: the simulated world steps at the rig rate with
-each arm a whole dVRK PSM (`drivers.sim_psm.SimPSM`, its servo_ci run in its servo loop);
+each arm a whole dVRK PSM (`drivers.arm.sim_psm.SimPSM`, its servo_ci run in its servo loop);
 the arms' state and the load cell are "published" every ROS period and reach the
 procedure's loop `delay` periods later; the loop's commands (master servo_jp, slaves'
 servo_ci built as the crtk_msgs message `RosArm` sends and read back as rig sim's bridge
@@ -34,8 +34,8 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
     on (rig sim catching up on a loaded machine; the loop meanwhile sees the last state)."""
     from crtk_msgs.msg import CartesianImpedance
 
-    from drivers.dvrk_arm import impedance_message
-    from drivers.sim_psm import SimPSM
+    from drivers.arm.dvrk_arm import impedance_message
+    from drivers.arm.sim_psm import SimPSM
     from procedures.cooperative import build_controller
     from rig import config
     from rig.control.arm_impedance import servo_ci_goal

@@ -137,10 +137,10 @@ def test_a_calibration_written_before_timings_shows_its_duration_and_figure(monk
 
 
 class _FaultedArm:
-    """A dVRK arm (drivers.dvrk_arm) gone to FAULT: it takes the hold command, obeys nothing."""
+    """A dVRK arm (drivers.arm.dvrk_arm) gone to FAULT: it takes the hold command, obeys nothing."""
 
     def __init__(self, name: str):
-        from drivers.crtk import OperatingState
+        from drivers.arm.crtk import OperatingState
 
         self.name = name
         self.state = OperatingState(t=0.0, state="FAULT", is_homed=True, is_busy=False)
@@ -181,7 +181,7 @@ class _ArmWhoseFaultIsOnItsWay:
     service answers FAULT."""
 
     def __init__(self, name: str):
-        from drivers.crtk import OperatingState
+        from drivers.arm.crtk import OperatingState
 
         self.name = name
         self.asked = []
@@ -228,7 +228,7 @@ def test_a_run_whose_fault_names_an_arm_in_fault_does_not_call_it_held(monkeypat
 
 
 def test_a_run_records_the_fields_of_the_fault_that_ended_it(monkeypatch, tmp_path):
-    from drivers.crtk import ArmFault, OperatingState
+    from drivers.arm.crtk import ArmFault, OperatingState
     from rig.runs.safety import SafetyLimits
     import numpy as np
 

@@ -13,8 +13,8 @@ from calibration.discrepancy.residual_tests import heldout_r2, ljung_box
 from calibration.discrepancy.settings import Settings
 from calibration.discrepancy.workflow import Discrepancy
 from calibration.discrepancy_null import reference_model, sim_model_and_base
-from calibration.effects import (CATALOGUE, IDS, EffectContext, dahl_state, effects_torque, friction_profile,
-                                 gap_crossings, gap_torque)
+from calibration.effect_model import EffectContext, dahl_state, gap_crossings, gap_torque
+from calibration.effects import CATALOGUE, IDS, effects_torque, friction_profile
 from calibration.hidden_effects import (CATALOGUE_CASES, REFERENCE_EXCITATION_PATH, HiddenCase,
                                         reference_excitation)
 from rig.sim.world import SensorNoise

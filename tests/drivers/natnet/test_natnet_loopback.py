@@ -78,7 +78,7 @@ def test_the_command_channel_answers_as_motive_and_frames_come_from_the_data_por
     c.sendto(b"\x07", server)  # not even a header: counted, not answered
     # a frame of the simulated kind, sent from the data port
     from drivers.interfaces import Pose
-    from drivers.mocap_sim import SimFrame
+    from drivers.mocap.sim import SimFrame
 
     f = SimFrame(t=1.0, bodies={"tool": Pose(1.0, np.array([0.1, 0.2, 0.3]), np.eye(3))},
                  markers={"tool:Marker1": np.array([0.13, 0.2, 0.3])},
@@ -109,7 +109,7 @@ def test_a_unicast_client_that_stops_keeping_alive_is_forgotten():
     c.sendto(encode_connect(), ("127.0.0.1", m.command_port))
     c.recvfrom(1 << 16)
     time.sleep(0.01)  # longer than the client timeout
-    from drivers.mocap_sim import SimFrame
+    from drivers.mocap.sim import SimFrame
 
     assert m.send(SimFrame(t=0.0, bodies={"tool": None}), captured=0.0, sent=0.0) == 0
     assert m.stats.expired == 1 and m.clients == []
@@ -137,7 +137,7 @@ def _run(version, multicast="", occlusion=0.1, frames=150, latency=0.005):
     tracker = NatNetTracker(UdpTransport("127.0.0.1", sm.motive.command_port, sm.motive.data_port, multicast),
                             stale_timeout=1e9)
     tracker.connect(timeout=30.0)
-    from drivers.sim_arm import SimArm
+    from drivers.arm.sim import SimArm
 
     for name in world.names:  # the arms move: the poses change from frame to frame
         SimArm(world, name, clock).move_jp(np.array([0.3, -0.2, 0.14]), wait=False)

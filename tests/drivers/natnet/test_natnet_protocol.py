@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from drivers.interfaces import Tracker
-from drivers.mocap import MocapStaleError
+from drivers.mocap.ros_tracker import MocapStaleError
 from drivers.natnet.errors import NatNetConnectError, NatNetDecodeError, NatNetError, NatNetVersionError
 from drivers.natnet.frame_of_data import FrameOfData, RigidBodyData, decode_frame, encode_frame
 from drivers.natnet.messages import (ConnectRequest, ServerInfo, decode_connect, decode_server_info, encode_connect,
@@ -30,7 +30,7 @@ from drivers.natnet.tracker import NatNetTracker
 from drivers.natnet.udp import COMMAND, DATA, UdpTransport
 from drivers.natnet.wire_format import (FRAME_MODELS_CHANGED, NAT_FRAMEOFDATA, NAT_KEEPALIVE, NAT_MODELDEF,
                                         NAT_REQUEST_MODELDEF, NAT_UNRECOGNIZED_REQUEST)
-from drivers.quaternion import quat_xyzw_to_matrix
+from drivers.common.quaternion import quat_xyzw_to_matrix
 
 DOC = Path(__file__).resolve().parents[3] / "drivers" / "NATNET_PROTOCOL.md"
 V31, V40, V41, V42 = (3, 1, 0, 0), (4, 0, 0, 0), (4, 1, 0, 0), (4, 2, 0, 0)

@@ -117,7 +117,7 @@ def test_a_client_that_leaves_or_goes_silent_is_not_waited_for_and_its_commands_
 
 
 def test_a_waiting_world_repeats_its_clock_every_heartbeat():
-    from drivers.time_base import HEARTBEAT
+    from drivers.common.time_base import HEARTBEAT
 
     node = FakeNode()
     repeats = []

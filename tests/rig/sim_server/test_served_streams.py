@@ -12,8 +12,8 @@ from rclpy.context import Context
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.qos import QoSProfile
 
-from drivers import cdr
-from drivers.ros_session import make_executor
+from drivers.common import cdr
+from drivers.common.ros_session import make_executor
 from rig import config
 from rig.sim.world import world_from_config
 from rig.sim_server.crtk_bridge import STREAMS
@@ -112,7 +112,7 @@ def test_a_late_subscriber_gets_its_first_sample_within_two_periods(server):
 def test_a_pose_in_the_base_frame_is_the_local_one_turned_by_the_base():
     import numpy as np
 
-    from drivers.quaternion import matrix_to_quat_xyzw
+    from drivers.common.quaternion import matrix_to_quat_xyzw
     from rig.sim_server.crtk_bridge import _quat, _turned
 
     rng = np.random.default_rng(4)
@@ -129,7 +129,7 @@ def test_every_stream_of_one_period_agrees_with_the_arm_it_describes(server):
     and Jacobians are those of the joints published with the same stamp."""
     import numpy as np
 
-    from drivers.quaternion import quat_xyzw_to_matrix
+    from drivers.common.quaternion import quat_xyzw_to_matrix
 
     psm = server.psms["PSM1"]
     server.states["PSM1"].command("enable", 0.0)

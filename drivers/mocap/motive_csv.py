@@ -16,7 +16,7 @@ Motive's export layout (format version 1.2x), one line each::
 cells. This module returns them as NaN with a boolean validity mask, never as zeros, and
 converts lengths to metres. Rotations are quaternions whose component order is read from
 the axis row's labels (Motive writes X,Y,Z,W) and returned in (x, y, z, w) order; the
-conversion functions live in `drivers.quaternion`.
+conversion functions live in `drivers.common.quaternion`.
 
 The writer produces the same layout, so the simulated mocap system and the tests create
 files that the reader (and Motive-reading tools) accept.
@@ -33,7 +33,7 @@ from typing import Mapping
 import numpy as np
 
 from drivers.interfaces import Pose, TrackerFrame
-from drivers.quaternion import XYZW, ORDERS, quat_xyzw_to_matrix, reorder_quaternion
+from drivers.common.quaternion import XYZW, ORDERS, quat_xyzw_to_matrix, reorder_quaternion
 
 LENGTH_SCALE = {"meters": 1.0, "centimeters": 1e-2, "millimeters": 1e-3}
 _UNIT_ALIASES = {"m": "Meters", "meters": "Meters", "mm": "Millimeters", "millimeters": "Millimeters"}

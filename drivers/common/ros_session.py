@@ -29,7 +29,7 @@ import os
 import threading
 import time
 
-from drivers import ros_exit
+from drivers.common import ros_exit
 
 #: s, longest wait of the executor before it notes the time again (no message arrived)
 POLL = 0.005
@@ -97,9 +97,9 @@ class RosSession:
         self._control_thread = threading.Thread(target=self._spin_control, name=f"ros-{name}-control", daemon=True)
         self.spins = 0
         self.stopped = False
-        from drivers.time_base import WallTime
+        from drivers.common.time_base import WallTime
 
-        #: the clock the session's drivers wait on (`drivers.time_base`): the wall clock, or
+        #: the clock the session's drivers wait on (`drivers.common.time_base`): the wall clock, or
         #: the simulator's /clock (set before `start()`, `rig.devices.factory`)
         self.time = WallTime()
 
@@ -164,7 +164,7 @@ class RosSession:
     def close(self) -> None:
         """Stop spinning, then park the nodes and the context until the process ends: a
         participant deleted after a peer was killed mid-write crashed the process
-        (`drivers.ros_exit`). A thread that would not stop leaves them to the process's end too."""
+        (`drivers.common.ros_exit`). A thread that would not stop leaves them to the process's end too."""
         if not self.stop():
             return
         ros_exit.teardown((self.control, self.node), self.context)

@@ -79,7 +79,7 @@ class ClockStopped(DeviceFault):
 
 
 def _domain() -> str:
-    """The ROS domain this process is on, for a line (as drivers.ros_session.domain_text says it;
+    """The ROS domain this process is on, for a line (as drivers.common.ros_session.domain_text says it;
     not imported from there: the session's module imports this one)."""
     scope = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "")
     return f"ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0') or '0'}" + (f", discovery {scope}" if scope else "")
@@ -143,7 +143,7 @@ class SimTime:
     node: a /clock arrives once per ROS period, beside the arms' samples); lockstep: answer
     the periods (False: only follow the clock, as a plain `use_sim_time` node); stall: s
     of wall time (`ClockStopped`); polled: the monotonic time at which the executor last
-    looked for messages (`drivers.ros_session.RosSession.executor_time`), so that a
+    looked for messages (`drivers.common.ros_session.RosSession.executor_time`), so that a
     process held off the CPU never takes the simulator for gone.
     """
 

@@ -9,9 +9,9 @@ mass from the load cell, guide the tool tips onto a common point. Procedures ask
   `yes=True` (`--yes`) it is taken as done at once, for a rig prepared beforehand.
 * `RosOperator`: `rig sim`'s simulated operator, over a side channel of ROS 2 topics, so
   that a procedure in another process runs unattended against the simulated rig.
-* `drivers.operator_sim.SimOperator`: the in-process simulated rig does it itself.
+* `drivers.operator.sim.SimOperator`: the in-process simulated rig does it itself.
 
-The side channel (served by `drivers.operator_sim.OperatorServer` in `rig sim`):
+The side channel (served by `drivers.operator.sim.OperatorServer` in `rig sim`):
 
   /rig_sim/operator/request  std_msgs/String  {"id": "...", "action": ACTION, ...}
   /rig_sim/operator/reply    std_msgs/String  {"id": "...", "ok": true|false, "detail": "..."}
@@ -22,7 +22,7 @@ which object element's cell)}; touch {arms: [names], index, goal: [x, y, z] m in
 world}; unplug {device: "loadcell"} (a person pulling a cable: fault injection); fault
 {arm, kind: "joint_limit" (with joint: 1-3), "power_loss" or "servo_watchdog" (with timeout:
 s, 0: off)}
-(an arm fault injected for tests, drivers.operator_sim.SimOperator.fault). Both topics are
+(an arm fault injected for tests, drivers.operator.sim.SimOperator.fault). Both topics are
 reliable with depth 10; the client matches a reply by its id and ignores the others
 (several clients may share the channel).
 """
@@ -98,11 +98,11 @@ class RosOperator:
         from rclpy.qos import QoSProfile
         from std_msgs.msg import String
 
-        from drivers.time_base import WallTime
+        from drivers.common.time_base import WallTime
 
         self.node = node
         self.timeout = float(timeout)
-        #: the clock of `timeout` (`drivers.time_base`): simulated time when the rig follows one,
+        #: the clock of `timeout` (`drivers.common.time_base`): simulated time when the rig follows one,
         #: so a person's steps take what they take in the world, however busy the machine
         self.time = time_base if time_base is not None else WallTime()
         #: called every WATCH_EVERY s while a request waits for its reply; it raises the
@@ -182,7 +182,7 @@ class RosOperator:
 
     def fault(self, arm: str, kind: str, joint: int = 1, timeout: float = 0.1) -> None:
         """Inject an arm fault in `rig sim` (tests): kind "joint_limit", "power_loss" or
-        "servo_watchdog" (drivers.operator_sim.SimOperator.fault says what each does)."""
+        "servo_watchdog" (drivers.operator.sim.SimOperator.fault says what each does)."""
         self.request("fault", arm=arm, kind=kind, joint=int(joint), timeout=float(timeout))
 
     def touch(self, arms: dict, point_index: int, goal_world: np.ndarray) -> None:

@@ -35,7 +35,7 @@ mtsIntuitiveResearchKitPSM.cpp) where a client can see the difference:
   which ends the busy state on the next period; `goal_reached` events say whether it did.
 
 What the server publishes and the operating state (enable, home, faults, "arm not ready")
-live elsewhere: the state in `drivers.sim_arm_state.SimArmState` (which wraps this object),
+live elsewhere: the state in `drivers.arm.sim_arm_state.SimArmState` (which wraps this object),
 the topics in `rig.sim_server.crtk_bridge`. Messages for <arm>/status, warning and error are queued in
 `messages` as (level, text), other events (goal_reached, trajectory ratio) in `events`.
 
@@ -46,8 +46,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.crtk import PSM_JOINT_NAMES
-from drivers.sim_arm import DDQ_MAX, JointTrajectory
+from drivers.arm.crtk import PSM_JOINT_NAMES
+from drivers.arm.sim import DDQ_MAX, JointTrajectory
 from rig.model import psm_kinematics as K
 from rig.model.psm_arm_kinematics import rotation_error
 from rig.model.psm_tool import SAFE_DISTANCE_FROM_RCM, SAFE_DISTANCE_FROM_RCM_BUFFER
@@ -128,7 +128,7 @@ class SimPSM:
 
     world, name, clock: the simulated rig, the arm's name, its clock (`rig.devices.clock.SimClock`);
     tool: a `rig.model.psm_tool.Tool` (default: the large needle driver); velocity_ratio: fraction
-    of Table 4.2's velocities a trajectory plans for at ratio 1 (as `drivers.sim_arm.SimArm`).
+    of Table 4.2's velocities a trajectory plans for at ratio 1 (as `drivers.arm.sim.SimArm`).
     """
 
     joint_names = PSM_JOINT_NAMES
@@ -501,7 +501,7 @@ class SimPSM:
 
     def arrived(self) -> bool:
         """No trajectory under way and joints 1-3 within the arrival tolerance of the goal, at rest."""
-        from drivers.crtk import ARRIVAL_TOLERANCE, REST_VELOCITY
+        from drivers.arm.crtk import ARRIVAL_TOLERANCE, REST_VELOCITY
 
         if self.trajectory is not None:
             return False

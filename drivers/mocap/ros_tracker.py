@@ -34,9 +34,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from drivers import cdr
+from drivers.common import cdr
 from drivers.interfaces import Pose, TrackerFrame
-from drivers.quaternion import quat_xyzw_to_matrix
+from drivers.common.quaternion import quat_xyzw_to_matrix
 from rig.faults import DeviceFault, rate_of, silence_text, starved_text
 
 
@@ -90,9 +90,9 @@ class RosMocapTracker:
     reliable: subscribe RELIABLE (only matches reliable publishers) instead of the
     default BEST_EFFORT (matches both kinds, what bridges such as vrpn use).
     clock: monotonic seconds for the stale check (injectable for tests); polled: when the
-    executor last looked for messages (`drivers.ros_session.RosSession.executor_time`): ages
+    executor last looked for messages (`drivers.common.ros_session.RosSession.executor_time`): ages
     are counted up to then, so a starved process does not take healthy streams for stale.
-    time_base: the clock of the waits and ages when it is not the wall's (`drivers.time_base.SimTime`:
+    time_base: the clock of the waits and ages when it is not the wall's (`drivers.common.time_base.SimTime`:
     simulated time; `clock` and `polled` are then its own).
     Times in TrackerFrame.t are the header stamps in s; positions in m.
     """
@@ -119,7 +119,7 @@ class RosMocapTracker:
         self.stale_timeout = float(stale_timeout)
         self.setting = setting
         self.assembly_window = float(assembly_window)
-        from drivers.time_base import WallTime
+        from drivers.common.time_base import WallTime
 
         self._time = time_base if time_base is not None else WallTime()
         if self._time.simulated:
@@ -148,7 +148,7 @@ class RosMocapTracker:
         qos = QoSProfile(depth=qos_depth, history=HistoryPolicy.KEEP_LAST,
                          reliability=ReliabilityPolicy.RELIABLE if reliable
                          else ReliabilityPolicy.BEST_EFFORT)
-        # raw: the bytes are read here (drivers.cdr), not made into rclpy message objects
+        # raw: the bytes are read here (drivers.common.cdr), not made into rclpy message objects
         self._subs = [node.create_subscription(PoseStamped, self.topics[b],
                                                self._make_callback(b), qos, raw=True)
                       for b in self.bodies]
@@ -265,7 +265,7 @@ class RosMocapTracker:
                     parts.append(f"{b!r} on {self.topics[b]}: {silence_text(a, self.rate(b), seconds=True)}")
                 else:
                     parts.append(f"{b!r} on {self.topics[b]}: no message for {a:.3f} s (never received)")
-            from drivers.ros_session import domain_text
+            from drivers.common.ros_session import domain_text
 
             raise MocapStaleError(f"mocap stream stale beyond {self.stale_timeout:g} s ({self.setting}): "
                                   + "; ".join(parts) + ". "

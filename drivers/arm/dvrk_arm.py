@@ -68,9 +68,9 @@ from typing import Callable
 
 import numpy as np
 
-from drivers.crtk import ARRIVAL_TOLERANCE, REST_VELOCITY, ArmFault, OperatingState
-from drivers.dvrk_arm_state import ArmOperatingState
-from drivers.dvrk_arm_streams import ArmStreams, StaleCallback
+from drivers.arm.crtk import ARRIVAL_TOLERANCE, REST_VELOCITY, ArmFault, OperatingState
+from drivers.arm.dvrk_arm_state import ArmOperatingState
+from drivers.arm.dvrk_arm_streams import ArmStreams, StaleCallback
 from drivers.interfaces import JointState
 
 
@@ -103,7 +103,7 @@ def impedance_message(m, position, orientation=None, stiffness=(0.0, 0.0, 0.0), 
                       torque_damping=(0.0, 0.0, 0.0), force_orientation=None, torque_bias=(0.0, 0.0, 0.0)):
     """Fill the crtk_msgs/CartesianImpedance `m` as `RosArm.servo_ci` sends it (its
     arguments; the header is left to the caller) and return it."""
-    from drivers.quaternion import matrix_to_quat_xyzw
+    from drivers.common.quaternion import matrix_to_quat_xyzw
 
     p = _vector(position, "servo_ci position")
     m.force_position.x, m.force_position.y, m.force_position.z = p[:3]
@@ -137,16 +137,16 @@ class RosArm(ArmStreams, ArmOperatingState):
     ("/console", "/system", or "auto": the one the running system shows in the ROS graph);
     streams: which of `ALL_STREAMS` to subscribe (measured_js always: every fewer topic is
     less work for the executor); polled: the monotonic time at which the executor last
-    looked for messages (`drivers.ros_session.RosSession.executor_time`): the staleness age is
+    looked for messages (`drivers.common.ros_session.RosSession.executor_time`): the staleness age is
     counted up to then, so that a starved process never takes a healthy stream for a stale
     one (None: up to now, for an executor that is never starved); states: read
     operating_state and send state_command (False: neither, as on a controller without
     the CRTK state machine); setting: the rig.toml key of `watchdog`, named by a stale
     stream's line (default `[arms.<name>] watchdog`, the name from the namespace);
     control_node: the node of the operating_state and error events, the operating_state
-    service and state_command (`drivers.ros_session.RosSession.control`: they must not
+    service and state_command (`drivers.common.ros_session.RosSession.control`: they must not
     queue behind the streams; default `node`); time_base: the clock every wait, timeout
-    and stream age is on (`drivers.time_base`: the wall clock by default, or a simulator's
+    and stream age is on (`drivers.common.time_base`: the wall clock by default, or a simulator's
     /clock in lockstep, whose waits free the world and whose commands are counted).
     """
 
@@ -172,7 +172,7 @@ class RosArm(ArmStreams, ArmOperatingState):
         #: the loop clock of the rig this arm belongs to (set by whoever paces its commands,
         #: `rig.devices.factory`): a run reports its ticks' timing from it
         self.clock = None
-        from drivers.time_base import WallTime
+        from drivers.common.time_base import WallTime
 
         self._time = time_base if time_base is not None else WallTime()
         self._JointState = JointStateMsg
@@ -238,7 +238,7 @@ class RosArm(ArmStreams, ArmOperatingState):
         if unknown:
             raise ValueError(f"unknown arm streams {sorted(unknown)}; known: {', '.join(ALL_STREAMS)}")
         self.streams = ("measured_js",) + tuple(k for k in streams if k != "measured_js")
-        # raw: measured_js comes at 500 Hz-1 kHz per arm; its bytes are read here (drivers.cdr,
+        # raw: measured_js comes at 500 Hz-1 kHz per arm; its bytes are read here (drivers.common.cdr,
         # 2 us) rather than made into an rclpy message object (29 us)
         self._subs = [node.create_subscription(JointStateMsg, t["measured_js"], self._on_measured_js, sensor_qos,
                                                raw=True)]
@@ -304,7 +304,7 @@ class RosArm(ArmStreams, ArmOperatingState):
             header.stamp.sec, header.stamp.nanosec = divmod(ns, 1_000_000_000)
 
     def _send(self, publisher, msg) -> None:
-        """Publish a command, counted for the lockstep answers (`drivers.time_base`)."""
+        """Publish a command, counted for the lockstep answers (`drivers.common.time_base`)."""
         self._time.sent()
         publisher.publish(msg)
 

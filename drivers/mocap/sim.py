@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.interfaces import Pose, TrackerFrame
-from drivers.quaternion import ORDERS, XYZW, matrix_to_quat_xyzw, quat_xyzw_to_matrix, reorder_quaternion
+from drivers.common.quaternion import ORDERS, XYZW, matrix_to_quat_xyzw, quat_xyzw_to_matrix, reorder_quaternion
 
 
 def quaternion_from_matrix(R: np.ndarray, order: str) -> np.ndarray:
@@ -212,14 +212,14 @@ class SimTracker:
 
 def record_to_motive_csv(path: str | Path, frames: list[TrackerFrame], *, quat_order: str = XYZW,
                          units: str = "Millimeters", frame_rate: float | None = None) -> Path:
-    """Write tracker frames as an OptiTrack Motive CSV export (`drivers.motive_csv` layout).
+    """Write tracker frames as an OptiTrack Motive CSV export (`drivers.mocap.motive_csv` layout).
 
     Rigid bodies and labelled markers of the first frame are the columns; occluded samples
     become empty cells. quat_order: the order of the file's rotation columns (Motive writes
     "xyzw"). units: "Millimeters" (Motive's default) or "Meters". The mean marker error
     comes from `SimFrame.marker_error` when the frames carry it (else empty).
     """
-    from drivers.motive_csv import write_motive_csv
+    from drivers.mocap.motive_csv import write_motive_csv
 
     if not frames:
         raise ValueError("record_to_motive_csv: no frames to write")

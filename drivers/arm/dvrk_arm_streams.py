@@ -1,4 +1,4 @@
-"""What the dVRK arm driver (drivers.dvrk_arm.RosArm) hears: its executor's callbacks for the
+"""What the dVRK arm driver (drivers.arm.dvrk_arm.RosArm) hears: its executor's callbacks for the
 arm's streams and operating state, the watchdog that judges measured_js stale, and the
 reading side of the Arm interface (measured_js, drain_js, setpoint_js, measured_cp, ...).
 A mixin of RosArm: the state it reads is made in RosArm.__init__. Units: SI; times are
@@ -11,10 +11,10 @@ from typing import Callable
 
 import numpy as np
 
-from drivers import cdr
-from drivers.crtk import ArmFault, OperatingState, StaleStream, Wrench
+from drivers.common import cdr
+from drivers.arm.crtk import ArmFault, OperatingState, StaleStream, Wrench
 from drivers.interfaces import JointState, Pose
-from drivers.quaternion import quat_xyzw_to_matrix
+from drivers.common.quaternion import quat_xyzw_to_matrix
 
 StaleCallback = Callable[[StaleStream], None]
 

@@ -1,6 +1,6 @@
 """The in-process dVRK arm fake: the Arm protocol on one arm of the simulated world.
 
-`SimArm` is the fast fake beside `drivers.dvrk_arm.RosArm`: same vocabulary, no ROS.
+`SimArm` is the fast fake beside `drivers.arm.dvrk_arm.RosArm`: same vocabulary, no ROS.
 `rig sim` serves the very same object over the dVRK topics, so the trajectory generator
 and console behaviour seen through ROS are these.
 
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.crtk import ARRIVAL_TOLERANCE, PSM_JOINT_NAMES, REST_VELOCITY, Wrench, body_wrench_from_effort
+from drivers.arm.crtk import ARRIVAL_TOLERANCE, PSM_JOINT_NAMES, REST_VELOCITY, Wrench, body_wrench_from_effort
 from drivers.interfaces import JointState, Pose
 from rig.model import psm_kinematics as K
 

@@ -2,12 +2,12 @@
 
 * `SimOperator`: in-process, on the simulated world a procedure drives itself.
 * `OperatorServer`: the same, served by `rig sim` on the side channel of
-  `drivers.operator` (request / reply topics), so a procedure in another process gets its
+  `drivers.operator.driver` (request / reply topics), so a procedure in another process gets its
   manual steps done unattended. Requests arrive on the executor thread and are queued;
   `rig sim`'s main thread, the only one that touches the world, calls `apply()` between
   steps and publishes the replies.
 
-The actions (drivers.operator.ACTIONS): markers are mounted by construction, so confirm
+The actions (drivers.operator.driver.ACTIONS): markers are mounted by construction, so confirm
 does nothing; detach/attach take the object off the tool tips or put it back; hang_mass
 loads a load cell with the weight of a mass instead of the object's tension (0 kg: an
 empty cell); touch puts every named arm's tip on a world point by inverse kinematics on
@@ -17,7 +17,7 @@ whatever the calibration believes) and holds it there; unplug pulls the load cel
 the person pushes a joint of the arm past its upper limit, which a powered arm's limit
 check faults on; `servo_watchdog`: the arm's watchdog on servo commands is armed with a
 timeout, or disarmed with 0), on the arms `rig sim` serves behind their operating state
-(`drivers.sim_arm_state`).
+(`drivers.arm.sim_arm_state`).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from collections import deque
 import numpy as np
 
 from drivers.loadcell.force_calibration import STANDARD_GRAVITY
-from drivers.operator import ACTIONS, REPLY_TOPIC, REQUEST_TOPIC, OperatorError
+from drivers.operator.driver import ACTIONS, REPLY_TOPIC, REQUEST_TOPIC, OperatorError
 
 
 #: N/m, the thesis's objects: the compliant spring and the stiff suture string
@@ -75,7 +75,7 @@ class SimOperator:
                  cells: dict[int, CellLoad] | None = None, states: dict | None = None):
         self.world = world
         self.arms = arms or {}
-        self.states = states or {}  # arm -> drivers.sim_arm_state.SimArmState (rig sim's arms)
+        self.states = states or {}  # arm -> drivers.arm.sim_arm_state.SimArmState (rig sim's arms)
         self.cell = cell
         # element -> its cell, where the rig has a cell per object element
         self.cells = dict(cells) if cells else ({cell.element: cell} if cell is not None else {})

@@ -1,6 +1,6 @@
-"""The dVRK arm's operating state as the driver (drivers.dvrk_arm.RosArm) keeps it: the state
+"""The dVRK arm's operating state as the driver (drivers.arm.dvrk_arm.RosArm) keeps it: the state
 asked of the console and waited for, the state commands (enable, home), the faults an arm
-that no longer obeys raises (drivers.crtk.ArmFault), and the console it belongs to. A mixin
+that no longer obeys raises (drivers.arm.crtk.ArmFault), and the console it belongs to. A mixin
 of RosArm: the state it reads is made in RosArm.__init__."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import time
 
 import numpy as np
 
-from drivers.crtk import STATE_COMMANDS, ArmFault, OperatingState
-from drivers.dvrk_arm_streams import _stamp_seconds
+from drivers.arm.crtk import STATE_COMMANDS, ArmFault, OperatingState
+from drivers.arm.dvrk_arm_streams import _stamp_seconds
 
 #: s between repeats of a state command while `ready()` waits (one sent before the
 #: arm's subscription matched would be lost; enable and home are idempotent on the dVRK)

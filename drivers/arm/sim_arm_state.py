@@ -1,6 +1,6 @@
 """The dVRK arm's operating state, simulated: what `rig sim` serves beside each arm.
 
-`SimArmState` puts a served `drivers.sim_arm.SimArm` (the fake the in-process tests use)
+`SimArmState` puts a served `drivers.arm.sim.SimArm` (the fake the in-process tests use)
 behind the state machine of a dVRK arm (sawIntuitiveResearchKit's arm component, as its
 documentation and messages describe it), on the simulated clock:
 
@@ -44,7 +44,7 @@ import math
 
 import numpy as np
 
-from drivers.crtk import OperatingState
+from drivers.arm.crtk import OperatingState
 from rig.model import psm_kinematics as K
 
 #: s the drives take to power on after `enable`

@@ -44,7 +44,7 @@ class StaleStream(DeviceFault):
 
     def __init__(self, topic: str, age: float, watchdog: float, *, rate_hz: float = 0.0,
                  setting: str | None = None):
-        from drivers.ros_session import domain_text
+        from drivers.common.ros_session import domain_text
 
         self.topic = topic
         self.age = age

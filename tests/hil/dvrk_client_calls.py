@@ -165,6 +165,7 @@ def run(ral, arm_name: str, system_name: str) -> dict:
     h = rec("move_cp", psm.move_cp, g)
     rec("move_cp.wait", h.wait, False, 30.0) if h else None
     time.sleep(0.5)
+    until(psm.measured_cp, lambda v: (v[0].p - g.p).Norm() < 1e-3)
     rec("after_move_cp.measured_cp", psm.measured_cp)
     rec("after_move_cp.setpoint_cp", psm.setpoint_cp)
     for i in range(1, 101):
@@ -172,28 +173,33 @@ def run(ral, arm_name: str, system_name: str) -> dict:
         psm.servo_cp(PyKDL.Frame(cp0.M, cp0.p + PyKDL.Vector(0.02 * (1.0 - s), 0.01 * s, 0.0)))
         rate.sleep()
     time.sleep(0.5)
+    until(psm.measured_cp, lambda v: (v[0].p - (cp0.p + PyKDL.Vector(0.0, 0.01, 0.0))).Norm() < 1e-3)
     rec("after_servo_cp.measured_cp", psm.measured_cp)
     rec("after_servo_cp.goal", lambda: PyKDL.Frame(cp0.M, cp0.p + PyKDL.Vector(0.0, 0.01, 0.0)))
     # trajectory ratio
     rec("trajectory_j_set_ratio", psm.trajectory_j_set_ratio, 0.5)
     time.sleep(0.5)
+    until(psm.trajectory_j_get_ratio, lambda v: abs(v - 0.5) < 1e-6)
     rec("trajectory_j_get_ratio", psm.trajectory_j_get_ratio)
     psm.trajectory_j_set_ratio(1.0)
     # jaw
     h = rec("jaw.open", psm.jaw.open, math.radians(60.0))
     rec("jaw.open.wait", h.wait, False, 20.0) if h else None
     time.sleep(0.5)
+    until(psm.jaw.measured_jp, lambda v: abs(v[0][0] - math.radians(60.0)) < 0.01)
     rec("jaw.after_open.measured_jp", psm.jaw.measured_jp)
     rec("jaw.setpoint_js", psm.jaw.setpoint_js)
     rec("jaw.measured_js", psm.jaw.measured_js)
     h = rec("jaw.close", psm.jaw.close)
     rec("jaw.close.wait", h.wait, False, 20.0) if h else None
     time.sleep(0.5)
+    until(psm.jaw.measured_jp, lambda v: v[0][0] < 0.01)
     rec("jaw.after_close.measured_jp", psm.jaw.measured_jp)
     for i in range(100):
         psm.jaw.servo_jp(numpy.array([math.radians(30.0) * i / 99.0]))
         rate.sleep()
     time.sleep(0.5)
+    until(psm.jaw.measured_jp, lambda v: abs(v[0][0] - math.radians(30.0)) < 0.02)
     rec("jaw.after_servo_jp.measured_jp", psm.jaw.measured_jp)
     # efforts. A wrench and the joint state of the same period (the same stamp) first: the
     # wrench is what the efforts make through the Jacobians. Then each effort command, for a
@@ -263,6 +269,7 @@ def run(ral, arm_name: str, system_name: str) -> dict:
     rec("set_tool_present", psm.set_tool_present, True)
     rec("insert_jp", lambda: psm.insert_jp(0.1).wait(False, 30.0))
     time.sleep(0.3)
+    until(psm.measured_jp, lambda v: abs(v[0][2] - 0.1) < 1e-3)
     rec("after_insert.measured_jp", psm.measured_jp)
     # the console: what a lab's scripts publish there
     if system is not None:
@@ -271,9 +278,11 @@ def run(ral, arm_name: str, system_name: str) -> dict:
         rec("system.string_to_speech", system.string_to_speech, "rig sim")
     rec("console.teleop_set_scale", console.teleop_set_scale, 0.3)
     time.sleep(0.5)
+    until(console.teleop_get_scale, lambda v: abs(v - 0.3) < 1e-9)
     rec("console.teleop_get_scale", console.teleop_get_scale)
     rec("console.teleop_select", console.teleop_select, "MTMR_PSM1")
     time.sleep(0.5)
+    until(lambda: console.teleop_is_selected("MTMR_PSM1"), bool)
     rec("console.teleop_is_selected", console.teleop_is_selected, "MTMR_PSM1")
     # state: disable and enable again (the arm keeps is_homed, as the dVRK)
     rec("disable", psm.disable, 10.0)

@@ -81,14 +81,17 @@ def _vector(text: str | None, what: str) -> np.ndarray:
               help="Simulated object: spring (2450 N/m) or string (20000 N/m). Default: the configuration's.")
 @click.option("--mode", type=click.Choice(["impedance", "position"]), default="impedance", show_default=True,
               help="Slave control: impedance with tension tracking, or the position-based tracking of 7.7.3.")
-@click.option("--model", "model_path", type=click.Path(dir_okay=False), default=None,
-              help="Identified model file (default: the newest `rig identify` result; nominal on the simulated rig). "
-                   "Effects a `rig discrepancy` model adds are fed forward with the rigid body where they are loads "
-                   "(backlash and an effort delay are named, not fed forward). A file measured on another arm or "
-                   "rig, or edited by hand, is refused unless --force-model is given.")
+@click.option("--model", "model_path", multiple=True, metavar="[ARM=]FILE",
+              help="Identified model file for the arm its provenance names, or ARM=FILE for that arm; repeat it for "
+                   "each arm (default: each arm's own newest `rig identify` result with its newest `rig "
+                   "friction-ramp` terms; nominal on the simulated rig; never another arm's). Effects a `rig "
+                   "discrepancy` model adds are fed forward with the rigid body where they are loads (backlash and "
+                   "an effort delay are named, not fed forward). A file measured on another arm or rig, or edited "
+                   "by hand, is refused unless --force-model is given.")
 @click.option("--force-model", is_flag=True,
-              help="Use the --model file even though its provenance says it belongs to another arm or rig (or it "
-                   "was edited): the run's report and result carry a warning.")
+              help="Use a --model file even though its provenance says it belongs to another arm or rig (or it "
+                   "was edited): the run's report and result carry a warning. A forced FILE that names none of "
+                   "the run's arms is used for every arm given no file of its own.")
 @click.option("--slave-control", type=click.Choice(["auto", "arm", "effort"]), default="auto", show_default=True,
               help="Who closes the slaves' impedance: 'arm' = the arm, in its servo loop (dVRK servo_ci over ROS; "
                    "this loop moves its goal at the rate the arms publish, 100 Hz and up); 'effort' = this loop, "
@@ -153,50 +156,16 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
 
 
 # ----------------------------------------------------------------------------- set-up
-def _model_for(cfg, model_path, simulated: bool, force_model: bool = False, warnings: list | None = None):
-    """(PSMDynamics, StickSlip or None, description, effects) from a model file or nominal;
-    ``effects``: the file's added effects (`rig discrepancy`), [] when it has none.
+def _model_for(cfg, names, model_path, simulated: bool, force_model: bool = False, warnings: list | None = None):
+    """Each arm's own model (rig.runs.arm_models.models_for): {arm: ArmModel}; `model_path`
+    a --model value or values (``FILE`` or ``ARM=FILE``)."""
+    from rig.runs import arm_models
 
-    Implicitly only a model of one of this rig's arms is taken (rig.runs.provenance); newer ones
-    passed over are added to `warnings`. A --model file that does not belong is refused,
-    or with `force_model` used with a warning."""
-    from rig.model import model_file
-    from rig.runs import model_results
-    from rig.model.psm_dynamics import PSMDynamics
-
-    warnings = warnings if warnings is not None else []
-    if model_path:
-        m = model_file.load_model(model_path)
-        why = provenance.mismatch(m.document, cfg)
-        if why is not None:
-            if not force_model:
-                raise InputError(
-                    f"{model_path}: not a model of this rig: {why}; run `rig identify` on this rig, or add "
-                    "--force-model to use it anyway")
-            warnings.append(f"--force-model: {model_path} used although {why}")
-    else:
-        skipped: list[str] = []
-        m = model_results.latest_model(cfg=cfg, skipped=skipped)
-        warnings.extend(skipped)
-        if m is not None and m.standard is None:
-            m = None
-    if m is None:
-        if not simulated:
-            raise InputError("no identified model of this rig's arms: run `rig identify` (and "
-                                       "`rig friction-ramp`) first, or pass --model FILE"
-                                       + (f" ({warnings[-1]})" if warnings else ""))
-        return PSMDynamics(), None, "nominal model (no identified model of this rig yet)", []
-    effects = m.effects
-    note = f"identified model {m.path}"
-    if effects:
-        note += " with its effects " + ", ".join(f"{e['name']}@{e['joint']}" for e in effects)
-    stick = m.stick_slip()
-    if stick is not None:
-        # every file the feedforward takes terms from: a newer friction ramp's are merged in
-        ramp = (stick.provenance or {}).get("run_dir")
-        where = Path(ramp) / model_file.STICK_SLIP_FILENAME if ramp else m.path
-        note += f"; joint 3 stick-slip and friction terms from {where}"
-    return m.dynamics(), stick, note, effects
+    values = (model_path,) if isinstance(model_path, (str, Path)) else tuple(model_path or ())
+    pairs, problem = arm_models.parse_model_options(values, names)
+    if problem:
+        raise click.BadParameter(problem, param_hint="--model")
+    return arm_models.models_for(cfg, names, pairs, simulated, force_model, warnings)
 
 
 def _registration_for(cfg, names, simulated: bool, warnings: list | None = None):
@@ -221,25 +190,31 @@ def _registration_for(cfg, names, simulated: bool, warnings: list | None = None)
 
 def build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
                      object_kind, object_stiffness, elements, dt, effects=None, slave_control="effort"):
-    """The cooperative controller; ``effects`` (a model file's entries) are fed forward on
-    every arm with its rigid-body model (`calibration.effects.EffectCompensation`)."""
+    """The cooperative controller. ``dyn``, ``stick`` and ``effects`` are each arm's own
+    (dicts by arm; a single value is every arm's): its rigid-body model, joint 3's
+    stick-slip terms and a model file's effects, fed forward with the rigid body
+    (`calibration.effects.EffectCompensation`)."""
     from calibration.effects import EffectCompensation
     from rig.control.controllers import FeedforwardModel, StickSlipCompensation
     from rig.control.cooperative_controller import (CooperativeController, ForceLoop, Motion, PositionForceLoop,
                                                     arm_preset, preset)
 
-    d = dyn.params.drive
-    friction = {}
+    def per_arm(x):
+        return dict(x) if isinstance(x, dict) else {n: x for n in names}
+
+    dyn, stick, effects = per_arm(dyn), per_arm(stick), per_arm(effects)
+    friction, feedforward = {}, {}
     for n in names:
+        d = dyn[n].params.drive
         comp = StickSlipCompensation(d.Fc.copy(), d.Fv.copy(), d.Fo.copy(), d.slope)
-        if stick is not None:
-            comp.Fs_pos, comp.Fs_neg = stick.fs_pos, stick.fs_neg
+        if stick[n] is not None:
+            comp.Fs_pos, comp.Fs_neg = stick[n].fs_pos, stick[n].fs_neg
         friction[n] = comp
+        feedforward[n] = FeedforwardModel(dyn[n], EffectCompensation(effects[n], d.slope) if effects[n] else None)
     gains, follow = preset(object_kind)
     return CooperativeController(
         names, master, rcm_frames,
-        {n: FeedforwardModel(dyn, EffectCompensation(effects, d.slope) if effects else None) for n in names},
-        friction, elements,
+        feedforward, friction, elements,
         params["force"], dt=dt, motion=Motion(translation, rotation, params["duration"], params["settle"]),
         loop=ForceLoop(), gains=gains, object_stiffness=object_stiffness, follow_measured_master=follow,
         mode=mode, position_loop=PositionForceLoop(deadband=params["deadband"]),
@@ -302,8 +277,14 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
     warnings: list[str] = []
     if model is not None:
         dyn, stick, model_note, effects = model, None, "model given by the caller", []
+        models = {n: {"file": None, "note": f"{n}: model given by the caller"} for n in names}
     else:
-        dyn, stick, model_note, effects = _model_for(cfg, model_path, simulated, force_model, warnings)
+        # each arm its own model and friction terms, never another arm's
+        per_arm = _model_for(cfg, names, model_path, simulated, force_model, warnings)
+        dyn, stick = {n: m.dynamics for n, m in per_arm.items()}, {n: m.stick for n, m in per_arm.items()}
+        effects = {n: m.effects for n, m in per_arm.items()}
+        model_note = "; ".join(m.note for m in per_arm.values())
+        models = {n: m.summary() for n, m in per_arm.items()}
     rcm_frames, registration_note = _registration_for(cfg, names, simulated, warnings)
     limits = SafetyLimits(tension_ceiling=params["tension_ceiling"])
     if params["force"] >= limits.tension_ceiling:
@@ -323,14 +304,14 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
     try:
         return _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
                     model_note, registration_note, limits, dry_run, ros_commands, interactive,
-                    parameter_set, seed, progress, effects, warnings, slave_control)
+                    parameter_set, seed, progress, effects, warnings, slave_control, models=models)
     finally:
         rig.close()
 
 
 def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames, model_note,
          registration_note, limits, dry_run, ros_commands, interactive, parameter_set, seed, progress,
-         effects=(), warnings=(), slave_control="effort"):
+         effects=(), warnings=(), slave_control="effort", models=None):
     clock = rig.clock
     if slave_control == "arm":
         _pace_at_published_rate(rig, names, master)
@@ -347,7 +328,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             run._write(line + "\n")
         def new_controller():
             return build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick,
-                                    rcm_frames, kind, stiffness, elements, 1.0 / clock.rate, list(effects),
+                                    rcm_frames, kind, stiffness, elements, 1.0 / clock.rate, effects,
                                     slave_control)
 
         if dry_run:
@@ -361,7 +342,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             total = params["settle"] + params["duration"] + params["hold_after"]
             with run.step(STEPS[2]):
                 plan = _check_plan(controller, names, q0, total, limits)
-            result = {"plan": plan, "model": model_note, "registration": registration_note,
+            result = {"plan": plan, "model": model_note, "models": models, "registration": registration_note,
                       "arms": names, "master": master, "mode": mode, "object": kind, "warnings": list(warnings)}
             run.finish(result, status="dry-run")
             return run.result
@@ -582,7 +563,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             if ros_commands or interactive:
                 result["live_commands"] = live.summary(t_start)
             result["slave_control"] = _slave_control_text(slave_control, mode, clock.rate)
-            result.update({"model": model_note, "model_effects": model_effects, "registration": registration_note, "arms": names,
+            result.update({"model": model_note, "models": models, "model_effects": model_effects, "registration": registration_note, "arms": names,
                            "master": master, "mode": mode, "object": kind,
                            "filter_delay": _filter_delays(controller), "warnings": list(warnings)})
             missed = _missed(result, params)

@@ -30,6 +30,7 @@ from procedures.cooperative_live import KEY_STEP_M, KEY_STEP_N, KEY_STEP_RAD, SL
 from procedures.cooperative_report import (_figures, _filter_delays, _force_hold_figures, _loop_timing, _missed,
                                            _slave_control_text, format_report)
 from rig.commands.abort import exit_on_abort
+from rig.control.arm_loop_rates import ARM_LOOP_MIN_RATE, arm_loop_min_rate  # noqa: F401
 from rig.commands.exit_codes import InputError
 from rig.commands.options import config_from_context, json_option, yes_option
 from rig.commands.parameters import Parameter, with_parameters
@@ -223,21 +224,7 @@ def build_controller(cfg, names, master, params, translation, rotation, mode, dy
 
 
 # ----------------------------------------------------------------------------- the run
-#: Hz: the lowest rate of the arms' streams the arm-impedance path runs at, per object
-#: ("three": the triangle of three arms); a slower console is refused in one line naming
-#: its `-p`. The loop itself runs at most ARM_LOOP_MAX_RATE. In sim time
-#: (bench_cooperative_arm, loop at 100 Hz) every object holds from 100 Hz streams: the
-#: spring and the triangle 0.14-0.16 N, the string 0.27-0.35 N. Against rig sim on this
-#: 2-core machine (bench_cooperative_wire, quiet, 3 runs each) at 100 Hz streams the spring
-#: held 0.18-0.43 N, but the string aborted 1 of 3 on the tension ceiling (2.6-5.3 N in the
-#: others) and the triangle 3 of 3; at 500 Hz streams neither aborted (string 0.85-1.9 N,
-#: triangle 0.47-1.8 N): they need the faster console.
-ARM_LOOP_MIN_RATE = {"spring": 100.0, "string": 500.0, "three": 500.0}
-
-
-def arm_loop_min_rate(kind: str, arms: int) -> float:
-    """ARM_LOOP_MIN_RATE for an object of `kind` held by `arms` arms."""
-    return ARM_LOOP_MIN_RATE["three"] if arms > 2 else ARM_LOOP_MIN_RATE[kind]
+# the lowest rates of the arms' streams per object: rig.control.arm_loop_rates (rig doctor checks them too)
 
 
 #: Hz: the arm-impedance loop runs at the rate the arms publish, up to this. It moves set-
@@ -254,9 +241,12 @@ def _pace_at_published_rate(rig, names, master) -> None:
     ARM_LOOP_MAX_RATE and [rig] rate: every tick has a fresh state of every arm
     (rig.devices.clock.StreamClock); refuses, in one line, a slave whose arm cannot run servo_ci."""
     for n in names:
-        if n != master and not getattr(rig.arms[n], "supports_servo_ci", False):
-            raise AbortRun(f"{n} cannot run servo_ci (crtk_msgs/CartesianImpedance not available); "
-                           "use --slave-control effort")
+        # the console's subscription, not only the type here: servo_ci sent into the void
+        # would leave the slave in whatever mode it was
+        problem = rig.arms[n].servo_ci_problem() if hasattr(rig.arms[n], "servo_ci_problem") else "no servo_ci"
+        if n != master and problem is not None:
+            raise AbortRun(f"{n} cannot run its impedance in the arm: {problem}; use --slave-control effort "
+                           "(this loop closes it over servo_jf at [rig] rate)")
     rates = [rig.arms[n].published_rate() for n in names if hasattr(rig.arms[n], "published_rate")]
     heard = min(r for r in rates if r > 0) if any(r > 0 for r in rates) else rig.clock.rate
     if hasattr(rig.clock, "set_rate"):

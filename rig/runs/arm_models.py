@@ -129,14 +129,15 @@ def models_for(cfg, names, model_paths=(), simulated: bool = True, force_model: 
             continue
         skipped: list[str] = []
         m = model_results.latest_model(cfg=cfg, arm=n, skipped=skipped)
-        warnings.extend(skipped)
+        if skipped:  # one line per arm, not one per run set aside
+            warnings.append(f"{n}: " + provenance.set_aside_line(skipped))
         if m is not None and m.standard is not None:
             chosen[n] = _describe(n, m)
             continue
         if not simulated:
             raise InputError(f"no identified model of {n} on this rig: run `rig identify --arm {n}` (then "
                              f"`rig friction-ramp --arm {n}`), or pass --model {n}=FILE"
-                             + (f" ({skipped[-1]})" if skipped else ""))
+                             + (f" ({provenance.set_aside_line(skipped)})" if skipped else ""))
         chosen[n] = ArmModel(n, PSMDynamics(), None, [], None, None,
                              f"{n}: nominal model (no identified model of {n} on this rig yet)")
     return {n: chosen[n] for n in names}

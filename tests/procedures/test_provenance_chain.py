@@ -163,5 +163,24 @@ def test_a_model_of_psm1_still_belongs_when_psm3_joins_but_not_when_psm1_is_move
     assert provenance.rig_identity(three) != provenance.rig_identity(two)
     assert provenance.mismatch(doc, three) is None
     tilted = config.parse({"arms": {"PSM1": {"base_rpy": [0.1, 0, 0]}}}, "tilted.toml")
-    assert provenance.mismatch(doc, tilted).startswith("it was measured on another rig configuration (PSM1's "
-                                                       "mounting or gravity differ")
+    # the line says what moved (issue 45, item 7), not only that a hash differs
+    assert provenance.mismatch(doc, tilted).startswith("PSM1 was measured on another placement (base_rpy "
+                                                       "[0.0, 0.0, 0.0] then, [0.1, 0.0, 0.0] now)")
+    # a result written before the placement was recorded in the clear still says the hashes
+    old = {"provenance": {**doc["provenance"], "arms": [{k: v for k, v in a.items() if k in ("name", "identity",
+                                                                                           "mounting")}
+                                                       for a in doc["provenance"]["arms"]]}}
+    assert provenance.mismatch(sealed_json.seal(old), tilted).startswith(
+        "it was measured on another rig configuration (PSM1's mounting or gravity differ")
+
+
+def test_adding_a_serial_sets_earlier_results_aside_and_says_so_in_one_line():
+    """Results keyed on the arm's identity: a serial added to rig.toml later names itself as
+    the reason, and several runs set aside are one line."""
+    plain = config.parse({"arms": {"PSM1": {"driver": "ros"}}}, "plain.toml")
+    serial = config.parse({"arms": {"PSM1": {"driver": "ros", "serial": "28914"}}}, "serial.toml")
+    doc = sealed_json.seal({"provenance": provenance.live(plain, ["PSM1"], "run")})
+    why = provenance.mismatch(doc, serial)
+    assert "[arms.PSM1] serial was added after it was measured" in why, why
+    line = provenance.set_aside_line([f"skipped identify run B: {why}", f"skipped identify run A: {why}"])
+    assert line.startswith("2 results set aside, the newest: skipped identify run B: ") and "\n" not in line

@@ -82,5 +82,6 @@ def _calibrations(cfg) -> list[Check]:
                             + (f" ({str(exc).split('(skipped ', 1)[1].split(')')[0]} set aside)"
                                if "(skipped " in str(exc) else "")))
             continue
-        out.append(ok(label, f"{cal.newtons_per_count * 1e3:.4g} mN/count, from {cal.source}"))
+        out.append(ok(label, f"{cal.newtons_per_count * 1e3:.4g} mN/count, made on {cal.device or port}"
+                      + (f" {cal.created}" if cal.created else "")))
     return out

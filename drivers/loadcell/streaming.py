@@ -243,6 +243,12 @@ class _StreamingLoadCell(abc.ABC):
             self._raise_if_unusable()  # after stop(), nothing new is simply nothing
         return out
 
+    def device_rate(self) -> float:
+        """Hz at which the device converts, from its own sample times (0.0 before two): what
+        the firmware streams, whatever delays this host's reading of them."""
+        with self._lock:
+            return rate_of(self._device_times)
+
     def stats(self) -> LoadCellStats:
         """A snapshot of the counters."""
         with self._lock:

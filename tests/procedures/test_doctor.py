@@ -121,7 +121,7 @@ def test_no_calibration_for_this_port_then_one_found_by_the_device(lab):
     the configured link resolves to is (issue 45, item 5: matched by device, not by string)."""
     _calibration(lab.folder, "20260101T000000000000Z", "/dev/ttyACM7")
     out, checks = _doctor(lab)
-    assert out.code == 0
+    assert out.code == 0, _failed(checks)
     assert checks["load cell calibration"]["status"] == "todo"
     assert f"none for {lab.folder / 'loadcell'}: `rig loadcell-calibrate`" in checks["load cell calibration"]["text"]
     _calibration(lab.folder, "20260101T000001000000Z", os.path.realpath(lab.folder / "loadcell"))

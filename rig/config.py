@@ -176,7 +176,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
                       "file, e.g. '28007'): results measured on it name it, and are used only on it"),
         "base_xyz": Key("vec3", [0.0, 0.0, 0.0], "position of the arm's frame 0 in the world, m"),
         "base_rpy": Key("vec3", [0.0, 0.0, 0.0], "orientation of frame 0 in the world (roll, pitch, yaw), rad"),
-        "q0": Key("vec3", [0.0, 0.0, 0.12], "initial joints of a simulated arm (rad, rad, m)"),
+        "q0": Key("vec3", [0.0, 0.0, 0.12], "start joints (rad, rad, m): a simulated arm starts there; `rig "
+                  "cooperative` moves a real arm there, the object off, before asking for the object"),
         "effort_limit": Key("vec3", [5.0, 5.0, 15.0], "drive effort ceiling (N m, N m, N)",
                             lambda v: all(x > 0 for x in v), "three efforts > 0"),
         "watchdog": Key("float", SIM_STALE_FLOOR, "s without a measured_js that stops the run (the arm is told to "

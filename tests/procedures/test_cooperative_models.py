@@ -126,3 +126,34 @@ def test_model_option_goes_to_the_arm_its_file_names_and_refuses_another_arms(tm
     res = CliRunner().invoke(main, ["cooperative", "--dry-run", "--model", f"PSM1={psm2}"])
     assert res.exit_code == 5, res.output
     assert "not a model of PSM1 on this rig" in res.stderr and "rig identify --arm PSM1" in res.stderr
+
+
+def test_a_slave_whose_console_does_not_subscribe_servo_ci_is_refused_in_one_line():
+    """The check is the console's subscription (RosArm.servo_ci_problem, from the ROS graph),
+    not whether the Python type imports: an arm that can build the message but whose
+    console does not listen is refused, naming --slave-control effort."""
+    import pytest
+
+    from procedures.cooperative import _pace_at_published_rate
+    from rig.runs.run import AbortRun
+
+    class Arm:
+        supports_servo_ci = True  # the type imports here
+
+        def __init__(self, problem):
+            self.problem = problem
+
+        def servo_ci_problem(self):
+            return self.problem
+
+        def published_rate(self):
+            return 500.0
+
+    class Rig:
+        arms = {"PSM1": Arm("/PSM1/servo_ci: the console does not subscribe to it"), "PSM2": Arm(None)}
+
+    with pytest.raises(AbortRun) as err:
+        _pace_at_published_rate(Rig(), ["PSM1", "PSM2"], "PSM2")
+    text = str(err.value.reason)
+    assert "PSM1 cannot run its impedance in the arm: /PSM1/servo_ci: the console does not subscribe" in text
+    assert "--slave-control effort" in text and "\n" not in text

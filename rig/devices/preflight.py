@@ -118,10 +118,10 @@ def arm_checks(cfg, arm, name: str) -> list[Check]:
     coop_what = f"cooperative ({kind}{', three arms' if held_by > 2 else ''}) needs {coop:g} Hz"
     topic = arm.topic["measured_js"]
     if heard < RATE_MARGIN * need:
-        served = "; cooperative on it runs" if heard >= RATE_MARGIN * coop else f"; {coop_what}"
+        served = (f" (cooperative's {coop:g} Hz is met)" if heard >= RATE_MARGIN * coop else f"; {coop_what}")
         out.append(fail(f"{name} console", f"{topic} {_rate_text(heard)}; {', '.join(RIG_RATE_PROCEDURES)} need "
                         f"{need:g} Hz ([rig] rate){served}: start the console with `dvrk_system -p {1.0 / need:g}` "
-                        f"(or `rig sim --ros-period {1.0 / need:g}`), or set [rig] rate = {max(1, int(heard))} in "
+                        f"(or `rig sim --ros-period {1.0 / need:g}`), or set [rig] rate = {max(1, int(round(heard)))} in "
                         f"{cfg.source}"))
     elif heard < RATE_MARGIN * coop:
         out.append(fail(f"{name} console", f"{topic} {_rate_text(heard)}; {coop_what}: start the console with "
@@ -259,10 +259,12 @@ def _mocap_checks(cfg, tracker, timeout: float) -> list[Check]:
     out = []
     silent = [b for b, n in tracker.stats.received.items() if n == 0]
     if silent:
+        fix = ("start the mocap bridge on this domain, with [mocap] prefix its topics' (`ros2 topic list` on "
+               "the bridge's PC)" if len(silent) == len(tracker.bodies) else
+               "define them in Motive (named exactly so) and check that the bridge streams them")
         out.append(fail("mocap", f"{len(silent)} of {len(tracker.bodies)} bodies not streamed within {timeout:g} s on "
                         f"{domain_text()}: {', '.join(tracker.topics[b] for b in silent[:4])}"
-                        + (" ..." if len(silent) > 4 else "") + ": define them in Motive (named exactly so) and "
-                        "check that the bridge streams them"))
+                        + (" ..." if len(silent) > 4 else "") + f": {fix}"))
     heard = [b for b in tracker.bodies if b not in silent]
     if heard:
         rates = [tracker.rate(b) for b in heard]

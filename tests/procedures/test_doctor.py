@@ -144,7 +144,7 @@ def test_a_100_hz_console_for_the_500_hz_procedures(old_console):
     assert out.code == 3
     text = checks["PSM1 console"]["text"]
     assert "100 Hz published (console -p 0.01 s)" in text and "need 500 Hz ([rig] rate)" in text
-    assert "`dvrk_system -p 0.002`" in text and "cooperative on it runs" in text
+    assert "`dvrk_system -p 0.002`" in text and "(cooperative's 100 Hz is met)" in text
 
 
 @pytest.mark.slow  # a second rig sim

@@ -154,6 +154,17 @@ def mismatch(doc: dict, cfg, arm: str | None = None, arms: list[str] | None = No
     return None
 
 
+def _of_other_arms(doc: dict, want: list[str]) -> bool:
+    """True when `doc` was measured on a rig and holds none of the arms `want` (PSM2's model,
+    looked at for PSM1): passed over without a word. A recording's result, or one without
+    a provenance, is still named when it is passed over."""
+    prov = doc.get(KEY) if isinstance(doc, dict) else None
+    if not want or not isinstance(prov, dict) or prov.get("rig") is None or not isinstance(prov.get("arms"), list):
+        return False
+    held = {a.get("name") for a in prov["arms"] if isinstance(a, dict)}
+    return not (set(want) & held)
+
+
 def describe(doc: dict) -> str:
     """One phrase naming where a result came from."""
     prov = doc.get(KEY) or {}
@@ -210,6 +221,8 @@ def find(procedure: str, cfg, *, arm: str | None = None, arms: list[str] | None 
         doc = data if document is None else document(run, data)
         if doc is None:
             continue
+        if _of_other_arms(doc, [arm] if arm is not None else list(arms or [])):
+            continue  # another arm's result of this rig: not one set aside for this arm
         why = mismatch(doc, cfg, arm=arm, arms=arms)
         if why is None:
             out.run_dir, out.data = run, data

@@ -30,6 +30,7 @@ from procedures.cooperative_live import KEY_STEP_M, KEY_STEP_N, KEY_STEP_RAD, SL
 from procedures.cooperative_report import (_figures, _filter_delays, _force_hold_figures, _loop_timing, _missed,
                                            _slave_control_text, format_report)
 from rig.commands.abort import exit_on_abort
+from rig.control.arm_loop_rates import ARM_LOOP_MIN_RATE, arm_loop_min_rate  # noqa: F401
 from rig.commands.exit_codes import InputError
 from rig.commands.options import config_from_context, json_option, yes_option
 from rig.commands.parameters import Parameter, with_parameters
@@ -81,14 +82,17 @@ def _vector(text: str | None, what: str) -> np.ndarray:
               help="Simulated object: spring (2450 N/m) or string (20000 N/m). Default: the configuration's.")
 @click.option("--mode", type=click.Choice(["impedance", "position"]), default="impedance", show_default=True,
               help="Slave control: impedance with tension tracking, or the position-based tracking of 7.7.3.")
-@click.option("--model", "model_path", type=click.Path(dir_okay=False), default=None,
-              help="Identified model file (default: the newest `rig identify` result; nominal on the simulated rig). "
-                   "Effects a `rig discrepancy` model adds are fed forward with the rigid body where they are loads "
-                   "(backlash and an effort delay are named, not fed forward). A file measured on another arm or "
-                   "rig, or edited by hand, is refused unless --force-model is given.")
+@click.option("--model", "model_path", multiple=True, metavar="[ARM=]FILE",
+              help="Identified model file for the arm its provenance names, or ARM=FILE for that arm; repeat it for "
+                   "each arm (default: each arm's own newest `rig identify` result with its newest `rig "
+                   "friction-ramp` terms; nominal on the simulated rig; never another arm's). Effects a `rig "
+                   "discrepancy` model adds are fed forward with the rigid body where they are loads (backlash and "
+                   "an effort delay are named, not fed forward). A file measured on another arm or rig, or edited "
+                   "by hand, is refused unless --force-model is given.")
 @click.option("--force-model", is_flag=True,
-              help="Use the --model file even though its provenance says it belongs to another arm or rig (or it "
-                   "was edited): the run's report and result carry a warning.")
+              help="Use a --model file even though its provenance says it belongs to another arm or rig (or it "
+                   "was edited): the run's report and result carry a warning. A forced FILE that names none of "
+                   "the run's arms is used for every arm given no file of its own.")
 @click.option("--slave-control", type=click.Choice(["auto", "arm", "effort"]), default="auto", show_default=True,
               help="Who closes the slaves' impedance: 'arm' = the arm, in its servo loop (dVRK servo_ci over ROS; "
                    "this loop moves its goal at the rate the arms publish, 100 Hz and up); 'effort' = this loop, "
@@ -153,50 +157,16 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
 
 
 # ----------------------------------------------------------------------------- set-up
-def _model_for(cfg, model_path, simulated: bool, force_model: bool = False, warnings: list | None = None):
-    """(PSMDynamics, StickSlip or None, description, effects) from a model file or nominal;
-    ``effects``: the file's added effects (`rig discrepancy`), [] when it has none.
+def _model_for(cfg, names, model_path, simulated: bool, force_model: bool = False, warnings: list | None = None):
+    """Each arm's own model (rig.runs.arm_models.models_for): {arm: ArmModel}; `model_path`
+    a --model value or values (``FILE`` or ``ARM=FILE``)."""
+    from rig.runs import arm_models
 
-    Implicitly only a model of one of this rig's arms is taken (rig.runs.provenance); newer ones
-    passed over are added to `warnings`. A --model file that does not belong is refused,
-    or with `force_model` used with a warning."""
-    from rig.model import model_file
-    from rig.runs import model_results
-    from rig.model.psm_dynamics import PSMDynamics
-
-    warnings = warnings if warnings is not None else []
-    if model_path:
-        m = model_file.load_model(model_path)
-        why = provenance.mismatch(m.document, cfg)
-        if why is not None:
-            if not force_model:
-                raise InputError(
-                    f"{model_path}: not a model of this rig: {why}; run `rig identify` on this rig, or add "
-                    "--force-model to use it anyway")
-            warnings.append(f"--force-model: {model_path} used although {why}")
-    else:
-        skipped: list[str] = []
-        m = model_results.latest_model(cfg=cfg, skipped=skipped)
-        warnings.extend(skipped)
-        if m is not None and m.standard is None:
-            m = None
-    if m is None:
-        if not simulated:
-            raise InputError("no identified model of this rig's arms: run `rig identify` (and "
-                                       "`rig friction-ramp`) first, or pass --model FILE"
-                                       + (f" ({warnings[-1]})" if warnings else ""))
-        return PSMDynamics(), None, "nominal model (no identified model of this rig yet)", []
-    effects = m.effects
-    note = f"identified model {m.path}"
-    if effects:
-        note += " with its effects " + ", ".join(f"{e['name']}@{e['joint']}" for e in effects)
-    stick = m.stick_slip()
-    if stick is not None:
-        # every file the feedforward takes terms from: a newer friction ramp's are merged in
-        ramp = (stick.provenance or {}).get("run_dir")
-        where = Path(ramp) / model_file.STICK_SLIP_FILENAME if ramp else m.path
-        note += f"; joint 3 stick-slip and friction terms from {where}"
-    return m.dynamics(), stick, note, effects
+    values = (model_path,) if isinstance(model_path, (str, Path)) else tuple(model_path or ())
+    pairs, problem = arm_models.parse_model_options(values, names)
+    if problem:
+        raise click.BadParameter(problem, param_hint="--model")
+    return arm_models.models_for(cfg, names, pairs, simulated, force_model, warnings)
 
 
 def _registration_for(cfg, names, simulated: bool, warnings: list | None = None):
@@ -221,25 +191,31 @@ def _registration_for(cfg, names, simulated: bool, warnings: list | None = None)
 
 def build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
                      object_kind, object_stiffness, elements, dt, effects=None, slave_control="effort"):
-    """The cooperative controller; ``effects`` (a model file's entries) are fed forward on
-    every arm with its rigid-body model (`calibration.effects.EffectCompensation`)."""
+    """The cooperative controller. ``dyn``, ``stick`` and ``effects`` are each arm's own
+    (dicts by arm; a single value is every arm's): its rigid-body model, joint 3's
+    stick-slip terms and a model file's effects, fed forward with the rigid body
+    (`calibration.effects.EffectCompensation`)."""
     from calibration.effects import EffectCompensation
     from rig.control.controllers import FeedforwardModel, StickSlipCompensation
     from rig.control.cooperative_controller import (CooperativeController, ForceLoop, Motion, PositionForceLoop,
                                                     arm_preset, preset)
 
-    d = dyn.params.drive
-    friction = {}
+    def per_arm(x):
+        return dict(x) if isinstance(x, dict) else {n: x for n in names}
+
+    dyn, stick, effects = per_arm(dyn), per_arm(stick), per_arm(effects)
+    friction, feedforward = {}, {}
     for n in names:
+        d = dyn[n].params.drive
         comp = StickSlipCompensation(d.Fc.copy(), d.Fv.copy(), d.Fo.copy(), d.slope)
-        if stick is not None:
-            comp.Fs_pos, comp.Fs_neg = stick.fs_pos, stick.fs_neg
+        if stick[n] is not None:
+            comp.Fs_pos, comp.Fs_neg = stick[n].fs_pos, stick[n].fs_neg
         friction[n] = comp
+        feedforward[n] = FeedforwardModel(dyn[n], EffectCompensation(effects[n], d.slope) if effects[n] else None)
     gains, follow = preset(object_kind)
     return CooperativeController(
         names, master, rcm_frames,
-        {n: FeedforwardModel(dyn, EffectCompensation(effects, d.slope) if effects else None) for n in names},
-        friction, elements,
+        feedforward, friction, elements,
         params["force"], dt=dt, motion=Motion(translation, rotation, params["duration"], params["settle"]),
         loop=ForceLoop(), gains=gains, object_stiffness=object_stiffness, follow_measured_master=follow,
         mode=mode, position_loop=PositionForceLoop(deadband=params["deadband"]),
@@ -248,21 +224,7 @@ def build_controller(cfg, names, master, params, translation, rotation, mode, dy
 
 
 # ----------------------------------------------------------------------------- the run
-#: Hz: the lowest rate of the arms' streams the arm-impedance path runs at, per object
-#: ("three": the triangle of three arms); a slower console is refused in one line naming
-#: its `-p`. The loop itself runs at most ARM_LOOP_MAX_RATE. In sim time
-#: (bench_cooperative_arm, loop at 100 Hz) every object holds from 100 Hz streams: the
-#: spring and the triangle 0.14-0.16 N, the string 0.27-0.35 N. Against rig sim on this
-#: 2-core machine (bench_cooperative_wire, quiet, 3 runs each) at 100 Hz streams the spring
-#: held 0.18-0.43 N, but the string aborted 1 of 3 on the tension ceiling (2.6-5.3 N in the
-#: others) and the triangle 3 of 3; at 500 Hz streams neither aborted (string 0.85-1.9 N,
-#: triangle 0.47-1.8 N): they need the faster console.
-ARM_LOOP_MIN_RATE = {"spring": 100.0, "string": 500.0, "three": 500.0}
-
-
-def arm_loop_min_rate(kind: str, arms: int) -> float:
-    """ARM_LOOP_MIN_RATE for an object of `kind` held by `arms` arms."""
-    return ARM_LOOP_MIN_RATE["three"] if arms > 2 else ARM_LOOP_MIN_RATE[kind]
+# the lowest rates of the arms' streams per object: rig.control.arm_loop_rates (rig doctor checks them too)
 
 
 #: Hz: the arm-impedance loop runs at the rate the arms publish, up to this. It moves set-
@@ -279,9 +241,12 @@ def _pace_at_published_rate(rig, names, master) -> None:
     ARM_LOOP_MAX_RATE and [rig] rate: every tick has a fresh state of every arm
     (rig.devices.clock.StreamClock); refuses, in one line, a slave whose arm cannot run servo_ci."""
     for n in names:
-        if n != master and not getattr(rig.arms[n], "supports_servo_ci", False):
-            raise AbortRun(f"{n} cannot run servo_ci (crtk_msgs/CartesianImpedance not available); "
-                           "use --slave-control effort")
+        # the console's subscription, not only the type here: servo_ci sent into the void
+        # would leave the slave in whatever mode it was
+        problem = rig.arms[n].servo_ci_problem() if hasattr(rig.arms[n], "servo_ci_problem") else "no servo_ci"
+        if n != master and problem is not None:
+            raise AbortRun(f"{n} cannot run its impedance in the arm: {problem}; use --slave-control effort "
+                           "(this loop closes it over servo_jf at [rig] rate)")
     rates = [rig.arms[n].published_rate() for n in names if hasattr(rig.arms[n], "published_rate")]
     heard = min(r for r in rates if r > 0) if any(r > 0 for r in rates) else rig.clock.rate
     if hasattr(rig.clock, "set_rate"):
@@ -302,8 +267,14 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
     warnings: list[str] = []
     if model is not None:
         dyn, stick, model_note, effects = model, None, "model given by the caller", []
+        models = {n: {"file": None, "note": f"{n}: model given by the caller"} for n in names}
     else:
-        dyn, stick, model_note, effects = _model_for(cfg, model_path, simulated, force_model, warnings)
+        # each arm its own model and friction terms, never another arm's
+        per_arm = _model_for(cfg, names, model_path, simulated, force_model, warnings)
+        dyn, stick = {n: m.dynamics for n, m in per_arm.items()}, {n: m.stick for n, m in per_arm.items()}
+        effects = {n: m.effects for n, m in per_arm.items()}
+        model_note = "; ".join(m.note for m in per_arm.values())
+        models = {n: m.summary() for n, m in per_arm.items()}
     rcm_frames, registration_note = _registration_for(cfg, names, simulated, warnings)
     limits = SafetyLimits(tension_ceiling=params["tension_ceiling"])
     if params["force"] >= limits.tension_ceiling:
@@ -323,14 +294,14 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
     try:
         return _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
                     model_note, registration_note, limits, dry_run, ros_commands, interactive,
-                    parameter_set, seed, progress, effects, warnings, slave_control)
+                    parameter_set, seed, progress, effects, warnings, slave_control, models=models)
     finally:
         rig.close()
 
 
 def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames, model_note,
          registration_note, limits, dry_run, ros_commands, interactive, parameter_set, seed, progress,
-         effects=(), warnings=(), slave_control="effort"):
+         effects=(), warnings=(), slave_control="effort", models=None):
     clock = rig.clock
     if slave_control == "arm":
         _pace_at_published_rate(rig, names, master)
@@ -347,7 +318,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             run._write(line + "\n")
         def new_controller():
             return build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick,
-                                    rcm_frames, kind, stiffness, elements, 1.0 / clock.rate, list(effects),
+                                    rcm_frames, kind, stiffness, elements, 1.0 / clock.rate, effects,
                                     slave_control)
 
         if dry_run:
@@ -361,7 +332,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             total = params["settle"] + params["duration"] + params["hold_after"]
             with run.step(STEPS[2]):
                 plan = _check_plan(controller, names, q0, total, limits)
-            result = {"plan": plan, "model": model_note, "registration": registration_note,
+            result = {"plan": plan, "model": model_note, "models": models, "registration": registration_note,
                       "arms": names, "master": master, "mode": mode, "object": kind, "warnings": list(warnings)}
             run.finish(result, status="dry-run")
             return run.result
@@ -582,7 +553,7 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             if ros_commands or interactive:
                 result["live_commands"] = live.summary(t_start)
             result["slave_control"] = _slave_control_text(slave_control, mode, clock.rate)
-            result.update({"model": model_note, "model_effects": model_effects, "registration": registration_note, "arms": names,
+            result.update({"model": model_note, "models": models, "model_effects": model_effects, "registration": registration_note, "arms": names,
                            "master": master, "mode": mode, "object": kind,
                            "filter_delay": _filter_delays(controller), "warnings": list(warnings)})
             missed = _missed(result, params)

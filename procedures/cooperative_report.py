@@ -136,12 +136,21 @@ def _filter_delays(controller) -> dict:
     return out
 
 
+def _model_lines(result: dict) -> list[str]:
+    """One line per arm naming the model (file) it ran on."""
+    models = result.get("models")
+    if not models:
+        return [f"  {result.get('model')}"] if result.get("model") else []
+    return [f"  model {m.get('note') or m.get('file')}" for m in models.values()]
+
+
 def format_report(result: dict) -> str:
     if result.get("status") == "dry-run":
         return "\n".join([f"plan checked for {', '.join(result['arms'])} (master {result['master']}): inside every "
-                          "limit; nothing moved"] + [f"  warning: {w}" for w in result.get("warnings") or []])
+                          "limit; nothing moved"] + _model_lines(result)
+                         + [f"  warning: {w}" for w in result.get("warnings") or []])
     lines = [f"cooperative ({result.get('mode')}, {result.get('object')}): {result.get('status')}",
-             f"  {result.get('model')}", f"  {result.get('registration')}"]
+             *_model_lines(result), f"  {result.get('registration')}"]
     if result.get("slave_control"):
         lines.append(f"  slaves: {result['slave_control']}")
     lines += [f"  warning: {w}" for w in result.get("warnings") or []]

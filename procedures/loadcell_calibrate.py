@@ -31,6 +31,7 @@ from rig.commands.abort import exit_on_abort
 from rig.commands.exit_codes import EXIT_MISSED, InputError
 from rig.commands.options import config_from_context, yes_option
 from rig.commands.report import emit_result
+from drivers.loadcell.protocol import FIRMWARE_MAX_RATE_HZ
 from rig.devices.loadcell_calibrations import CALIBRATION_PROCEDURE
 from rig.runs.recording import package_version
 from rig.runs.run import AbortRun, Run
@@ -85,8 +86,9 @@ def _point(mass_kg: float, counts: list[int]) -> dict:
 @click.option("--baud", type=int, default=None, help="Serial speed (baud). Default: rig.toml's [loadcell] baudrate (that of the rig's firmware).")
 @click.option("--seconds", type=click.FloatRange(0.1, 60), default=2.0, show_default=True,
               help="Averaging time at each mass (s).")
-@click.option("--rate", "rate_hz", type=click.IntRange(1, 1000), default=500, show_default=True,
-              help="Sample rate (Hz).")
+@click.option("--rate", "rate_hz", type=click.IntRange(1, FIRMWARE_MAX_RATE_HZ), default=None,
+              help="Sample rate, Hz. Default: rig.toml's [loadcell] rate (500 Hz unless it says otherwise; the HX711 "
+                   "build's limit is 80 Hz).")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit without running.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the result (result.json) on stdout and the report on stderr.")
@@ -127,6 +129,8 @@ def command(ctx, mass1: float, mass2: float, port: str | None, element: int | No
                                    "give --port, or --sim")
     if baud is None:
         baud = cfg.loadcell["baudrate"]
+    if rate_hz is None:
+        rate_hz = int(round(cfg.loadcell["rate"]))
     simulated = port is None
     params = {"mass1_kg": mass1, "mass2_kg": mass2, "port": port, "element": element, "sim": simulated, "baud": baud,
               "seconds": seconds, "rate_hz": rate_hz}

@@ -133,10 +133,13 @@ def _ask_priority(nice: int) -> None:
               help="With --lockstep: seconds of wall time a procedure may go silent (a live one repeats its "
                    "answer five times a second, computing or waiting) before the world steps on without it: a killed "
                    "procedure never freezes rig sim; it rejoins with its next answer.")
+@click.option("--servo-ci/--no-servo-ci", "servo_ci", default=True, show_default=True,
+              help="Subscribe to every arm's servo_ci as a dVRK 2.2+ console's ROS bridge does; --no-servo-ci "
+                   "serves a console whose bridge does not (what `rig doctor` and `rig cooperative` must see).")
 @click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit.")
 @click.pass_context
 def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, natnet, natnet_version, console,
-            plant_model, nice, sim_time, lockstep, lockstep_timeout, list_steps):
+            plant_model, nice, sim_time, lockstep, lockstep_timeout, servo_ci, list_steps):
     """Serve the simulated rig as whole dVRK PSMs on their ROS 2 topics (/<ARM>/measured_js ...
     every ROS_PERIOD s), mocap poses on /mocap/<body>/pose and the load cell on a pty, paced
     to the wall clock. The dVRK's own Python client (dvrk_python, crtk) drives it unmodified.
@@ -166,6 +169,10 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
     from rig.commands.options import config_from_context
     from rig.sim.world import world_from_config
 
+    from drivers import crtk_messages
+
+    if crtk_messages.problem() is not None:  # a dVRK console's arms speak them
+        raise InputError(f"rig sim serves the dVRK's CRTK messages: {crtk_messages.problem()}")
     _ask_priority(nice)  # before any thread starts: Linux keeps a nice value per thread, new ones inherit it
     cfg = served_config(config_from_context(ctx))
     rate = cfg.rig["rate"] if rate is None else rate
@@ -278,7 +285,8 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
             cell.update()
         server = SimServer(world, node, list(world.names), ros_period=ros_period, mocap=mocap_cfg, seed=world.seed,
                            console=console, cells=cells, executor=cfg.ros["executor"], object_spec=object_spec,
-                           tool=tool, sim_time=sim_time, lockstep=lockstep, lockstep_timeout=lockstep_timeout)
+                           tool=tool, sim_time=sim_time, lockstep=lockstep, lockstep_timeout=lockstep_timeout,
+                           servo_ci=servo_ci)
         server.stop = stop
         if natnet:
             from drivers.natnet.fake_motive import SimMotive, parse_version

@@ -34,6 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "validate": ("procedures.validate:command", "Predict a recording's efforts from a model file, effects included; relative error and RMS per joint."),
     "sim": ("procedures.sim:command", "Serve the simulated rig over the real device protocols (ROS 2, serial)."),
     "selftest": ("procedures.selftest:command", "Short run of the simulated rig: PID step on every arm, object tension."),
+    "doctor": ("procedures.doctor:command", "Preflight of the rig in rig.toml: every device and result, one line each."),
     "loadcell-calibrate": ("procedures.loadcell_calibrate:command", "Two-point load-cell calibration with known masses, stored for later runs."),
     "runs": ("rig.runs_cli:runs_command", "List recorded runs (time, procedure, status, key result)."),
     "export": ("rig.export_cli:export_command", "Export a run's recorded streams as CSV: one file per topic (--out) or an arm's q, dq, tau (--csv, wpi-psm)."),

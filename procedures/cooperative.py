@@ -26,6 +26,9 @@ import click
 import numpy as np
 
 from procedures import cooperative_figures as figures
+from procedures.cooperative_estimate import estimate_figures as _estimate_figures
+from procedures.cooperative_estimate import stamps as _stamps
+from procedures.cooperative_estimate import tension_source_for
 from procedures.cooperative_live import KEY_STEP_M, KEY_STEP_N, KEY_STEP_RAD, SLEW_M, SLEW_N, SLEW_RAD, _LiveCommands
 from procedures.cooperative_report import (_figures, _filter_delays, _force_hold_figures, _loop_timing, _missed,
                                            _slave_control_text, format_report)
@@ -710,34 +713,3 @@ def _check_stale_tension(sensors, age: float, timeout: float, loop_limit: float,
                    f"({cells}) still streamed at {rate:g} Hz: this process was held off the CPU, the machine is too "
                    f"busy for the loop (free a CPU or raise {setting}; the force loop held meanwhile)")
 
-
-def _stamps(js: dict, n: int) -> np.ndarray:
-    """When the model's tension estimate was measured: the oldest arm's joint state (s)."""
-    return np.full(n, min(float(s.t) for s in js.values()))
-
-
-def tension_source_for(dyn, effects, stick, rcm_frames, names, elements):
-    """The model's tension estimate of the object (issue 47): each arm's tip force from its
-    joints and efforts (calibration.tension_estimate), with the loop's model and effects."""
-    from calibration.tension_estimate import tension_source
-
-    return tension_source(dyn, list(effects or []), stick, rcm_frames, names, elements)
-
-
-def _estimate_figures(log, params, source: str, cell: bool, estimate) -> dict:
-    """The model's estimate beside the load cell while the master moves (RMS and largest
-    difference, bias; N), what the loop closed on, and the share of ticks it was ambiguous."""
-    from calibration.tension_estimate import tension_figures
-
-    doc = {"source": source, "loop_closed_on": "model estimate" if source == "model" else "load cell",
-           "estimator": "generalized-momentum observer per arm on the model, J^-T, least squares over the arms",
-           "ambiguous_share": float(np.mean(log["estimate_ambiguous"])) if len(log["t"]) else None,
-           "ambiguous_means": "an arm's joint 3 slower than 5 mm/s (static friction), a joint at a limit or a "
-                              "singular Jacobian: contact and model error look alike there"}
-    if cell:
-        m0 = params["settle"]
-        doc.update(tension_figures(log["t"], log["tension_estimate"], log["tension"], m0, m0 + params["duration"])
-                   or {})
-    else:
-        doc["note"] = "no load cell: the tension figures of this run are the estimate's own"
-    return doc

@@ -15,8 +15,9 @@ Flags (per sample), where a contact force and the model's error look alike:
 
 * ``joint3_static``: joint 3 slower than its deadband (0.005 m/s, thesis 7.5.1). Its
   friction is then anywhere within the static band ([Fs_neg, Fs_pos] of `rig friction-ramp`,
-  else +-(Fc + Fst) of the model), which the model's smooth sign cannot know; joint 3's
-  spread is widened to that band.
+  else +-(Fc + Fst) of the model), which the model's smooth sign cannot know. Joints 1-2
+  stick too (under 0.01 rad/s); every stuck joint's spread is widened by its band, so that
+  where arms are combined (`calibration.tension_estimate`) a stuck arm counts less.
 * ``at_limit``: a joint within ``limit_margin`` of its range (rad, rad, m): the stop's
   force is a contact on the joint the model does not have.
 * ``singular``: the Jacobian's condition number above ``max_condition`` (the tip at the
@@ -35,6 +36,11 @@ from rig.model import psm_kinematics as K
 
 #: Velocity under which joint 3 may stick (m/s): thesis 7.5.1's deadband.
 JOINT3_STATIC = 0.005
+#: Velocities under which joints 1-3 may stick (rad/s, rad/s, m/s): thesis 7.5.1's deadbands.
+STATIC = np.array([0.01, 0.01, JOINT3_STATIC])
+#: Spread (N m, N m, N) of a model without held-out figures (the nominal one), on a moving
+#: joint: its effort's noise on the simulated rig. Only the static bands come on top.
+SIGMA_FLOOR = np.array([0.005, 0.005, 0.01])
 #: Joints this close to a limit (rad, rad, m) are flagged.
 LIMIT_MARGIN = np.array([0.02, 0.02, 0.002])
 #: Jacobian condition number above which the force is flagged.
@@ -56,23 +62,28 @@ def tip_force(q: np.ndarray, tau_ext: np.ndarray, rotation: np.ndarray | None = 
     return F if rotation is None else F @ np.asarray(rotation, float).T
 
 
-def static_band(dynamics, stick=None) -> float:
-    """Half-width (N) of joint 3's static friction band: the friction-ramp breakaway levels
-    when known, else the model's Coulomb level plus its Stribeck excess."""
+def static_band(dynamics, stick=None) -> np.ndarray:
+    """Half-width per joint (N m, N m, N) of the static friction band: the model's Coulomb
+    level plus its Stribeck excess; joint 3's friction-ramp breakaway levels when known."""
+    band = np.abs(np.asarray(dynamics.Fc, float)) + np.abs(np.asarray(dynamics.Fst, float))
     if stick is not None:
-        return float(max(abs(stick.fs_pos), abs(stick.fs_neg)))
-    return float(dynamics.Fc[2] + dynamics.Fst[2])
+        band[2] = float(max(abs(stick.fs_pos), abs(stick.fs_neg)))
+    return band
 
 
 @dataclass
 class ForceSample:
-    """One tip force estimate: ``force`` (3,) N, its covariance (3, 3) N^2, the flags
-    (dict name -> bool) and the external joint torque it came from (3,)."""
+    """One tip force estimate: ``force`` (3,) N, its covariance (3, 3) N^2 (stuck joints
+    widened by their static band), the flags (dict name -> bool), the external joint torque
+    it came from (3,) and ``base_covariance``, the covariance from the model's error on
+    moving joints alone (what arms are weighted by when combined: it does not jump as a
+    joint crosses its deadband); None for a model without held-out figures)."""
 
     force: np.ndarray
     covariance: np.ndarray
     flags: dict
     tau_ext: np.ndarray
+    base_covariance: np.ndarray | None = None
 
     def spread_along(self, u: np.ndarray) -> float:
         u = np.asarray(u, float)
@@ -87,8 +98,8 @@ class TipForceEstimator:
     """One arm's tip force from its measured joints and efforts: the momentum observer on
     the identified model (effects included), J^-T, the held-out spread and the flags.
 
-    ``sigma``: the model's held-out RMS error per joint (N m, N m, N) or None (then the
-    spread is unknown: NaN). ``stick``: joint 3's stick-slip terms (`StickSlip`) or None.
+    ``sigma``: the model's held-out RMS error per joint (N m, N m, N) or None (a model
+    without held-out figures: `SIGMA_FLOOR`). ``stick``: joint 3's stick-slip terms (`StickSlip`) or None.
     ``rotation``: frame the forces are given in (3 x 3 from frame 0; default frame 0).
     """
 
@@ -99,6 +110,8 @@ class TipForceEstimator:
         self.observer = MomentumObserver(dynamics, effects, DEFAULT_GAIN if gain is None else gain)
         self.sigma = None if sigma is None else np.asarray(sigma, float)
         self.band = static_band(dynamics, stick)
+        # the spread of a moving joint: the held-out error, else the floor (a nominal model)
+        self.base_sigma = SIGMA_FLOOR.copy() if self.sigma is None else self.sigma
         self.rotation = np.eye(3) if rotation is None else np.asarray(rotation, float)
         self.limit_margin = np.asarray(limit_margin, float)
         self.max_condition = float(max_condition)
@@ -118,14 +131,11 @@ class TipForceEstimator:
         flags = {"joint3_static": bool(abs(dq[2]) < JOINT3_STATIC),
                  "at_limit": bool(np.any((q - K.Q_MIN < self.limit_margin) | (K.Q_MAX - q < self.limit_margin))),
                  "singular": bool(np.linalg.cond(J) > self.max_condition)}
-        if self.sigma is None:
-            cov = np.full((3, 3), np.nan)
-        else:
-            s = self.sigma.copy()
-            if flags["joint3_static"]:
-                s[2] = np.hypot(s[2], self.band)
-            cov = JT_inv @ np.diag(s ** 2) @ JT_inv.T
-        return ForceSample(force, cov, flags, r)
+        # a stuck joint's friction is anywhere in its static band: its spread widens by the band
+        s = np.where(np.abs(dq) < STATIC, np.hypot(self.base_sigma, self.band), self.base_sigma)
+        cov = JT_inv @ np.diag(s ** 2) @ JT_inv.T
+        base = None if self.sigma is None else JT_inv @ np.diag(self.sigma ** 2) @ JT_inv.T
+        return ForceSample(force, cov, flags, r, base)
 
 
 def heldout_sigma(model) -> tuple[np.ndarray | None, str]:
@@ -164,6 +174,6 @@ def estimate_recording(dynamics, effects, q, dq, tau, rate: float, gain=None, si
     for k in range(n):
         s = est.update(q[k], dq[k], tau[k], dt)
         force[k], r[k] = s.force, s.tau_ext
-        spread[k] = np.sqrt(np.clip(np.diag(s.covariance), 0.0, None)) if sigma is not None else np.nan
+        spread[k] = np.sqrt(np.clip(np.diag(s.covariance), 0.0, None))
         flags[k] = [s.flags[f] for f in FLAGS]
     return RecordingForces(np.arange(n) / float(rate), force, spread, flags, r)

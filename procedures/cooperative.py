@@ -406,8 +406,12 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         controller = new_controller()
         if tension_source == "model":
             # closed on the estimate, which lags by the observer's filter: no proportional
-            # feedback of it (a stiff string's k_fp rang up to the ceiling at 7-8 Hz)
+            # feedback of it (a stiff string's k_fp rang up to the ceiling at 7-8 Hz), and
+            # the slaves keep their own inertia, whose impedance needs no force fed back
+            # (rig.control.controllers.Impedance; with the spring's 1 kg the loop rang)
             controller.k_fp = 0.0
+            for imp in controller.impedance.values():
+                imp.Md = None
         comp = next(iter(controller.impedance.values())).model.effects if controller.impedance else None
         model_effects = {"fed_forward": [], "not_fed_forward": []}
         if comp is not None:

@@ -54,7 +54,7 @@ PARAMETERS = [
     Parameter("joints", 7, "", "Joints in each group of the CSV (the PSM's 7; joints 1-3 are used)", minimum=3,
               maximum=7, type=int),
     Parameter("arm", "PSM1", "", "Arm whose /<arm>/measured_js a RUN provides", type=str),
-    Parameter("bandwidth", 5.0, "Hz", "Bandwidth of the momentum observer (its first-order filter)",
+    Parameter("bandwidth", 3.0, "Hz", "Bandwidth of the momentum observer (its first-order filter)",
               minimum=0.2, maximum=50.0),
     Parameter("plots", True, "", "Write force.png (the force per axis over time, its spread, the flags)", type=bool),
 ]

@@ -50,7 +50,8 @@ def test_a_rig_without_a_load_cell_runs_on_the_estimate_and_refuses_the_cell_sou
     assert "no load cell" in data["tension_estimate"]["note"]
     rec = read_recording(os.path.join(data["run_dir"], "run.mcap"))
     assert "/loadcell/force" not in rec.counts()
-    # the tension the loop held is the estimate's: near the set-point once the motion runs
-    assert data["max_error_during_motion"] < 0.5
+    # the tension the loop held is the estimate's (no truth here; bench_tension_estimate judges
+    # the loop against a cell): it stays within a newton of the set-point on this faster move
+    assert data["max_error_during_motion"] < 1.0
     est = np.array([m.data for _, m in rec.messages["/cooperative/tension_estimate"]])
     assert abs(np.median(est[len(est) // 2:]) - 5.0) < 0.3

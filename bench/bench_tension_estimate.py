@@ -8,7 +8,7 @@ efforts and model, and the cooperative loop closed on it.
 2. The same with `--tension-source model`: max |F_cell - 5 N| while moving (target 0.5 N;
    the cell only records). The run's status (settled and within the tolerance the whole
    hold) is reported, not a target.
-3. Real recording (``shared/data/wpi-psm/one_results.csv``, no payload): `rig identify --csv`
+3. The real PSM recording (WPI one_results.csv, no payload): `rig identify --csv`
    and `rig discrepancy --csv` make their models; `rig estimate-force --csv` with each gives
    the mean tip force's magnitude (target 0.3 N) and the spread over time (reported).
 

@@ -26,6 +26,9 @@ import click
 import numpy as np
 
 from procedures import cooperative_figures as figures
+from procedures.cooperative_estimate import estimate_figures as _estimate_figures
+from procedures.cooperative_estimate import stamps as _stamps
+from procedures.cooperative_estimate import tension_source_for
 from procedures.cooperative_live import KEY_STEP_M, KEY_STEP_N, KEY_STEP_RAD, SLEW_M, SLEW_N, SLEW_RAD, _LiveCommands
 from procedures.cooperative_report import (_figures, _filter_delays, _force_hold_figures, _loop_timing, _missed,
                                            _slave_control_text, format_report)
@@ -97,6 +100,10 @@ def _vector(text: str | None, what: str) -> np.ndarray:
               help="Who closes the slaves' impedance: 'arm' = the arm, in its servo loop (dVRK servo_ci over ROS; "
                    "this loop moves its goal at the rate the arms publish, 100 Hz and up); 'effort' = this loop, "
                    "commanding efforts (servo_jf) at [rig] rate; 'auto' = arm on ROS arms, effort in-process.")
+@click.option("--tension-source", type=click.Choice(["cell", "model"]), default="cell", show_default=True,
+              help="What the tension loop closes on: the load cell, or the tension the arms' identified model "
+                   "estimates from their joints and efforts (N; calibration.tension_estimate). A load cell, if "
+                   "there, is then only recorded, and max_error_during_motion stays its figure.")
 @click.option("--seed", type=int, default=None, help="Seed of the simulated rig.")
 @click.option("--dry-run", is_flag=True, help="Check the plan against every limit, print it, move nothing.")
 @click.option("--ros-commands", is_flag=True,
@@ -116,7 +123,7 @@ def _vector(text: str | None, what: str) -> np.ndarray:
 @click.pass_context
 @exit_on_abort
 def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, model_path, force_model, slave_control,
-            seed, dry_run, ros_commands, interactive, list_steps, as_json):
+            tension_source, seed, dry_run, ros_commands, interactive, list_steps, as_json):
     """Cooperative manipulation with force tracking (thesis 6.3, 7.7).
 
     Holds FORCE newtons of tension on the object between the tool tips while the master
@@ -151,7 +158,7 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
     result = run_cooperative(cfg, names, master, dict(parameters), translation, rotation, mode,
                              model_path=model_path, seed=seed, dry_run=dry_run, ros_commands=ros_commands,
                              interactive=interactive, parameter_set=parameters, force_model=force_model,
-                             slave_control=slave_control)
+                             slave_control=slave_control, tension_source=tension_source)
     emit_result(result, as_json, report=format_report(result))
     exit_for_status("cooperative", result)
 
@@ -255,7 +262,7 @@ def _pace_at_published_rate(rig, names, master) -> None:
 
 def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, model_path=None, seed=None,
                     dry_run=False, ros_commands=False, interactive=False, parameter_set=None, model=None,
-                    progress=True, force_model=False, slave_control="auto"):
+                    progress=True, force_model=False, slave_control="auto", tension_source="cell"):
     """The procedure; returns the result document. `model` overrides the model file (tests, bench).
 
     slave_control: "arm" (the slaves' impedance in the arm: servo_ci), "effort" (closed
@@ -294,14 +301,14 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
     try:
         return _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
                     model_note, registration_note, limits, dry_run, ros_commands, interactive,
-                    parameter_set, seed, progress, effects, warnings, slave_control, models=models)
+                    parameter_set, seed, progress, effects, warnings, slave_control, tension_source, models=models)
     finally:
         rig.close()
 
 
 def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames, model_note,
          registration_note, limits, dry_run, ros_commands, interactive, parameter_set, seed, progress,
-         effects=(), warnings=(), slave_control="effort", models=None):
+         effects=(), warnings=(), slave_control="effort", tension_source="cell", models=None):
     clock = rig.clock
     if slave_control == "arm":
         _pace_at_published_rate(rig, names, master)
@@ -353,16 +360,29 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         with run.step(STEPS[1]):
             rig.operator.attach_object(kind)
             # the simulated object is attached at construction; let it settle under the PIDs
+            # the model's tension estimate (issue 47) runs through the settling: its observers
+            # start at rest and have taken up the object's pull when the loop starts
+            estimate = tension_source_for(dyn, effects, stick, rcm_frames, names, elements)
             for _ in range(int(0.5 * clock.rate)):
                 clock.tick()
-            if rig.force is None:
-                raise AbortRun("no load cell: the tension cannot be tracked")
-            sensed = sorted(rig.forces)
-            if len(sensed) != len(elements):
+                estimate.update({n: rig.arms[n].measured_js() for n in names}, 1.0 / clock.rate)
+            if rig.force is None and tension_source == "cell":
+                raise AbortRun("no load cell: the tension cannot be tracked (or close the loop on the model's "
+                               "estimate: --tension-source model)")
+            sensed = sorted(rig.forces or {})
+            if sensed and len(sensed) != len(elements):
                 held = [elements[k] for k in sensed]
                 raise AbortRun(f"the object has {len(elements)} elements but load cells on only {held}: "
                                "a triangle of three arms needs a load cell on every element")
         controller = new_controller()
+        if tension_source == "model":
+            # closed on the estimate, which lags by the observer's filter: no proportional
+            # feedback of it (a stiff string's k_fp rang up to the ceiling at 7-8 Hz), and
+            # the slaves keep their own inertia, whose impedance needs no force fed back
+            # (rig.control.controllers.Impedance; with the spring's 1 kg the loop rang)
+            controller.k_fp = 0.0
+            for imp in controller.impedance.values():
+                imp.Md = None
         comp = next(iter(controller.impedance.values())).model.effects if controller.impedance else None
         model_effects = {"fed_forward": [], "not_fed_forward": []}
         if comp is not None:
@@ -372,11 +392,13 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                 run._write(f"model effect {sk['name']}@{sk['joint']} not fed forward: {sk['reason']}\n")
         js = {n: rig.arms[n].measured_js() for n in names}
         q0 = {n: js[n].position[:3] for n in names}
-        sensors = [rig.forces[k] for k in sorted(rig.forces)]
+        sensors = [rig.forces[k] for k in sorted(rig.forces or {})]
         first = [s.read() for s in sensors]
-        tension = np.array([s.force for s in first])
-        controller.start(clock.now(), q0, {n: js[n].velocity[:3] for n in names}, tension,
-                         stamps={n: js[n].t for n in names}, tension_t=np.array([s.t for s in first]))
+        tension = np.array([s.force for s in first]) if sensors else estimate.update(js, 1.0 / clock.rate)
+        on_model = tension_source == "model"
+        controller.start(clock.now(), q0, {n: js[n].velocity[:3] for n in names},
+                         estimate.update(js, 1.0 / clock.rate) if on_model else tension, stamps={n: js[n].t for n in names},
+                         tension_t=_stamps(js, len(elements)) if on_model else np.array([s.t for s in first]))
         total = params["settle"] + params["duration"] + params["hold_after"]
         with run.step(STEPS[2]):
             plan = _check_plan(controller, names, q0, total, limits)
@@ -387,7 +409,8 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
         n_ticks = int(round(total * clock.rate))
         log = {"t": np.empty(n_ticks), "tension": np.empty((n_ticks, len(elements))), "setpoint": np.empty(n_ticks),
                "loop_us": np.empty(n_ticks), "x_f": np.empty((n_ticks, len(controller.slaves))),
-               "force_offset": np.empty(n_ticks)}
+               "force_offset": np.empty(n_ticks), "tension_estimate": np.empty((n_ticks, len(elements))),
+               "estimate_ambiguous": np.zeros(n_ticks, bool)}
         for n in names:
             log[f"{n}.x"] = np.empty((n_ticks, 3))
             log[f"{n}.xd"] = np.empty((n_ticks, 3))
@@ -399,8 +422,10 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             js = {n: rig.arms[n].measured_js() for n in names}
             newest = [s.read() for s in sensors]
             controller.start(clock.now(), {n: js[n].position[:3] for n in names},
-                             {n: js[n].velocity[:3] for n in names}, np.array([s.force for s in newest]),
-                             stamps={n: js[n].t for n in names}, tension_t=np.array([s.t for s in newest]))
+                             {n: js[n].velocity[:3] for n in names},
+                             estimate.update(js, 1.0 / clock.rate) if on_model else np.array([s.force for s in newest]),
+                             stamps={n: js[n].t for n in names},
+                             tension_t=_stamps(js, len(elements)) if on_model else np.array([s.t for s in newest]))
         t_start = clock.now()
         # where the loop and the motion begin on the run clock: `rig plot` draws the figures
         # from the recording on this time base (procedures/cooperative_figures.py)
@@ -483,10 +508,10 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                     if new:
                         last_force_t[k_el] = max(last_force_t[k_el], new[-1].t)
                 fresh_t = None
-                if all(s is not None for s in newest):
+                if sensors and all(s is not None for s in newest):
                     tension = np.array([s.force for s in newest])
                     fresh, fresh_t = tension, np.array([s.t for s in newest])
-                force_age = t - min(last_force_t)
+                force_age = t - min(last_force_t) if sensors else 0.0
                 # a tick late itself (this process held) finds samples as old as the gap:
                 # they are the newest there are, not a stalled cell
                 gap = t - t_last_tick if t_last_tick is not None else 0.0
@@ -498,6 +523,16 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
                     if force_age > stale_timeout:
                         _check_stale_tension(sensors, force_age, stale_timeout, loop_stale, cfg.loadcell["rate"],
                                              "[loadcell] stale_timeout")
+                est = estimate.update(js, 1.0 / clock.rate)
+                for k_el, value in enumerate(est):
+                    rec.scalar(figures.TENSION_ESTIMATE_TOPIC + (str(k_el) if k_el else ""), t, float(value))
+                log["tension_estimate"][k] = est
+                log["estimate_ambiguous"][k] = estimate.ambiguous
+                if on_model:
+                    # the loop closes on the estimate: as fresh as the joint states it came from
+                    fresh, fresh_t, blind = est, _stamps(js, len(est)), False
+                    if not sensors:
+                        tension = est
                 live.poll(t)
                 c0 = time.perf_counter()
                 q = {n: js[n].position[:3] for n in names}
@@ -553,7 +588,9 @@ def _run(rig, cfg, names, master, params, translation, rotation, mode, dyn, stic
             if ros_commands or interactive:
                 result["live_commands"] = live.summary(t_start)
             result["slave_control"] = _slave_control_text(slave_control, mode, clock.rate)
-            result.update({"model": model_note, "models": models, "model_effects": model_effects, "registration": registration_note, "arms": names,
+            result["tension_estimate"] = _estimate_figures(log, params, tension_source, bool(sensors), estimate)
+            result.update({"model": model_note, "models": models, "model_effects": model_effects,
+                           "registration": registration_note, "arms": names,
                            "master": master, "mode": mode, "object": kind,
                            "filter_delay": _filter_delays(controller), "warnings": list(warnings)})
             missed = _missed(result, params)
@@ -651,3 +688,4 @@ def _check_stale_tension(sensors, age: float, timeout: float, loop_limit: float,
                    f"(limit {1000 * loop_limit:.0f} ms) while the cell{'s' if len(sensors) > 1 else ''} "
                    f"({cells}) still streamed at {rate:g} Hz: this process was held off the CPU, the machine is too "
                    f"busy for the loop (free a CPU or raise {setting}; the force loop held meanwhile)")
+

@@ -31,6 +31,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "friction-ramp": ("procedures.friction_ramp:command", "Stick-slip force-ramp and constant-velocity friction tests of joint 3 (5.6)."),
     "cooperative": ("procedures.cooperative:command", "Cooperative manipulation with force tracking (6.3, 7.7)."),
     "discrepancy": ("procedures.discrepancy:command", "Find where model and measurement disagree, name the effect, add it."),
+    "estimate-force": ("procedures.estimate_force:command", "The force at a tool tip over a recording, from the arm's joints, efforts and model (no force sensor)."),
     "validate": ("procedures.validate:command", "Predict a recording's efforts from a model file, effects included; relative error and RMS per joint."),
     "sim": ("procedures.sim:command", "Serve the simulated rig over the real device protocols (ROS 2, serial)."),
     "selftest": ("procedures.selftest:command", "Short run of the simulated rig: PID step on every arm, object tension."),

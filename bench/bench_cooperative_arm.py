@@ -22,7 +22,7 @@ bench at a 3 cm move and 5 N: the spring along the object 1000 N/m (400: 0.20 N 
 0.18 N at 500 Hz), both damped at a ratio of 1 against spring + object (0.7 overshot the
 start-up ramp by 0.65-0.8 N on the string). With the loop at 100 Hz every object holds
 from 100 Hz streams here: the spring and the triangle 0.14-0.16 N, the string
-0.27-0.35 N (procedures.cooperative.ARM_LOOP_MIN_RATE; bench_cooperative_wire.py says
+0.27-0.35 N (rig.control.arm_loop_rates.ARM_LOOP_MIN_RATE; bench_cooperative_wire.py says
 why the string and the triangle still need 500 Hz over the wire).
 """
 

@@ -16,18 +16,30 @@ What it does:
 3. copies what rclpy needs at run time into the importable package crtk_msgs/ at the top
    of the repository: the generated message and service modules (crtk_msgs/msg/_*.py,
    crtk_msgs/srv/_*.py), the C libraries of the message and service structs and of the
-   C, Fast DDS and introspection type supports, and the Python extension modules; and
-   writes crtk_msgs/BUILD_INFO.json (platform, versions built against, the sources'
-   SHA-256, the RIHS01 type hashes of every message, service, request, response and
-   service event type).
+   C, Fast DDS and introspection type supports, and, for this interpreter's ABI, the Python
+   extension modules and the Python-side library under the ABI's name
+   (`crtk_msgs_s__rosidl_typesupport_c.cpython-312-x86_64-linux-gnu.so`,
+   `libcrtk_msgs__rosidl_generator_py.cpython-312-x86_64-linux-gnu.so`: Python's import
+   picks its own; the other ABIs' files are left as they are); and records the build in
+   crtk_msgs/BUILD_INFO.json (the sources' SHA-256, the RIHS01 type hashes of every
+   message, service, request, response and service event type, and per ABI the versions
+   built against).
+
+Shipped per ABI, not built at install: a build needs cmake, a C and C++ compiler and a
+minute of pip fetching the ROS generators, which a lab PC's `pip install` should not. The
+four C libraries do not link Python and are the same bytes from every interpreter (the
+build is reproducible: checked when a second ABI is shipped); only the Python side (the
+extension modules and libcrtk_msgs__rosidl_generator_py, built on CPython's API) is per
+ABI, about 200 kB each.
 
 crtk_msgs/__init__.py is not generated and is left alone: it loads the libraries.
 msgs/crtk_msgs/msg and srv are upstream's files (collaborative-robotics/crtk_msgs 1.3.0)
 byte for byte; msgs/upstream_type_hashes.py computes the type hashes of upstream's own
 files, without this build, for tests/msgs to hold BUILD_INFO.json's against.
 
-Needs: CPython 3.11 on Linux x86_64 (the platform of the ROS wheels and of what is
-shipped), cmake >= 3.16, gcc and g++, and PyPI. Takes about a minute, most of it pip.
+Needs: CPython 3.11, 3.12 or 3.13 on Linux x86_64 (the ROS 2 Jazzy wheels on PyPI exist for
+these), run from that interpreter's venv; cmake >= 3.16, gcc and g++, and PyPI. Takes about a
+minute, most of it pip. Ship every supported Python after changing a .msg file.
 Options: --keep-venv reuses an existing scratch venv; --jobs N for the compile.
 """
 
@@ -94,7 +106,20 @@ ABI_WHEELS = [
     "ros-rcutils", "ros-std-msgs", "ros-builtin-interfaces", "ros-geometry-msgs", "ros-service-msgs",
     "ros-rmw", "ros-rclpy",
 ]
-PLATFORM = {"system": "Linux", "machine": "x86_64", "python": "3.11", "implementation": "cpython"}
+PLATFORM = {"system": "Linux", "machine": "x86_64", "implementation": "cpython"}
+#: the Pythons the ROS 2 Jazzy wheels on PyPI exist for
+PYTHONS = ("3.11", "3.12", "3.13")
+#: the Python-side libraries, shipped per ABI (the C libraries in LIBRARIES are not)
+PER_ABI = ["libcrtk_msgs__rosidl_generator_py.so", *EXTENSIONS]
+
+
+def python_version() -> str:
+    return f"{sys.version_info.major}.{sys.version_info.minor}"
+
+
+def abi_name(name: str, soabi: str) -> str:
+    """`x.so` as shipped for ABI `soabi`: `x.<soabi>.so`."""
+    return f"{name[:-3]}.{soabi}.so"
 
 
 def log(msg: str) -> None:
@@ -107,11 +132,10 @@ def run(cmd: list[str], **kw) -> None:
 
 
 def check_platform() -> None:
-    here = {"system": platform.system(), "machine": platform.machine(),
-            "python": f"{sys.version_info.major}.{sys.version_info.minor}",
-            "implementation": sys.implementation.name}
-    if here != PLATFORM:
-        sys.exit(f"build_crtk_msgs: this builds for {PLATFORM}, this interpreter is {here}")
+    here = {"system": platform.system(), "machine": platform.machine(), "implementation": sys.implementation.name}
+    if here != PLATFORM or python_version() not in PYTHONS:
+        sys.exit(f"build_crtk_msgs: this builds for {PLATFORM} with Python {', '.join(PYTHONS)}; this interpreter "
+                 f"is {here}, Python {python_version()}")
     for tool in ("cmake", "cc", "c++"):
         if shutil.which(tool) is None:
             sys.exit(f"build_crtk_msgs: {tool} not found (Debian: apt-get install cmake g++)")
@@ -135,6 +159,7 @@ def make_venv(venv: Path, pins: dict[str, str], keep: bool) -> Path:
     if not (keep and python.exists()):
         if venv.exists():
             shutil.rmtree(venv)
+        # sys.executable is this venv's python: the scratch venv gets the same Python
         run([sys.executable, "-m", "venv", venv])
     constraints = venv / "project-ros-versions.txt"
     constraints.write_text("".join(f"{n}=={v}\n" for n, v in pins.items()))
@@ -169,20 +194,37 @@ def sha256(path: Path) -> str:
 
 
 def ship(install: Path, venv: Path, pins: dict[str, str]) -> None:
-    site = install / "lib" / f"python{PLATFORM['python']}" / "site-packages" / "crtk_msgs"
-    # Old generated files go first, so an interface that was removed does not linger.
-    for old in [*TARGET.glob("*.so"), *(p for kind in KINDS for p in (TARGET / kind).glob("*.py"))]:
-        old.unlink()
+    soabi = sysconfig.get_config_var("SOABI")
+    site = install / "lib" / f"python{python_version()}" / "site-packages" / "crtk_msgs"
+    previous = json.loads((TARGET / "BUILD_INFO.json").read_text()) if (TARGET / "BUILD_INFO.json").exists() else {}
+    # What is shared by every ABI: compare with what another ABI's build shipped
+    shared_before = {n: sha256(TARGET / n) for n in LIBRARIES if n != "libcrtk_msgs__rosidl_generator_py.so"
+                     and (TARGET / n).exists()}
+    py_before = {str(p.relative_to(TARGET)): sha256(p) for kind in KINDS for p in (TARGET / kind).glob("*.py")}
+    # Old generated files go first, so an interface that was removed does not linger; the
+    # other ABIs' libraries stay (and so do the files of the pre-ABI layout, if any: gone).
+    for old in [*(p for kind in KINDS for p in (TARGET / kind).glob("*.py")),
+                *(TARGET / n for n in LIBRARIES + EXTENSIONS), *(TARGET / abi_name(n, soabi) for n in PER_ABI)]:
+        old.unlink(missing_ok=True)
     for kind in KINDS:
         (TARGET / kind).mkdir(parents=True, exist_ok=True)
         for py in sorted((site / kind).glob("*.py")):
             shutil.copy2(py, TARGET / kind / py.name)
     for name in EXTENSIONS:
-        shutil.copy2(site / name, TARGET / name)
+        shutil.copy2(site / name, TARGET / abi_name(name, soabi))
     for name in LIBRARIES:
-        shutil.copy2(install / "lib" / name, TARGET / name)
+        dest = abi_name(name, soabi) if name in PER_ABI else name
+        shutil.copy2(install / "lib" / name, TARGET / dest)
+    shipped = [TARGET / n for n in LIBRARIES if n not in PER_ABI] + [TARGET / abi_name(n, soabi) for n in PER_ABI]
     if shutil.which("strip"):
-        run(["strip", "--strip-unneeded", *(TARGET / n for n in LIBRARIES + EXTENSIONS)])
+        run(["strip", "--strip-unneeded", *shipped])
+    for name, digest in shared_before.items():
+        if sha256(TARGET / name) != digest:
+            log(f"warning: {name} differs from the one another ABI's build shipped (another compiler?): "
+                "build every ABI again on this machine")
+    for rel, digest in py_before.items():
+        if (TARGET / rel).exists() and sha256(TARGET / rel) != digest:
+            log(f"warning: {rel} differs from the one another ABI's build shipped: build every ABI again")
 
     # Every type the package defines: the messages, each service and its _Request,
     # _Response and _Event messages.
@@ -197,20 +239,28 @@ def ship(install: Path, venv: Path, pins: dict[str, str]) -> None:
         name, _, version = line.partition("==")
         if name.lower().startswith(("ros-jazzy-rosidl", "ros-jazzy-ament", "ros-rosidl-generator", "ros-rosidl-typesupport")):
             generator_versions[name.lower()] = version
-    info = {
-        "built_by": "msgs/build_crtk_msgs.py",
-        "platform": {**PLATFORM, "soabi": sysconfig.get_config_var("SOABI")},
-        "sources": {str(p.relative_to(REPO)): sha256(p) for p in sorted(SOURCE.rglob("*")) if p.is_file()},
-        "type_hashes": dict(sorted(hashes.items())),
+    sources = {str(p.relative_to(REPO)): sha256(p) for p in sorted(SOURCE.rglob("*")) if p.is_file()}
+    abis = {k: v for k, v in (previous.get("abis") or {}).items()
+            if all((TARGET / abi_name(n, k)).exists() for n in PER_ABI)}
+    abis[soabi] = {
+        "python": python_version(),
+        "sources": sources,
         "built_against": {n: pins[n] for n in ABI_WHEELS if n in pins},
         "generators": dict(sorted(generator_versions.items())),
         "cmake": subprocess.run(["cmake", "--version"], capture_output=True, text=True).stdout.split("\n")[0],
         "cc": subprocess.run(["cc", "--version"], capture_output=True, text=True).stdout.split("\n")[0],
     }
+    info = {
+        "built_by": "msgs/build_crtk_msgs.py",
+        "platform": PLATFORM,
+        "sources": sources,
+        "type_hashes": dict(sorted(hashes.items())),
+        "abis": dict(sorted(abis.items())),
+    }
     (TARGET / "BUILD_INFO.json").write_text(json.dumps(info, indent=2) + "\n")
     modules = sum(len(list((TARGET / kind).glob("*.py"))) for kind in KINDS)
-    log(f"wrote {TARGET.relative_to(REPO)}/: {len(LIBRARIES)} libraries, {len(EXTENSIONS)} "
-        f"extension modules, {modules} Python modules, {len(hashes)} type hashes")
+    log(f"wrote {TARGET.relative_to(REPO)}/: {len(LIBRARIES) - 1} shared libraries, {len(PER_ABI)} for {soabi}, "
+        f"{modules} Python modules, {len(hashes)} type hashes; ABIs shipped: {', '.join(info['abis'])}")
     for name, digest in sorted(hashes.items()):
         log(f"  {name} {digest}")
 
@@ -222,7 +272,7 @@ def main() -> None:
     args = ap.parse_args()
     check_platform()
     pins = project_ros_versions()
-    venv = make_venv(WORK / "venv", pins, args.keep_venv)
+    venv = make_venv(WORK / f"venv-{python_version()}", pins, args.keep_venv)
     install = build(venv, args.jobs)
     ship(install, venv, pins)
 

@@ -26,6 +26,9 @@ import click
 import numpy as np
 
 from procedures import cooperative_figures as figures
+from procedures.cooperative_estimate import estimate_figures as _estimate_figures
+from procedures.cooperative_estimate import stamps as _stamps
+from procedures.cooperative_estimate import tension_source_for
 from procedures.cooperative_live import KEY_STEP_M, KEY_STEP_N, KEY_STEP_RAD, SLEW_M, SLEW_N, SLEW_RAD, _LiveCommands
 from procedures.cooperative_loop import ServoCI, TensionHold, plot_hint
 from procedures.cooperative_report import (_figures, _filter_delays, _force_hold_figures, _loop_timing, _missed,
@@ -35,6 +38,7 @@ from rig.commands.options import config_from_context
 from rig.commands.parameters import Parameter
 from rig.commands.procedure import procedure_command
 from rig.commands.report import emit_result, exit_for_status
+from rig.control.arm_loop_rates import arm_loop_min_rate
 from rig.runs import provenance
 from rig.runs.control_loop import ControlLoop
 from rig.runs.run import AbortRun, Run
@@ -82,18 +86,25 @@ def _vector(text: str | None, what: str) -> np.ndarray:
               help="Simulated object: spring (2450 N/m) or string (20000 N/m). Default: the configuration's.")
 @click.option("--mode", type=click.Choice(["impedance", "position"]), default="impedance", show_default=True,
               help="Slave control: impedance with tension tracking, or the position-based tracking of 7.7.3.")
-@click.option("--model", "model_path", type=click.Path(dir_okay=False), default=None,
-              help="Identified model file (default: the newest `rig identify` result; nominal on the simulated rig). "
-                   "Effects a `rig discrepancy` model adds are fed forward with the rigid body where they are loads "
-                   "(backlash and an effort delay are named, not fed forward). A file measured on another arm or "
-                   "rig, or edited by hand, is refused unless --force-model is given.")
+@click.option("--model", "model_path", multiple=True, metavar="[ARM=]FILE",
+              help="Identified model file for the arm its provenance names, or ARM=FILE for that arm; repeat it for "
+                   "each arm (default: each arm's own newest `rig identify` result with its newest `rig "
+                   "friction-ramp` terms; nominal on the simulated rig; never another arm's). Effects a `rig "
+                   "discrepancy` model adds are fed forward with the rigid body where they are loads (backlash and "
+                   "an effort delay are named, not fed forward). A file measured on another arm or rig, or edited "
+                   "by hand, is refused unless --force-model is given.")
 @click.option("--force-model", is_flag=True,
-              help="Use the --model file even though its provenance says it belongs to another arm or rig (or it "
-                   "was edited): the run's report and result carry a warning.")
+              help="Use a --model file even though its provenance says it belongs to another arm or rig (or it "
+                   "was edited): the run's report and result carry a warning. A forced FILE that names none of "
+                   "the run's arms is used for every arm given no file of its own.")
 @click.option("--slave-control", type=click.Choice(["auto", "arm", "effort"]), default="auto", show_default=True,
               help="Who closes the slaves' impedance: 'arm' = the arm, in its servo loop (dVRK servo_ci over ROS; "
                    "this loop moves its goal at the rate the arms publish, 100 Hz and up); 'effort' = this loop, "
                    "commanding efforts (servo_jf) at [rig] rate; 'auto' = arm on ROS arms, effort in-process.")
+@click.option("--tension-source", type=click.Choice(["cell", "model"]), default="cell", show_default=True,
+              help="What the tension loop closes on: the load cell, or the tension the arms' identified model "
+                   "estimates from their joints and efforts (N; calibration.tension_estimate). A load cell, if "
+                   "there, is then only recorded, and max_error_during_motion stays its figure.")
 @click.option("--seed", type=int, default=None, help="Seed of the simulated rig.")
 @click.option("--dry-run", is_flag=True, help="Check the plan against every limit, print it, move nothing.")
 @click.option("--ros-commands", is_flag=True,
@@ -108,7 +119,7 @@ def _vector(text: str | None, what: str) -> np.ndarray:
                    f"rotate {KEY_STEP_RAD:g} rad, +/- change the tension by {KEY_STEP_N:g} N (ramped in like "
                    "--ros-commands).")
 def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, model_path, force_model, slave_control,
-            seed, dry_run, ros_commands, interactive, as_json):
+            tension_source, seed, dry_run, ros_commands, interactive, as_json):
     """Cooperative manipulation with force tracking (thesis 6.3, 7.7).
 
     Holds FORCE newtons of tension on the object between the tool tips while the master
@@ -140,56 +151,22 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
     result = run_cooperative(cfg, names, master, dict(parameters), translation, rotation, mode,
                              model_path=model_path, seed=seed, dry_run=dry_run, ros_commands=ros_commands,
                              interactive=interactive, parameter_set=parameters, force_model=force_model,
-                             slave_control=slave_control)
+                             slave_control=slave_control, tension_source=tension_source)
     emit_result(result, as_json, report=format_report(result))
     exit_for_status("cooperative", result)
 
 
 # ----------------------------------------------------------------------------- set-up
-def _model_for(cfg, model_path, simulated: bool, force_model: bool = False, warnings: list | None = None):
-    """(PSMDynamics, StickSlip or None, description, effects) from a model file or nominal;
-    ``effects``: the file's added effects (`rig discrepancy`), [] when it has none.
+def _model_for(cfg, names, model_path, simulated: bool, force_model: bool = False, warnings: list | None = None):
+    """Each arm's own model (rig.runs.arm_models.models_for): {arm: ArmModel}; `model_path`
+    a --model value or values (``FILE`` or ``ARM=FILE``)."""
+    from rig.runs import arm_models
 
-    Implicitly only a model of one of this rig's arms is taken (rig.runs.provenance); newer ones
-    passed over are added to `warnings`. A --model file that does not belong is refused,
-    or with `force_model` used with a warning."""
-    from rig.model import model_file
-    from rig.runs import model_results
-    from rig.model.psm_dynamics import PSMDynamics
-
-    warnings = warnings if warnings is not None else []
-    if model_path:
-        m = model_file.load_model(model_path)
-        why = provenance.mismatch(m.document, cfg)
-        if why is not None:
-            if not force_model:
-                raise InputError(
-                    f"{model_path}: not a model of this rig: {why}; run `rig identify` on this rig, or add "
-                    "--force-model to use it anyway")
-            warnings.append(f"--force-model: {model_path} used although {why}")
-    else:
-        skipped: list[str] = []
-        m = model_results.latest_model(cfg=cfg, skipped=skipped)
-        warnings.extend(skipped)
-        if m is not None and m.standard is None:
-            m = None
-    if m is None:
-        if not simulated:
-            raise InputError("no identified model of this rig's arms: run `rig identify` (and "
-                                       "`rig friction-ramp`) first, or pass --model FILE"
-                                       + (f" ({warnings[-1]})" if warnings else ""))
-        return PSMDynamics(), None, "nominal model (no identified model of this rig yet)", []
-    effects = m.effects
-    note = f"identified model {m.path}"
-    if effects:
-        note += " with its effects " + ", ".join(f"{e['name']}@{e['joint']}" for e in effects)
-    stick = m.stick_slip()
-    if stick is not None:
-        # every file the feedforward takes terms from: a newer friction ramp's are merged in
-        ramp = (stick.provenance or {}).get("run_dir")
-        where = Path(ramp) / model_file.STICK_SLIP_FILENAME if ramp else m.path
-        note += f"; joint 3 stick-slip and friction terms from {where}"
-    return m.dynamics(), stick, note, effects
+    values = (model_path,) if isinstance(model_path, (str, Path)) else tuple(model_path or ())
+    pairs, problem = arm_models.parse_model_options(values, names)
+    if problem:
+        raise click.BadParameter(problem, param_hint="--model")
+    return arm_models.models_for(cfg, names, pairs, simulated, force_model, warnings)
 
 
 def _registration_for(cfg, names, simulated: bool, warnings: list | None = None):
@@ -214,26 +191,32 @@ def _registration_for(cfg, names, simulated: bool, warnings: list | None = None)
 
 def build_controller(cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames,
                      object_kind, object_stiffness, elements, dt, effects=None, slave_control="effort"):
-    """The cooperative controller; ``effects`` (a model file's entries) are fed forward on
-    every arm with its rigid-body model (`calibration.effects.EffectCompensation`)."""
+    """The cooperative controller. ``dyn``, ``stick`` and ``effects`` are each arm's own
+    (dicts by arm; a single value is every arm's): its rigid-body model, joint 3's
+    stick-slip terms and a model file's effects, fed forward with the rigid body
+    (`calibration.effects.EffectCompensation`)."""
     from calibration.effects import EffectCompensation
     from rig.control.controllers import FeedforwardModel, StickSlipCompensation
     from rig.control.cooperative_controller import CooperativeController
     from rig.control.cooperative_gains import ForceLoop, PositionForceLoop, arm_preset, preset
     from rig.control.cooperative_plan import Motion
 
-    d = dyn.params.drive
-    friction = {}
+    def per_arm(x):
+        return dict(x) if isinstance(x, dict) else {n: x for n in names}
+
+    dyn, stick, effects = per_arm(dyn), per_arm(stick), per_arm(effects)
+    friction, feedforward = {}, {}
     for n in names:
+        d = dyn[n].params.drive
         comp = StickSlipCompensation(d.Fc.copy(), d.Fv.copy(), d.Fo.copy(), d.slope)
-        if stick is not None:
-            comp.Fs_pos, comp.Fs_neg = stick.fs_pos, stick.fs_neg
+        if stick[n] is not None:
+            comp.Fs_pos, comp.Fs_neg = stick[n].fs_pos, stick[n].fs_neg
         friction[n] = comp
+        feedforward[n] = FeedforwardModel(dyn[n], EffectCompensation(effects[n], d.slope) if effects[n] else None)
     gains, follow = preset(object_kind)
     return CooperativeController(
         names, master, rcm_frames,
-        {n: FeedforwardModel(dyn, EffectCompensation(effects, d.slope) if effects else None) for n in names},
-        friction, elements,
+        feedforward, friction, elements,
         params["force"], dt=dt, motion=Motion(translation, rotation, params["duration"], params["settle"]),
         loop=ForceLoop(), gains=gains, object_stiffness=object_stiffness, follow_measured_master=follow,
         mode=mode, position_loop=PositionForceLoop(deadband=params["deadband"]),
@@ -242,16 +225,7 @@ def build_controller(cfg, names, master, params, translation, rotation, mode, dy
 
 
 # ----------------------------------------------------------------------------- the run
-#: Hz: the lowest rate of the arms' streams the arm-impedance path runs at, per object
-#: ("three": the triangle of three arms); a slower console is refused in one line naming
-#: its `-p`. Measured on bench/bench_cooperative_arm.py and bench/bench_cooperative_wire.py
-#: (their docstrings keep the figures).
-ARM_LOOP_MIN_RATE = {"spring": 100.0, "string": 500.0, "three": 500.0}
-
-
-def arm_loop_min_rate(kind: str, arms: int) -> float:
-    """ARM_LOOP_MIN_RATE for an object of `kind` held by `arms` arms."""
-    return ARM_LOOP_MIN_RATE["three"] if arms > 2 else ARM_LOOP_MIN_RATE[kind]
+# the lowest rates of the arms' streams per object: rig.control.arm_loop_rates (rig doctor checks them too)
 
 
 #: Hz: the arm-impedance loop runs at the rate the arms publish, up to this: a tick costs
@@ -266,9 +240,12 @@ def _pace_at_published_rate(rig, names, master) -> None:
     (rig.devices.clock.StreamClock or SimTimeClock: ROS arms); refuses, in one line, a slave whose
     arm cannot run servo_ci."""
     for n in names:
-        if n != master and not rig.arms[n].supports_servo_ci:
-            raise AbortRun(f"{n} cannot run servo_ci (crtk_msgs/CartesianImpedance not available); "
-                           "use --slave-control effort")
+        # the console's subscription, not only the type here: servo_ci sent into the void
+        # would leave the slave in whatever mode it was
+        problem = rig.arms[n].servo_ci_problem() if n != master else None
+        if problem is not None:
+            raise AbortRun(f"{n} cannot run its impedance in the arm: {problem}; use --slave-control effort "
+                           "(this loop closes it over servo_jf at [rig] rate)")
     rates = [rig.arms[n].published_rate() for n in names]
     heard = min(r for r in rates if r > 0) if any(r > 0 for r in rates) else rig.clock.rate
     rig.clock.set_rate(min(rig.clock.rate, ARM_LOOP_MAX_RATE, float(round(heard))), min_fraction=0.9)
@@ -292,13 +269,18 @@ class Setup:
     registration_note: str
     limits: Any
     slave_control: str = "effort"
-    effects: list = field(default_factory=list)
+    #: each arm's model-file effects (dyn and stick are each arm's too): dicts by arm, or one value for all
+    effects: Any = field(default_factory=list)
     warnings: list = field(default_factory=list)
     dry_run: bool = False
     ros_commands: bool = False
     interactive: bool = False
     parameter_set: Any = None
     seed: int | None = None
+    #: each arm's model file, as the result names it ({arm: summary})
+    models: dict | None = None
+    #: what the tension loop closes on: "cell" (the load cell) or "model" (the model's estimate)
+    tension_source: str = "cell"
 
     @property
     def elements(self) -> list[tuple[str, str]]:
@@ -312,13 +294,13 @@ class Setup:
     def controller(self, dt: float):
         return build_controller(self.cfg, self.names, self.master, self.params, self.translation, self.rotation,
                                 self.mode, self.dyn, self.stick, self.rcm_frames, self.cfg.object["kind"],
-                                self.cfg.object["stiffness"], self.elements, dt, list(self.effects),
+                                self.cfg.object["stiffness"], self.elements, dt, self.effects,
                                 self.slave_control)
 
 
 def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, model_path=None, seed=None,
                     dry_run=False, ros_commands=False, interactive=False, parameter_set=None, model=None,
-                    progress=True, force_model=False, slave_control="auto"):
+                    progress=True, force_model=False, slave_control="auto", tension_source="cell"):
     """The procedure; returns the result document. `model` overrides the model file (tests, bench).
 
     slave_control: "arm" (the slaves' impedance in the arm: servo_ci), "effort" (closed
@@ -330,8 +312,14 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
     warnings: list[str] = []
     if model is not None:
         dyn, stick, model_note, effects = model, None, "model given by the caller", []
+        models = {n: {"file": None, "note": f"{n}: model given by the caller"} for n in names}
     else:
-        dyn, stick, model_note, effects = _model_for(cfg, model_path, simulated, force_model, warnings)
+        # each arm its own model and friction terms, never another arm's
+        per_arm = _model_for(cfg, names, model_path, simulated, force_model, warnings)
+        dyn, stick = {n: m.dynamics for n, m in per_arm.items()}, {n: m.stick for n, m in per_arm.items()}
+        effects = {n: m.effects for n, m in per_arm.items()}
+        model_note = "; ".join(m.note for m in per_arm.values())
+        models = {n: m.summary() for n, m in per_arm.items()}
     rcm_frames, registration_note = _registration_for(cfg, names, simulated, warnings)
     limits = SafetyLimits(tension_ceiling=params["tension_ceiling"])
     if params["force"] >= limits.tension_ceiling:
@@ -339,8 +327,8 @@ def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, 
                                  f"{limits.tension_ceiling} N", param_hint="--force")
     slave_control = _slave_control(cfg, names, mode, slave_control)
     setup = Setup(cfg, names, master, params, translation, rotation, mode, dyn, stick, rcm_frames, model_note,
-                  registration_note, limits, slave_control, list(effects), warnings, dry_run, ros_commands,
-                  interactive, parameter_set, seed)
+                  registration_note, limits, slave_control, effects, warnings, dry_run, ros_commands,
+                  interactive, parameter_set, seed, models, tension_source)
     rig = open_rig(cfg, names, seed=seed, uses=("loadcell",),
                    loop_rate=arm_loop_min_rate(cfg.object["kind"], len(names)) if slave_control == "arm" else None)
     try:
@@ -379,20 +367,30 @@ def _run(rig, setup: Setup, progress: bool) -> dict:
         with run.step(STEPS[0]):
             _power_and_home(run, rig, setup)
         with run.step(STEPS[1]):
-            _attach(rig, setup)
+            estimate = _attach(rig, setup)
         controller = setup.controller(1.0 / rig.clock.rate)
+        if setup.tension_source == "model":
+            # closed on the estimate, which lags by the observer's filter: no proportional
+            # feedback of it (a stiff string's k_fp rang up to the ceiling at 7-8 Hz), and
+            # the slaves keep their own inertia, whose impedance needs no force fed back
+            # (rig.control.controllers.Impedance; with the spring's 1 kg the loop rang)
+            controller.k_fp = 0.0
+            for imp in controller.impedance.values():
+                imp.Md = None
         model_effects = _model_effects(controller, run)
-        sensors = [rig.forces[k] for k in sorted(rig.forces)]
-        first = _start(controller, rig, setup.names, sensors)
+        sensors = [rig.forces[k] for k in sorted(rig.forces or {})]
+        started = _start(controller, rig, setup, sensors, estimate)
         with run.step(STEPS[2]):
-            plan = _check_plan(controller, setup.names, first[1], setup.total, setup.limits)
+            plan = _check_plan(controller, setup.names, started.q0, setup.total, setup.limits)
         for n in setup.names:
             run.claim(rig.arms[n])
-        return _hold(run, rig, setup, controller, sensors, first[0], model_effects, plan)
+        return _hold(run, rig, setup, controller, sensors, started, estimate, model_effects, plan)
 
 
-def _hold(run, rig, setup: Setup, controller, sensors, first, model_effects, plan) -> dict:
-    """Steps 4 and 5: hold the tension while the master moves, then the figures and the report."""
+def _hold(run, rig, setup: Setup, controller, sensors, started, estimate, model_effects, plan) -> dict:
+    """Steps 4 and 5: hold the tension while the master moves, then the figures and the report.
+    `estimate`: the model's tension estimate (issue 47), updated every tick; `sensors` may
+    be none when the loop closes on it."""
     clock, names = rig.clock, setup.names
     live = _LiveCommands(controller, setup.ros_commands, setup.interactive, run.recorder, names, setup.limits,
                          maximum_force=_parameter("force").maximum, say=run.say)
@@ -402,7 +400,7 @@ def _hold(run, rig, setup: Setup, controller, sensors, first, model_effects, pla
         servo_ci = ServoCI(rig, controller.slaves)
         # the set-point ramp starts with the loop (checking the plan took a while; in the
         # effort path the slack take-up starts it)
-        _start(controller, rig, names, sensors)
+        _start(controller, rig, setup, sensors, estimate)
     t_start = clock.now()
     # where the loop and the motion begin on the run clock: `rig plot` draws the figures
     # from the recording on this time base (procedures/cooperative_figures.py)
@@ -412,9 +410,10 @@ def _hold(run, rig, setup: Setup, controller, sensors, first, model_effects, pla
         t_start, names, setup.master, t_start + motion[0], t_start + motion[1], setup.elements))
     loop = ControlLoop(run, clock, {n: rig.arms[n] for n in names}, limits=setup.limits, sensors=sensors,
                        impedance=servo_ci, loop_time_topic="/cooperative/loop_time_us")
-    loop.newest_force_t = [s.t for s in first]
+    loop.newest_force_t = [s.t for s in started.samples]
     loop.prime()
-    hold = TensionHold(controller, loop, live, setup.cfg, n_ticks, t_start, np.array([s.force for s in first]))
+    hold = TensionHold(controller, loop, live, setup.cfg, n_ticks, t_start, started.tension, estimate,
+                       on_model=setup.tension_source == "model")
 
     def timing_so_far() -> dict:
         """The loop's timing over the ticks it completed (an aborted run's result has it)."""
@@ -451,7 +450,9 @@ def _report(run, setup: Setup, controller, hold, live, timing: dict, model_effec
     if setup.ros_commands or setup.interactive:
         result["live_commands"] = live.summary(t_start)
     result["slave_control"] = _slave_control_text(setup.slave_control, setup.mode, hold.loop.clock.rate)
-    result.update({"model": setup.model_note, "model_effects": model_effects,
+    result["tension_estimate"] = _estimate_figures(hold.log, params, setup.tension_source, bool(hold.loop.sensors),
+                                                   hold.estimate)
+    result.update({"model": setup.model_note, "models": setup.models, "model_effects": model_effects,
                    "registration": setup.registration_note, "arms": names, "master": master, "mode": setup.mode,
                    "object": kind, "filter_delay": _filter_delays(controller), "warnings": list(setup.warnings)})
     missed = _missed(result, params)
@@ -477,7 +478,7 @@ def _dry_run(run, rig, setup: Setup) -> dict:
                      np.full(len(setup.elements), float(setup.params["force"])))
     with run.step(STEPS[2]):
         plan = _check_plan(controller, names, q0, setup.total, setup.limits)
-    result = {"plan": plan, "model": setup.model_note, "registration": setup.registration_note,
+    result = {"plan": plan, "model": setup.model_note, "models": setup.models, "registration": setup.registration_note,
               "arms": names, "master": setup.master, "mode": setup.mode, "object": setup.cfg.object["kind"],
               "warnings": list(setup.warnings)}
     run.finish(result, status="dry-run")
@@ -499,19 +500,27 @@ def _power_and_home(run, rig, setup: Setup) -> None:
                 raise AbortRun(f"{n} did not reach its start q0 = {q0} (rad, rad, m) in 15 s")
 
 
-def _attach(rig, setup: Setup) -> None:
+def _attach(rig, setup: Setup):
+    """Attach the object and let it settle; returns the model's tension estimate (issue 47),
+    which runs through the settling: its observers start at rest and have taken up the
+    object's pull when the loop starts."""
     rig.operator.attach_object(setup.cfg.object["kind"])
+    elements = setup.elements
+    estimate = tension_source_for(setup.dyn, setup.effects, setup.stick, setup.rcm_frames, setup.names, elements)
+    dt = 1.0 / rig.clock.rate
     # the simulated object is attached at construction; let it settle under the PIDs
     for _ in range(int(0.5 * rig.clock.rate)):
         rig.clock.tick()
-    if rig.force is None:
-        raise AbortRun("no load cell: the tension cannot be tracked")
-    elements = setup.elements
-    sensed = sorted(rig.forces)
-    if len(sensed) != len(elements):
+        estimate.update({n: rig.arms[n].measured_js() for n in setup.names}, dt)
+    if rig.force is None and setup.tension_source == "cell":
+        raise AbortRun("no load cell: the tension cannot be tracked (or close the loop on the model's "
+                       "estimate: --tension-source model)")
+    sensed = sorted(rig.forces or {})
+    if sensed and len(sensed) != len(elements):
         held = [elements[k] for k in sensed]
         raise AbortRun(f"the object has {len(elements)} elements but load cells on only {held}: "
                        "a triangle of three arms needs a load cell on every element")
+    return estimate
 
 
 def _model_effects(controller, run) -> dict:
@@ -524,15 +533,30 @@ def _model_effects(controller, run) -> dict:
     return {"fed_forward": [f"{e['name']}@{e['joint']}" for e in comp.entries], "not_fed_forward": comp.skipped}
 
 
-def _start(controller, rig, names, sensors) -> tuple[list, dict]:
-    """Start the controller from the arms' and the cells' newest samples; returns the cells'
-    samples and the arms' joints (rad, rad, m)."""
+@dataclass
+class Started:
+    """Where the controller started: the cells' samples, the arms' joints (rad, rad, m) and
+    the tension the loop begins with (N per element: the cells', else the estimate's)."""
+
+    samples: list
+    q0: dict
+    tension: np.ndarray
+
+
+def _start(controller, rig, setup: Setup, sensors, estimate) -> Started:
+    """Start the controller from the arms' and the cells' newest samples, or on the model's
+    estimate (`--tension-source model`, as fresh as the joint states it came from)."""
+    names, dt = setup.names, 1.0 / rig.clock.rate
     js = {n: rig.arms[n].measured_js() for n in names}
     first = [s.read() for s in sensors]
+    tension = np.array([s.force for s in first]) if sensors else estimate.update(js, dt)
+    if setup.tension_source == "model":
+        start_tension, tension_t = estimate.update(js, dt), _stamps(js, len(setup.elements))
+    else:
+        start_tension, tension_t = tension, np.array([s.t for s in first])
     controller.start(rig.clock.now(), {n: js[n].position[:3] for n in names}, {n: js[n].velocity[:3] for n in names},
-                     np.array([s.force for s in first]), stamps={n: js[n].t for n in names},
-                     tension_t=np.array([s.t for s in first]))
-    return first, {n: js[n].position[:3] for n in names}
+                     start_tension, stamps={n: js[n].t for n in names}, tension_t=tension_t)
+    return Started(first, {n: js[n].position[:3] for n in names}, tension)
 
 
 def _check_plan(controller, names, q0, total, limits) -> dict:

@@ -31,6 +31,8 @@ from pathlib import Path
 import numpy as np
 
 SETPOINT_TOPIC = "/cooperative/force_setpoint"
+#: The model's tension estimate per tick (issue 47): element 0, then "...1", "...2".
+TENSION_ESTIMATE_TOPIC = "/cooperative/tension_estimate"
 LOOP_METADATA = "cooperative_loop"
 MIN_HALF_SPAN_MM = 1.0     # a position panel spans at least +-1 mm: encoder steps stay steps
 MIN_HALF_SPAN_N = 0.1      # the error panel at least +-0.1 N
@@ -69,6 +71,7 @@ class CooperativeTrace:
     ceiling: float | None = None     # N, the run's --tension-ceiling
     stopped: str = ""                # how a run cut short ended ("aborted: ..."), drawn where it stopped
     elements: list[str] = field(default_factory=list)  # "PSM1-PSM2" per tension column, if known
+    estimate: np.ndarray | None = None  # ticks x elements, N: the model's tension estimate, if recorded
 
     def element(self, k: int) -> str:
         return self.elements[k] if k < len(self.elements) else f"element {k + 1}"
@@ -94,7 +97,8 @@ def trace_from_log(log: dict, names: list[str], master: str, motion: tuple[float
                             list(names), master, motion,
                             {a: log[f"{a}.x"].copy() for a in names},
                             {a: log[f"{a}.xd"].copy() for a in names}, tolerance, ceiling,
-                            elements=[f"{a}-{b}" for a, b in elements])
+                            elements=[f"{a}-{b}" for a, b in elements],
+                            estimate=log["tension_estimate"].copy() if "tension_estimate" in log else None)
 
 
 def _parameter_values(start: dict) -> dict:
@@ -282,6 +286,10 @@ def force_figure(trace: CooperativeTrace):
     E = trace.tension.shape[1]
     for k in range(E):
         ax_f.plot(t, trace.tension[:, k], lw=1.0, label=f"tension {trace.element(k)}" if E > 1 else "tension F")
+    if trace.estimate is not None:
+        for k in range(trace.estimate.shape[1]):
+            ax_f.plot(t, trace.estimate[:, k], ":", lw=1.0,
+                      label=f"model estimate {trace.element(k)}" if E > 1 else "model estimate")
     ax_f.plot(t, trace.setpoint, "--", color="k", lw=1.0, label="set-point F_d")
     peak = float(np.nanmax(trace.tension)) if np.isfinite(trace.tension).any() else 0.0
     if trace.ceiling is not None and trace.ceiling <= 1.3 * max(peak, 0.0):

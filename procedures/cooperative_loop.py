@@ -12,6 +12,10 @@ the loop while the port still has them: the driver's reader thread held up on a 
 machine (100-475 ms seen over the wire with one CPU burner) delivers them in a burst
 later, and its stream age does not count that as silence. A tension no newer than the
 stale timeout ends the run (`check_stale_tension`).
+
+Every tick also updates the model's tension estimate (issue 47: `calibration.tension_estimate`),
+recorded and logged beside the cell. With `--tension-source model` the force loop closes on
+it, as fresh as the joint states it came from; a rig without a load cell then runs on it alone.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from procedures import cooperative_figures as figures
+from procedures.cooperative_estimate import stamps
 from rig.control.cooperative_gains import SlaveControl
 from rig.runs.run import AbortRun
 
@@ -28,8 +33,11 @@ from rig.runs.run import AbortRun
 class TensionHold:
     """The loop's step, and the log the report's figures are computed from (`log`, per tick)."""
 
-    def __init__(self, controller, loop, live, cfg, n_ticks: int, t_start: float, tension: np.ndarray):
+    def __init__(self, controller, loop, live, cfg, n_ticks: int, t_start: float, tension: np.ndarray,
+                 estimate, on_model: bool = False):
         self.c = controller
+        self.estimate = estimate
+        self.on_model = on_model
         self.loop = loop
         self.live = live
         self.names = list(controller.arms)
@@ -47,20 +55,25 @@ class TensionHold:
         self._t_last_tick: float | None = None
         self.log = {"t": np.empty(n_ticks), "tension": np.empty((n_ticks, len(controller.elements))),
                     "setpoint": np.empty(n_ticks), "loop_us": np.empty(n_ticks),
-                    "x_f": np.empty((n_ticks, len(controller.slaves))), "force_offset": np.empty(n_ticks)}
+                    "x_f": np.empty((n_ticks, len(controller.slaves))), "force_offset": np.empty(n_ticks),
+                    "tension_estimate": np.empty((n_ticks, len(controller.elements))),
+                    "estimate_ambiguous": np.zeros(n_ticks, bool)}
         for n in self.names:
             self.log[f"{n}.x"] = np.empty((n_ticks, 3))
             self.log[f"{n}.xd"] = np.empty((n_ticks, 3))
 
-    def _judge_tension(self, t: float, forces: list) -> tuple[np.ndarray | None, np.ndarray | None, bool]:
+    def _judge_tension(self, tick) -> tuple[np.ndarray | None, np.ndarray | None, bool]:
         """(fresh tension or None, its times, blind): a tick late itself (this process held)
-        finds samples as old as the gap: they are the newest there are, not a stalled cell."""
-        newest = [new[-1] if new else None for new in forces]
+        finds samples as old as the gap: they are the newest there are, not a stalled cell.
+        The model's estimate is updated, recorded and logged; closing on it, it is the fresh
+        tension (and, with no load cell, the tension)."""
+        t, sensors = tick.t, self.loop.sensors
+        newest = [new[-1] if new else None for new in tick.forces]
         fresh = fresh_t = None
-        if all(s is not None for s in newest):
+        if sensors and all(s is not None for s in newest):
             self.tension = np.array([s.force for s in newest])
             fresh, fresh_t = self.tension, np.array([s.t for s in newest])
-        force_age = t - min(self.loop.newest_force_t)
+        force_age = t - min(self.loop.newest_force_t) if sensors else 0.0
         gap = t - self._t_last_tick if self._t_last_tick is not None else 0.0
         self._t_last_tick = t
         blind = force_age > max(self.max_force_age, gap + 1.0 / self.cell_rate)
@@ -68,13 +81,23 @@ class TensionHold:
             self.blind_ticks += 1
             self.blind_longest = max(self.blind_longest, force_age)
             if force_age > self.stale_timeout:
-                check_stale_tension(self.loop.sensors, force_age, self.stale_timeout, self.loop_stale,
+                check_stale_tension(sensors, force_age, self.stale_timeout, self.loop_stale,
                                     self.cell_rate, "[loadcell] stale_timeout")
+        est = self.estimate.update(tick.js, 1.0 / self.loop.clock.rate)
+        for k_el, value in enumerate(est):
+            self.loop.recorder.scalar(figures.TENSION_ESTIMATE_TOPIC + (str(k_el) if k_el else ""), t, float(value))
+        self.log["tension_estimate"][tick.k] = est
+        self.log["estimate_ambiguous"][tick.k] = self.estimate.ambiguous
+        if self.on_model:
+            # the loop closes on the estimate: as fresh as the joint states it came from
+            fresh, fresh_t, blind = est, stamps(tick.js, len(est)), False
+            if not sensors:
+                self.tension = est
         return fresh, fresh_t, blind
 
     def step(self, tick) -> dict:
         t, js, c = tick.t, tick.js, self.c
-        fresh, fresh_t, blind = self._judge_tension(t, tick.forces)
+        fresh, fresh_t, blind = self._judge_tension(tick)
         self.live.poll(t)
         q = {n: js[n].position[:3] for n in self.names}
         dq = {n: js[n].velocity[:3] for n in self.names}

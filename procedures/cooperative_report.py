@@ -136,12 +136,21 @@ def _filter_delays(controller) -> dict:
     return out
 
 
+def _model_lines(result: dict) -> list[str]:
+    """One line per arm naming the model (file) it ran on."""
+    models = result.get("models")
+    if not models:
+        return [f"  {result.get('model')}"] if result.get("model") else []
+    return [f"  model {m.get('note') or m.get('file')}" for m in models.values()]
+
+
 def format_report(result: dict) -> str:
     if result.get("status") == "dry-run":
         return "\n".join([f"plan checked for {', '.join(result['arms'])} (master {result['master']}): inside every "
-                          "limit; nothing moved"] + [f"  warning: {w}" for w in result.get("warnings") or []])
+                          "limit; nothing moved"] + _model_lines(result)
+                         + [f"  warning: {w}" for w in result.get("warnings") or []])
     lines = [f"cooperative ({result.get('mode')}, {result.get('object')}): {result.get('status')}",
-             f"  {result.get('model')}", f"  {result.get('registration')}"]
+             *_model_lines(result), f"  {result.get('registration')}"]
     if result.get("slave_control"):
         lines.append(f"  slaves: {result['slave_control']}")
     lines += [f"  warning: {w}" for w in result.get("warnings") or []]
@@ -160,6 +169,7 @@ def format_report(result: dict) -> str:
                   f"{result['loop_timing'].get('steps_over_period_per_10k', 0.0):.0f} per 10 000 ticks"
                   if result.get("loop_timing") else "",
                   _timing_line(result.get("loop_timing"))]
+        lines += _estimate_lines(result.get("tension_estimate"))
         lines += figures.tracking_lines(result.get("cartesian_tracking") or {})
         lines += [f"  plot: {result.get('plot')}"]
         if result.get("tracking_plot"):
@@ -172,3 +182,15 @@ def format_report(result: dict) -> str:
     if result.get("run_dir"):
         lines.append(f"  run folder: {result['run_dir']}")
     return "\n".join(lines)
+
+
+def _estimate_lines(doc: dict | None) -> list[str]:
+    """The model's tension estimate beside the load cell (issue 47)."""
+    if not doc:
+        return []
+    head = f"  tension from the model (loop closed on the {doc['loop_closed_on']})"
+    if doc.get("rms_difference") is None:
+        return [head + (f": {doc['note']}" if doc.get("note") else "")]
+    return [head + f": against the load cell while moving RMS {doc['rms_difference']:.3f} N, max "
+            f"{doc['max_difference']:.3f} N, bias {doc['bias']:+.3f} N; ambiguous on "
+            f"{100 * (doc.get('ambiguous_share') or 0.0):.0f} % of the ticks"]

@@ -384,12 +384,13 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
     """`rig identify` on the rig (or the simulated rig). Returns the result."""
     from calibration.datasets import processed
     from calibration.blas_threads import blas_threads
-    from rig.devices.factory import open_rig
+    from rig.devices.factory import check_crtk_messages, open_rig
     from rig.model.psm_kinematics import JointLimits
 
     arm_name = parameters["arm"]
     if arm_name not in cfg.arms:
         raise InputError(f"no arm {arm_name!r} in {cfg.source}; arms: {', '.join(cfg.arms)}")
+    check_crtk_messages(cfg, [arm_name])  # before minutes of design, not after
     g_config = cfg.gravity_in_base(arm_name)
     gmode = parse_gravity(parameters["gravity"] or "config")
     terms, left_out = effects_from(parameters)

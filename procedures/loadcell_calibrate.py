@@ -24,6 +24,7 @@ import click
 from drivers.loadcell.errors import LoadCellError
 from drivers.loadcell.firmware_fake import FakeLoadCellFirmware
 from drivers.loadcell.force_calibration import STANDARD_GRAVITY, LoadCellCalibration
+from drivers.loadcell.protocol import FIRMWARE_MAX_RATE_HZ
 from drivers.loadcell.serial_driver import LoadCell
 from drivers.loadcell.serial_port import usb_serial_number
 from drivers.operator.driver import OperatorError
@@ -87,8 +88,9 @@ def _point(mass_kg: float, counts: list[int]) -> dict:
 @click.option("--baud", type=int, default=None, help="Serial speed (baud). Default: rig.toml's [loadcell] baudrate (that of the rig's firmware).")
 @click.option("--seconds", type=click.FloatRange(0.1, 60), default=2.0, show_default=True,
               help="Averaging time at each mass (s).")
-@click.option("--rate", "rate_hz", type=click.IntRange(1, 1000), default=500, show_default=True,
-              help="Sample rate (Hz).")
+@click.option("--rate", "rate_hz", type=click.IntRange(1, FIRMWARE_MAX_RATE_HZ), default=None,
+              help="Sample rate, Hz. Default: rig.toml's [loadcell] rate (500 Hz unless it says otherwise; the HX711 "
+                   "build's limit is 80 Hz).")
 def command(ctx, mass1: float, mass2: float, port: str | None, element: int | None, sim: bool, baud: int | None,
             seconds: float, rate_hz: int, as_json: bool) -> None:
     """Two-point load-cell calibration with known masses (kg), stored for later runs.
@@ -119,6 +121,8 @@ def command(ctx, mass1: float, mass2: float, port: str | None, element: int | No
                                    "give --port, or --sim")
     if baud is None:
         baud = cfg.loadcell["baudrate"]
+    if rate_hz is None:
+        rate_hz = int(round(cfg.loadcell["rate"]))
     simulated = port is None
     params = {"mass1_kg": mass1, "mass2_kg": mass2, "port": port, "element": element, "sim": simulated, "baud": baud,
               "seconds": seconds, "rate_hz": rate_hz}

@@ -7,8 +7,10 @@ The cooperative controller (7.7) needs every arm's RCM frame in one common frame
   used when it holds every arm (`--remeasure` measures again inside this run). The common
   frame is the mocap frame.
 * `--method touch`: both tool tips touch the same N physical points (a person guides
-  them on the real rig; the simulated rig moves them there with its true geometry). Each
-  arm's tip in its own RCM frame comes from its measured joints (rig.model.psm_kinematics), and
+  them on the real rig, by the console's clutch or with the arm in `free`; the simulated
+  rig moves them there with its true geometry). Each arm's tool tip (the jaw's tip on the
+  wrist-yaw axis, not the shaft end 9.1 mm behind it) in its own RCM frame comes from its
+  measured joints, the wrist's included (rig.model.psm_arm_kinematics.tool_tip_in_rcm), and
   a rigid fit of the point pairs (Kabsch, calibration.registration) gives
   T_rcm_ref_rcm_arm. The common frame is the reference arm's configured placement
   (rig.toml base_xyz/base_rpy of the first arm).
@@ -39,6 +41,7 @@ from rig.commands.parameters import Parameter
 from rig.commands.procedure import procedure_command
 from rig.commands.report import emit_result, exit_for_status
 from rig.model import psm_kinematics as K
+from rig.model.psm_arm_kinematics import tool_tip_in_rcm
 from rig.runs import provenance
 from rig.runs.run import Run
 
@@ -95,13 +98,25 @@ def measure_touch(dev, run, cfg, arms: list[str], parameters: dict) -> dict:
             for a in arms:
                 t = np.asarray(col.js_t[a])
                 q = np.median(np.asarray(col.js_q[a])[t >= t[-1] - 0.003], axis=0)
-                tips[a].append(K.tip_in_rcm(q))
+                # the tool tips are what meet, the wrist-yaw length beyond the shaft end
+                tips[a].append(tool_tip_in_rcm(q, _wrist(dev.arms[a])))
             if dev.world is not None:
-                w = [dev.world.tip_world(a) for a in arms]
-                touch_err.append(max(float(np.linalg.norm(x - w[0])) for x in w[1:]))
+                w = [dev.world.arms[a].rcm_world @ np.append(tool_tip_in_rcm(dev.world.q[dev.world.arms[a].sl]), 1.0)
+                     for a in arms]
+                touch_err.append(max(float(np.linalg.norm(x[:3] - w[0][:3])) for x in w[1:]))
             st.advance()
     return {"tips": {a: np.array(v) for a, v in tips.items()}, "points_world": pts,
             "touch_error": touch_err}
+
+
+def _wrist(arm):
+    """The wrist's roll, pitch and yaw (rad) of a whole dVRK arm (`RosArm.measured_arm`), or
+    None for an arm of joints 1-3 only (its wrist is straight)."""
+    measured = getattr(arm, "measured_arm", None)
+    if measured is None:
+        return None
+    q, _ = measured()
+    return q[3:6] if len(q) >= 6 else None
 
 
 def rcm_frames_from_calibration(cfg, dev, run, arms: list[str], parameters: dict) -> tuple[dict, str]:

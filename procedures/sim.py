@@ -135,8 +135,11 @@ def _ask_priority(nice: int) -> None:
               help="With --lockstep: seconds of wall time a procedure may go silent (a live one repeats its "
                    "answer five times a second, computing or waiting) before the world steps on without it: a killed "
                    "procedure never freezes rig sim; it rejoins with its next answer.")
+@click.option("--servo-ci/--no-servo-ci", "servo_ci", default=True, show_default=True,
+              help="Subscribe to every arm's servo_ci as a dVRK 2.2+ console's ROS bridge does; --no-servo-ci "
+                   "serves a console whose bridge does not (what `rig doctor` and `rig cooperative` must see).")
 def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, natnet, natnet_version, console,
-            plant_model, nice, sim_time, lockstep, lockstep_timeout):
+            plant_model, nice, sim_time, lockstep, lockstep_timeout, servo_ci):
     """Serve the simulated rig as whole dVRK PSMs on their ROS 2 topics (/<ARM>/measured_js ...
     every ROS_PERIOD s), mocap poses on /mocap/<body>/pose and the load cell on a pty, paced
     to the wall clock. The dVRK's own Python client (dvrk_python, crtk) drives it unmodified.
@@ -161,6 +164,10 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
         raise click.BadParameter(f"no tool {tool!r}; tools: {', '.join(TOOL_NAMES)}", param_hint="--tool")
     from rig.sim.world import world_from_config
 
+    from drivers.common import crtk_messages
+
+    if crtk_messages.problem() is not None:  # a dVRK console's arms speak them
+        raise InputError(f"rig sim serves the dVRK's CRTK messages: {crtk_messages.problem()}")
     _ask_priority(nice)  # before any thread starts: Linux keeps a nice value per thread, new ones inherit it
     cfg, names, rate, console, natnet, natnet_host = _served(ctx, arms, rate, ros_period, plant_model, console, natnet)
     world = world_from_config(cfg, arms=names, seed=seed)
@@ -196,7 +203,8 @@ def command(ctx, arms, duration, rate, ros_period, tool, seed, loadcell, mocap, 
             cell.update()
         server = SimServer(world, node, list(world.names), ros_period=ros_period, mocap=mocap_cfg, seed=world.seed,
                            console=console, cells=cells, executor=cfg.ros["executor"], object_spec=object_spec,
-                           tool=tool, sim_time=sim_time, lockstep=lockstep, lockstep_timeout=lockstep_timeout)
+                           tool=tool, sim_time=sim_time, lockstep=lockstep, lockstep_timeout=lockstep_timeout,
+                           servo_ci=servo_ci)
         server.stop = stop
         if natnet:
             server.natnet = _serve_natnet(cfg, world, server, natnet_host, natnet_version)

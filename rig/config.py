@@ -53,6 +53,7 @@ from typing import Any, Callable
 import numpy as np
 
 from drivers.loadcell.protocol import BAUDRATE as LOADCELL_BAUDRATE
+from drivers.loadcell.protocol import FIRMWARE_MAX_RATE_HZ as LOADCELL_MAX_RATE
 
 
 class ConfigError(ValueError):
@@ -175,7 +176,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
                       "file, e.g. '28007'): results measured on it name it, and are used only on it"),
         "base_xyz": Key("vec3", [0.0, 0.0, 0.0], "position of the arm's frame 0 in the world, m"),
         "base_rpy": Key("vec3", [0.0, 0.0, 0.0], "orientation of frame 0 in the world (roll, pitch, yaw), rad"),
-        "q0": Key("vec3", [0.0, 0.0, 0.12], "initial joints of a simulated arm (rad, rad, m)"),
+        "q0": Key("vec3", [0.0, 0.0, 0.12], "start joints (rad, rad, m): a simulated arm starts there; `rig "
+                  "cooperative` moves a real arm there, the object off, before asking for the object"),
         "effort_limit": Key("vec3", [5.0, 5.0, 15.0], "drive effort ceiling (N m, N m, N)",
                             lambda v: all(x > 0 for x in v), "three efforts > 0"),
         "watchdog": Key("float", SIM_STALE_FLOOR, "s without a measured_js that stops the run (the arm is told to "
@@ -199,7 +201,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
                         "a baud rate > 0"),
         "interface": Key("str", "socketcan", "python-can interface (driver = can)"),
         "channel": Key("str", "can0", "python-can channel (driver = can)"),
-        "rate": Key("float", 500.0, "sample rate, Hz", lambda x: 1 <= x <= 2000, "a rate in [1, 2000] Hz"),
+        "rate": Key("float", 500.0, "sample rate, Hz (the firmware's limit: 1000 Hz for the INA build, 80 Hz for "
+                    "the HX711's)", lambda x: 1 <= x <= LOADCELL_MAX_RATE,
+                    f"a rate in [1, {LOADCELL_MAX_RATE}] Hz (the firmware's MAX_RATE_HZ; 80 for the HX711 build)"),
         "stale_timeout": Key("float", SIM_STALE_FLOOR, "s without a sample that stops the run: the load cell's "
                              "stale limit. Default: 10 sample periods (1 / rate) or, if longer, 0.5 s for a serial "
                              "or CAN cell (a process held off the CPU looks the same as a pulled cable) and 0.05 s "

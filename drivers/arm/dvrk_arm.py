@@ -85,6 +85,13 @@ BUSY_RISE = 0.5
 #: from drifting on its own friction
 WRIST_KP = 0.2
 WRIST_KD = 0.0005
+
+#: the ROS type of <arm>/servo_ci, and the s of wall time a console's subscription to it is
+#: looked for in the ROS graph (its endpoints are discovered together with its publishers,
+#: already heard when this is asked: the wait covers a discovery still in flight)
+SERVO_CI_TYPE = "crtk_msgs/msg/CartesianImpedance"
+SERVO_CI_DISCOVERY = 2.0
+
 #: the arm's state topics RosArm can subscribe (measured_js is always subscribed)
 ALL_STREAMS = ("measured_js", "setpoint_js", "measured_cp", "local/measured_cp", "body/measured_cf")
 
@@ -373,8 +380,37 @@ class RosArm(ArmStreams, ArmOperatingState):
 
     @property
     def supports_servo_ci(self) -> bool:
-        """crtk_msgs/CartesianImpedance is available: `servo_ci` can be sent."""
+        """crtk_msgs/CartesianImpedance is available here: `servo_ci` can be sent (whether the
+        console takes it is `servo_ci_problem`'s)."""
         return self._impedance_type is not None
+
+    def servo_ci_subscribers(self) -> list[str]:
+        """The nodes of the ROS graph, other than this driver's, that subscribe to
+        <arm>/servo_ci as crtk_msgs/CartesianImpedance (a dVRK 2.2+ console's bridge does,
+        for every arm: cisst-ros' mts_ros_crtk_bridge_provided)."""
+        topic = f"{self.namespace}/servo_ci"
+        ours = {(n.get_name(), n.get_namespace()) for n in (self.node, self.control_node)}
+        return [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in self.node.get_subscriptions_info_by_topic(topic)
+                if (i.node_name, i.node_namespace) not in ours and i.topic_type == SERVO_CI_TYPE]
+
+    def servo_ci_problem(self, timeout: float = SERVO_CI_DISCOVERY) -> str | None:
+        """None when `servo_ci` reaches the arm: the type loads here and the console
+        subscribes to <arm>/servo_ci (asked of the ROS graph for up to `timeout` s of wall
+        time: discovery learns a console's subscriptions with its publishers); else one
+        line saying which is missing."""
+        topic = f"{self.namespace}/servo_ci"
+        if self._impedance_type is None:
+            return f"{topic}: this Python cannot send it ({self.states_error})"
+        deadline = time.monotonic() + timeout
+        while not self.servo_ci_subscribers():
+            if time.monotonic() > deadline:
+                other = [f"{i.node_name} ({i.topic_type})" for i in self.node.get_subscriptions_info_by_topic(topic)
+                         if i.topic_type != SERVO_CI_TYPE]
+                return (f"{topic}: the console does not subscribe to it"
+                        + (f" as {SERVO_CI_TYPE} (subscribed as {', '.join(other)})" if other else
+                           " (a dVRK console 2.2 or later bridges it for every arm)"))
+            time.sleep(0.05)
+        return None
 
     def measured_arm(self) -> tuple[np.ndarray, np.ndarray]:
         """The newest measured positions and velocities of the whole arm in the dVRK's order

@@ -13,7 +13,25 @@ from typing import Callable
 
 from drivers.loadcell.device_model import LoadCellDeviceModel
 from drivers.loadcell.frame_parser import FrameParser
-from drivers.loadcell.protocol import FRAME_OVERHEAD, RawSample, encode_frame, sample_frame
+from drivers.loadcell.protocol import BAUDRATE, FRAME_OVERHEAD, RawSample, encode_frame, sample_frame
+
+#: Linux's TCGETS2 ioctl (struct termios2: the line's speed in c_ispeed, c_ospeed)
+_TCGETS2 = 0x802C542A
+
+
+def line_baudrate(fd: int) -> int | None:
+    """The baud rate a terminal's line is set to (a pty keeps what the host's pyserial set),
+    or None where it cannot be read."""
+    import array
+    import fcntl
+    import struct
+
+    try:
+        buf = array.array("i", [0] * 16)
+        fcntl.ioctl(fd, _TCGETS2, buf)
+    except OSError:
+        return None
+    return struct.unpack_from("I", buf.tobytes(), 40)[0] or None
 
 
 class FakeLoadCellFirmware:
@@ -34,7 +52,7 @@ class FakeLoadCellFirmware:
     TX_BACKLOG = 64  # bytes, the Arduino core's TX ring buffer
 
     def __init__(self, tension_source: Callable[[], float], clock: Callable[[], float] | None = None, *,
-                 record_write_times: bool = False, seed: int = 0, **model_kwargs) -> None:
+                 record_write_times: bool = False, seed: int = 0, baudrate: int = BAUDRATE, **model_kwargs) -> None:
         self.model = LoadCellDeviceModel(tension_source, clock, seed=seed, **model_kwargs)
         self.rng = random.Random(seed + 1)
         self.corrupt_probability = 0.0
@@ -45,6 +63,10 @@ class FakeLoadCellFirmware:
         self.record_write_times = record_write_times
         self.write_times: dict[int, float] = {}
         self.sample_times: dict[int, float] = {}  # seq -> clock() at conversion (truth for time mapping)
+        #: the sketch's LOADCELL_BAUD: a host that opens the pty at another rate (its termios
+        #: speed, which a pty keeps) is answered by nothing, as a board at another rate
+        self.baudrate = baudrate
+        self.misframed = 0  # bytes received at the wrong rate
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)  # no echo, no CR/LF translation: a byte pipe like a USB CDC port
         os.set_blocking(self._master, False)
@@ -150,6 +172,13 @@ class FakeLoadCellFirmware:
             data = b""
         if data:
             self._rx_last = now
+            baud = line_baudrate(self._slave)
+            if baud is not None and baud != self.baudrate:
+                # the host's UART at another rate: each byte it sends is sampled at the
+                # sketch's rate and comes out as other bits (and framing errors); what the
+                # sketch would answer never comes, as on the board
+                data = bytes(self.rng.getrandbits(8) for _ in data)
+                self.misframed += len(data)
             for f in self._parser.feed(data):
                 for rtype, payload in m.handle(f.type, f.payload):
                     self._queue(encode_frame(rtype, payload), is_sample=False)

@@ -51,6 +51,10 @@ ERROR_NAMES = {ERR_UNKNOWN_COMMAND: "unknown command", ERR_BAD_CRC: "bad CRC",
 ADC_HX711 = 0
 ADC_INA = 1
 ADC_NAMES = {ADC_HX711: "HX711 24-bit", ADC_INA: "INA + 10-bit ADC x16 oversampled"}
+#: Hz, the firmware's MAX_RATE_HZ per front end (drivers/firmware/loadcell/loadcell.ino);
+#: the fastest build's is the limit of any `[loadcell] rate`
+MAX_RATE_HZ = {ADC_HX711: 80, ADC_INA: 1000}
+FIRMWARE_MAX_RATE_HZ = max(MAX_RATE_HZ.values())
 
 SAMPLE_SATURATED = 0x01  # sample flags bit 0: the ADC was at a limit
 STATUS_STREAMING = 0x01

@@ -243,6 +243,16 @@ class _StreamingLoadCell(abc.ABC):
             self._raise_if_unusable()  # after stop(), nothing new is simply nothing
         return out
 
+    def device_rate(self) -> float:
+        """Hz at which the device converts, from its own sample times over its newest samples
+        (0.0 before two): what the firmware streams, whatever delays this host's reading of
+        them. The mean over their span, not the median interval: a served firmware that
+        caught up with its world converts a burst of samples microseconds apart."""
+        with self._lock:
+            t = list(self._device_times)
+        span = t[-1] - t[0] if len(t) >= 2 else 0.0
+        return (len(t) - 1) / span if span > 0 else 0.0
+
     def stats(self) -> LoadCellStats:
         """A snapshot of the counters."""
         with self._lock:

@@ -10,7 +10,7 @@
 The actions (drivers.operator.driver.ACTIONS): markers are mounted by construction, so confirm
 does nothing; detach/attach take the object off the tool tips or put it back; hang_mass
 loads a load cell with the weight of a mass instead of the object's tension (0 kg: an
-empty cell); touch puts every named arm's tip on a world point by inverse kinematics on
+empty cell); touch puts every named arm's tool tip (wrist straight) on a world point by inverse kinematics on
 the *true* arm placement (what a person guiding the tips together achieves physically,
 whatever the calibration believes) and holds it there; unplug pulls the load cell's cable
 (a fault for tests: its pty closes); fault injects an arm fault for tests (`joint_limit`:
@@ -171,9 +171,14 @@ class SimOperator:
         for name in arms:
             if name not in self.world.arms:
                 raise OperatorError(f"no simulated arm {name!r}; arms: {', '.join(self.world.arms)}")
+        from rig.model.psm_tool import DEFAULT_TOOL
+
         for name in arms:
             T = np.linalg.inv(self.world.arms[name].rcm_world)
-            q = K.ik_rcm((T @ np.append(goal, 1.0))[:3])
+            # a person brings the tool tips together: with the wrist straight the tool tip is
+            # the tool's wrist-yaw length beyond the shaft end, along the shaft (through the RCM)
+            p = (T @ np.append(goal, 1.0))[:3]
+            q = K.ik_rcm(p * (1.0 - DEFAULT_TOOL.wrist_yaw_length / float(np.linalg.norm(p))))
             self.world.set_state(name, q)
             arm = self.arms.get(name) if isinstance(arms, (list, tuple)) else arms[name]
             if arm is not None:

@@ -185,10 +185,23 @@ def _once_stopped(session, close):
     return closer
 
 
+def check_crtk_messages(cfg, names: list[str]) -> None:
+    """Raise ConfigError, one line naming this Python and the fix, when `names` holds a ROS
+    arm and the dVRK's CRTK messages do not load here: without them the arms are never
+    enabled nor homed, and servo_ci cannot be sent. Procedures that compute long before
+    they open the rig (identify's design) call it first."""
+    from drivers.common import crtk_messages
+
+    ros = [n for n in names if cfg.arms[n]["driver"] == "ros"]
+    if ros and crtk_messages.problem() is not None:
+        raise ConfigError(f"the dVRK arms ({', '.join(ros)}) need the CRTK messages: {crtk_messages.problem()}")
+
+
 def _open_ros(cfg, names: list[str], uses, arm_streams) -> Rig:
     from drivers.arm.dvrk_arm import RosArm
     from drivers.common.ros_session import RosSession
 
+    check_crtk_messages(cfg, names)
     session = RosSession("rig", executor=cfg.ros["executor"])
     rig = Rig(clock=None, arms={})
     rig.session = session

@@ -505,3 +505,21 @@ class PSMKinematics:
         X = np.linalg.inv(K.tip_pose_rcm(q[:3])) @ self.forward(q)
         X[np.abs(X) < 1e-12] = 0.0
         return X
+
+
+_DEFAULT_KINEMATICS: PSMKinematics | None = None
+
+
+def tool_tip_in_rcm(q, wrist=None, kinematics: PSMKinematics | None = None) -> np.ndarray:
+    """The dVRK's tool tip (on the wrist-yaw axis, where a person brings two tools together)
+    in the RCM frame (m), from joints 1-3 `q` (rad, rad, m) and the wrist's roll, pitch and
+    yaw `wrist` (rad; None: a straight wrist, all 0, as an arm that reports joints 1-3
+    only). rig.model.psm_kinematics.tip_in_rcm is the shaft end, the tool's wrist-yaw
+    length (9.1 mm for the large needle driver) short of it."""
+    global _DEFAULT_KINEMATICS
+    if kinematics is None:
+        if _DEFAULT_KINEMATICS is None:
+            _DEFAULT_KINEMATICS = PSMKinematics()
+        kinematics = _DEFAULT_KINEMATICS
+    full = np.concatenate([np.asarray(q, float)[:3], np.zeros(3) if wrist is None else np.asarray(wrist, float)[:3]])
+    return (RCM_FRAME_TO_BASE @ kinematics.forward(full))[:3, 3].copy()

@@ -97,8 +97,17 @@ def _base(arms: list[dict], rig: str | None, source: dict) -> dict:
 
 def live(cfg, arms, run_dir) -> dict:
     """Provenance of a result measured on the rig `cfg` with `arms`, in run `run_dir`."""
-    return _base([{"name": n, "identity": arm_identity(cfg, n), "mounting": mounting(cfg, n)} for n in arms],
-                 rig_identity(cfg), {"run": Path(run_dir).name})
+    return _base([{"name": n, "identity": arm_identity(cfg, n), "mounting": mounting(cfg, n), **_placement(cfg, n)}
+                  for n in arms], rig_identity(cfg), {"run": Path(run_dir).name})
+
+
+def _placement(cfg, name: str) -> dict:
+    """What `mounting` hashes besides the identity, in the clear: a result set aside for a
+    changed placement then says what changed."""
+    a = cfg.arms[name]
+    return {"base_xyz": [round(float(x), 6) for x in a["base_xyz"]],
+            "base_rpy": [round(float(x), 6) for x in a["base_rpy"]],
+            "gravity": [round(float(x), 6) for x in cfg.rig["gravity"]]}
 
 
 def recording(csv_path, arm_label: str = "recorded arm") -> dict:
@@ -130,11 +139,30 @@ def mismatch(doc: dict, cfg, arm: str | None = None, arms: list[str] | None = No
         if n not in cfg.arms:
             return f"it is a result of {n}, which this rig configuration does not have"
         if have[n].get("identity") != arm_identity(cfg, n):
-            return f"its {n} is {have[n].get('identity')}, this rig's is {arm_identity(cfg, n)}"
+            now = arm_identity(cfg, n)
+            hint = (f" ([arms.{n}] serial was added after it was measured: run it again, or remove the serial)"
+                    if "no serial" in str(have[n].get("identity")) and "serial" in now else "")
+            return f"its {n} is {have[n].get('identity')}, this rig's is {now}{hint}"
         if have[n].get("mounting") != mounting(cfg, n):
-            return (f"it was measured on another rig configuration ({n}'s mounting or gravity differ: "
+            here = _placement(cfg, n)
+            changed = [f"{k} {have[n][k]} then, {here[k]} now" for k in ("base_xyz", "base_rpy", "gravity")
+                       if k in have[n] and have[n][k] != here[k]]
+            return (f"{n} was measured on another placement ({'; '.join(changed)}): a base moved in rig.toml moves "
+                    "the arm's results with it; run the procedure again" if changed else
+                    f"it was measured on another rig configuration ({n}'s mounting or gravity differ: "
                     f"{have[n].get('mounting')}, here {mounting(cfg, n)})")
     return None
+
+
+def _of_other_arms(doc: dict, want: list[str]) -> bool:
+    """True when `doc` was measured on a rig and holds none of the arms `want` (PSM2's model,
+    looked at for PSM1): passed over without a word. A recording's result, or one without
+    a provenance, is still named when it is passed over."""
+    prov = doc.get(KEY) if isinstance(doc, dict) else None
+    if not want or not isinstance(prov, dict) or prov.get("rig") is None or not isinstance(prov.get("arms"), list):
+        return False
+    held = {a.get("name") for a in prov["arms"] if isinstance(a, dict)}
+    return not (set(want) & held)
 
 
 def describe(doc: dict) -> str:
@@ -153,6 +181,19 @@ class Found:
     run_dir: Path | None
     data: dict | None
     skipped: list[str] = field(default_factory=list)
+
+    def set_aside(self) -> str | None:
+        """One line: how many newer results were set aside, and why the newest was."""
+        return set_aside_line(self.skipped)
+
+
+def set_aside_line(skipped: list[str]) -> str | None:
+    """`skipped` (find's lines, newest first) as one line, or None when nothing was set aside."""
+    if not skipped:
+        return None
+    if len(skipped) == 1:
+        return f"set aside: {skipped[0]}"
+    return f"{len(skipped)} results set aside, the newest: {skipped[0]}"
 
 
 def find(procedure: str, cfg, *, arm: str | None = None, arms: list[str] | None = None,
@@ -180,6 +221,8 @@ def find(procedure: str, cfg, *, arm: str | None = None, arms: list[str] | None 
         doc = data if document is None else document(run, data)
         if doc is None:
             continue
+        if _of_other_arms(doc, [arm] if arm is not None else list(arms or [])):
+            continue  # another arm's result of this rig: not one set aside for this arm
         why = mismatch(doc, cfg, arm=arm, arms=arms)
         if why is None:
             out.run_dir, out.data = run, data

@@ -111,11 +111,12 @@ class ArmBridge:
     psm: the `SimPSM`; state: its `SimArmState`; queue(fn, key, msg): how a received
     command reaches the main thread; stamp_ns(t): the header stamp (ns) of a sample at sim
     time t; event_stamp_ns(): the header stamp (ns) of an event published now (strictly
-    increasing). `published` counts the ROS periods served (the streams due, published to
+    increasing); servo_ci: subscribe to it, as a dVRK 2.2+ console's bridge does (False: a
+    bridge without it). `published` counts the ROS periods served (the streams due, published to
     whoever listened); `sent` the messages of each stream.
     """
 
-    def __init__(self, node, psm, state, queue, stamp_ns, event_stamp_ns):
+    def __init__(self, node, psm, state, queue, stamp_ns, event_stamp_ns, servo_ci: bool = True):
         from crtk_msgs.msg import CartesianImpedance, OperatingState, StringStamped
         from crtk_msgs.srv import QueryForwardKinematics, QueryInverseKinematics, TriggerOperatingState
         from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
@@ -150,6 +151,8 @@ class ArmBridge:
                 "body/set_cf_orientation_absolute": Bool, "emulate_tool_present": Bool,
                 "trajectory_j/set_ratio": Float64, "jaw/servo_jp": JointState, "jaw/move_jp": JointState,
                 "jaw/servo_jf": JointState}
+        if not servo_ci:  # a console whose bridge does not take it (`rig sim --no-servo-ci`)
+            del subs["servo_ci"]
         self.subs = [node.create_subscription(t, f"{ns}/{k}", queue(self.apply, k), qos) for k, t in subs.items()]
         self.services = [
             node.create_service(QueryForwardKinematics, f"{ns}/forward_kinematics", self._fk),

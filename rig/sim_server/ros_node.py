@@ -56,7 +56,7 @@ class SimServer:
     def __init__(self, world, node, arms: list[str], ros_period: float = DVRK_ROS_PERIOD,
                  mocap: dict | None = None, seed: int = 0, console: str = "/console", cells: list | None = None,
                  executor: str = "events", object_spec=None, tool: str | None = None, sim_time: bool = False,
-                 lockstep: bool = True, lockstep_timeout: float = 3.0):
+                 lockstep: bool = True, lockstep_timeout: float = 3.0, servo_ci: bool = True):
         from geometry_msgs.msg import PoseStamped
         from rclpy.qos import DurabilityPolicy, QoSProfile
         from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, String
@@ -89,7 +89,7 @@ class SimServer:
         self._last_event = 0
         qos = QoSProfile(depth=10)
         self.bridges = {n: ArmBridge(node, self.psms[n], self.states[n], self._queued, self._stamp_ns,
-                                     self._event_stamp_ns) for n in arms}
+                                     self._event_stamp_ns, servo_ci=servo_ci) for n in arms}
         for b in self.bridges.values():
             b.publish_initial()
         self.console = "/" + console.strip("/")

@@ -254,13 +254,19 @@ def prepare(rig: ServedRig, three_arms: bool = False) -> str | None:
     """What the lab's procedures need in its logs; None, or the line of what failed. The
     two-arm lab: the load cell calibrated, the arms registered, PSM1 identified and
     friction-ramped; the three-arm lab: each element's cell calibrated, the arms registered,
-    PSM1 identified (cooperative needs an identified model of the rig's arms)."""
+    every arm identified (cooperative runs each arm on its own identified model)."""
+    ident = list(PROCEDURES["identify"].args)
+    arm_at = ident.index("--arm") + 1
+
+    def identify(arm: str) -> tuple:
+        return tuple(ident[:arm_at] + [arm] + ident[arm_at + 1:])
+
     if three_arms:
         steps = [("loadcell-calibrate", "--seconds", "0.5", "--element", str(k)) for k in range(3)]
-        steps += [("register", "--points", "6"), tuple(PROCEDURES["identify"].args)]
+        steps += [("register", "--points", "6")] + [identify(a) for a in ("PSM1", "PSM2", "PSM3")]
     else:
         steps = [("loadcell-calibrate", "--seconds", "0.5"), ("register", "--points", "6"),
-                 tuple(PROCEDURES["identify"].args), tuple(PROCEDURES["friction-ramp"].args)]
+                 identify("PSM1"), identify("PSM2"), tuple(PROCEDURES["friction-ramp"].args)]
     for what in steps:
         out = rig.run(*what)
         if out.code:

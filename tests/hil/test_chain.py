@@ -85,10 +85,17 @@ def ramped(lab, identified):
                                        "--no-plots"), "friction-ramp")
 
 
+@pytest.fixture(scope="module")
+def identified_psm2(lab):
+    """A completed `rig identify` of PSM2: each arm runs on its own model, never another's,
+    and an arm of a served (real) rig without one is refused (the guide identifies both)."""
+    return completed(_running(lab).run(*IDENTIFY[:2], "PSM2", *IDENTIFY[3:]), "identify PSM2")
+
+
 @pytest.fixture
-def cooperative_ready(lab, calibrated_cell, registered, identified, ramped):
+def cooperative_ready(lab, calibrated_cell, registered, identified, identified_psm2, ramped):
     """The lab with everything `rig cooperative` uses: the cell's calibration, the
-    registration and the identified model with its friction ramp; rig sim running."""
+    registration and each arm's identified model (PSM1's with its friction ramp); rig sim running."""
     return _running(lab)
 
 
@@ -188,7 +195,9 @@ def test_cooperative_holds_5_newtons(cooperative_ready, kind):
     assert timing["arm_clock_jumps"] == 0 and timing["force_hold_per_10k"] == 0, timing
     assert doc["slave_control"].startswith("arm impedance (servo_ci"), doc["slave_control"]
     assert doc["registration"].startswith("registration "), doc["registration"]
-    assert doc["model"].startswith("identified model "), doc["model"]
+    # each arm on its own identified model, named by file
+    files = {arm: m["file"] for arm, m in doc["models"].items()}
+    assert set(files) == {"PSM1", "PSM2"} and all(files.values()) and files["PSM1"] != files["PSM2"], files
 
 
 def test_discrepancy_on_the_identify_run(served, identified):

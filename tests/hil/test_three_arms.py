@@ -50,8 +50,9 @@ def test_each_element_has_its_cell_calibrated_on_its_own_port(triangle, calibrat
 @pytest.mark.slow
 def test_three_arms_hold_5_newtons_on_every_element(triangle, calibrated):
     completed(triangle.run("register", "--points", "6"), "register")
-    completed(triangle.run("identify", "--arm", "PSM1", "--duration", "10", "--starts", "1", "--iterations", "5",
-                     "--no-plots"), "identify")
+    for arm in ("PSM1", "PSM2", "PSM3"):  # each arm runs on its own model: every one identified
+        completed(triangle.run("identify", "--arm", arm, "--duration", "10", "--starts", "1", "--iterations", "5",
+                               "--no-plots"), f"identify {arm}")
     doc = completed(triangle.run("cooperative", "--arms", "PSM1,PSM2,PSM3", "--force", "5", "--object", "spring",
                            "--move", "0.03,0,0", "--duration", "2", "--settle", "1.5", "--hold-after", "0.5"),
               "cooperative (three arms)")

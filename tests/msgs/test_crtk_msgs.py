@@ -210,6 +210,43 @@ def test_shipped_build_matches_the_definitions():
     assert BUILD_INFO["type_hashes"] == UPSTREAM_HASHES
 
 
+def test_every_jazzy_python_is_shipped_and_its_build_is_current():
+    """The Python side is shipped per ABI for every CPython the Jazzy wheels exist for
+    (3.11, 3.12, 3.13 on Linux x86_64), each built from today's definitions; the four C
+    libraries are one set for all (the build is reproducible: each ABI's build shipped the
+    same bytes). This interpreter's ABI is one of them."""
+    import sysconfig
+
+    abis = BUILD_INFO["abis"]
+    assert sorted(a["python"] for a in abis.values()) == ["3.11", "3.12", "3.13"]
+    assert crtk_msgs.shipped_pythons() == ["3.11", "3.12", "3.13"]
+    assert sysconfig.get_config_var("SOABI") in abis
+    here = REPO / "crtk_msgs"
+    for soabi, info in abis.items():
+        assert info["sources"] == BUILD_INFO["sources"], f"{soabi} was built from older definitions: rebuild it"
+        for name in ("libcrtk_msgs__rosidl_generator_py", "crtk_msgs_s__rosidl_typesupport_c",
+                     "crtk_msgs_s__rosidl_typesupport_fastrtps_c", "crtk_msgs_s__rosidl_typesupport_introspection_c"):
+            assert (here / f"{name}.{soabi}.so").is_file(), (soabi, name)
+    # nothing of the one-ABI layout left over to shadow them
+    assert not [p.name for p in here.glob("crtk_msgs_s__*.so") if p.name.count(".") == 1]
+
+
+def test_a_python_without_libraries_is_told_in_one_line_which_and_what_to_do(monkeypatch):
+    """On an interpreter the package ships nothing for, the import error names its Python,
+    the ones shipped and the fix (the loader's own check, run as that interpreter sees it)."""
+    import sysconfig
+
+    real = sysconfig.get_config_var
+    monkeypatch.setattr(sysconfig, "get_config_var",
+                        lambda k: "cpython-314-x86_64-linux-gnu" if k == "SOABI" else real(k))
+    with pytest.raises(ImportError) as err:
+        crtk_msgs._load_libraries()
+    text = str(err.value)
+    assert "\n" not in text
+    assert "no message libraries for Python" in text and "cpython-314-x86_64-linux-gnu" in text
+    assert "shipped for Linux x86_64 CPython 3.11, 3.12, 3.13" in text and "msgs/build_crtk_msgs.py" in text
+
+
 def _type(type_name: str):
     """The Python class of a ROS type name such as crtk_msgs/srv/QueryForwardKinematics_Request."""
     package, kind, name = type_name.split("/")

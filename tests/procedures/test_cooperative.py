@@ -411,7 +411,8 @@ def test_uses_the_registration_run_and_the_model_file_and_says_which(tmp_path):
                                        **provenance.live(config.load(), ["PSM1"], tmp_path)})
     res, data = _invoke(["--model", str(path), "--duration", "2", "--settle", "1.5", "--hold-after", "0.5"])
     assert res.exit_code == 0, res.output
-    assert data["model"] == f"identified model {path}"
+    assert data["models"]["PSM1"]["file"] == str(path)
+    assert data["models"]["PSM2"]["file"] is None  # the file is PSM1's: PSM2 keeps its own (nominal here)
     assert data["registration"] == f"registration {reg_dir}"
     assert data["max_error_during_motion"] < 0.25
 
@@ -440,7 +441,9 @@ def test_model_file_effects_are_fed_forward_and_the_rest_named(tmp_path):
     data = json.loads([x for x in res.stdout.splitlines() if x.startswith("{")][-1])
     assert data["warnings"] == [f"--force-model: {path} used although it carries no provenance (written by an "
                                 "older dvrk-rig or by hand)"]
-    assert data["model"] == f"identified model {path} with its effects spring@3, position_friction@3, backlash@1"
+    for arm in ("PSM1", "PSM2"):  # forced and naming no arm: every arm's
+        assert data["models"][arm]["note"] == (f"{arm}: identified model {path} with its effects spring@3, "
+                                               "position_friction@3, backlash@1")
     assert data["model_effects"]["fed_forward"] == ["spring@3", "position_friction@3"]
     assert [s["name"] for s in data["model_effects"]["not_fed_forward"]] == ["backlash"]
     assert data["max_error_during_motion"] < 0.25

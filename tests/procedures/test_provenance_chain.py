@@ -57,15 +57,17 @@ def test_a_model_of_another_arm_is_skipped_refused_or_forced_and_the_untensioned
     res = CliRunner().invoke(main, ["cooperative", "--object", "string", "--move", "0,0.02,0", *SHORT, "--json"])
     assert res.exit_code == 0, res.output
     data = _json(res)
-    assert data["status"] == "completed" and data["model"].startswith("nominal model")
-    assert data["warnings"] == [f"skipped identify run {Path(model).parent.name}: it was computed from "
-                                f"{WPI.resolve()}, not measured on this rig"]
+    assert data["status"] == "completed" and all(m["note"].startswith(f"{arm}: nominal model")
+                                                 for arm, m in data["models"].items())
+    assert data["warnings"] == [f"{arm}: set aside: skipped identify run {Path(model).parent.name}: it was "
+                                f"computed from {WPI.resolve()}, not measured on this rig" for arm in ("PSM1", "PSM2")]
     assert data["max_error_during_motion"] < 0.5
 
     res = CliRunner().invoke(main, ["cooperative", "--object", "string", "--model", model, *SHORT])
     assert res.exit_code == 5 and "Traceback" not in res.output
     line = res.output.strip().splitlines()[-1]
-    assert "not a model of this rig" in line and "--force-model" in line and "rig identify" in line
+    assert "not a model of any of PSM1, PSM2 on this rig" in line and "--force-model" in line
+    assert "rig identify" in line
 
     res = CliRunner().invoke(main, ["cooperative", "--object", "string", "--move", "0,0.02,0", "--model", model,
                                     "--force-model", *SHORT, "--json"])
@@ -93,8 +95,11 @@ def test_a_registration_of_another_rig_configuration_is_not_used(tmp_path):
     data = _json(res)
     assert data["registration"] == "the configuration's arm bases (simulated rig)"
     assert len(data["warnings"]) == 1
-    assert data["warnings"][0].startswith(f"skipped register run {reg_run}: it was measured on another rig "
-                                          "configuration")
+    # what moved, old and new (issue 45, item 7)
+    assert data["warnings"][0] == (f"skipped register run {reg_run}: PSM2 was measured on another placement "
+                                   f"(base_xyz [{config.DEFAULT_PSM2_X}, 0.0, 0.0] then, "
+                                   f"[{round(config.DEFAULT_PSM2_X + 0.02, 6)}, 0.0, 0.0] now): a base moved in "
+                                   "rig.toml moves the arm's results with it; run the procedure again")
     # the same configuration still takes it
     res = CliRunner().invoke(main, ["cooperative", "--dry-run", "--json"])
     assert _json(res)["registration"].endswith(reg_run) and not _json(res)["warnings"]
@@ -102,7 +107,7 @@ def test_a_registration_of_another_rig_configuration_is_not_used(tmp_path):
     ros = tmp_path / "ros.toml"
     ros.write_text('[arms.PSM1]\ndriver = "ros"\n[arms.PSM2]\ndriver = "ros"\n'
                    f'base_xyz = [{config.DEFAULT_PSM2_X}, 0.0, 0.0]\nbase_rpy = [0.0, 0.0, 3.141592653589793]\n')
-    model = _model_of(tmp_path / "m" / "model.json", config.load(ros))
+    model = _model_of(tmp_path / "m" / "model.json", config.load(ros), arms=("PSM1", "PSM2"))
     res = CliRunner().invoke(main, ["--config", str(ros), "cooperative", "--model", str(model)])
     assert res.exit_code == 5 and "Traceback" not in res.output
     line = res.output.strip().splitlines()[-1]
@@ -117,16 +122,17 @@ def test_a_model_file_edited_by_hand_is_passed_over_until_forced(tmp_path):
     model = _model_of(tmp_path / "m" / "model.json", cfg, scale=1.05)
     run = _as_identify_run(model)
     res = CliRunner().invoke(main, ["cooperative", "--dry-run", "--json"])
-    assert _json(res)["model"] == f"identified model {(run / 'model.json').resolve()}"
+    assert _json(res)["models"]["PSM1"]["file"] == str((run / "model.json").resolve())
 
     doc = json.loads((run / "model.json").read_text())
     doc["provenance"]["source"]["run"] = "20261101T000000000000Z-identify"
     (run / "model.json").write_text(json.dumps(doc))
     res = CliRunner().invoke(main, ["cooperative", "--dry-run", "--json"])
     data = _json(res)
-    assert data["model"].startswith("nominal model")
-    assert data["warnings"] == [f"skipped identify run {run.name}: it was edited after it was written (its digest "
-                                "does not match)"]
+    assert data["models"]["PSM1"]["note"].startswith("PSM1: nominal model")
+    # PSM1's model set aside, named once; PSM2 never had one of its own, and is told nothing of PSM1's
+    assert data["warnings"] == [f"PSM1: set aside: skipped identify run {run.name}: it was edited after it was "
+                                "written (its digest does not match)"]
     res = CliRunner().invoke(main, ["cooperative", "--dry-run", "--model", str(run / "model.json")])
     assert res.exit_code == 5 and "edited after it was written" in res.output and "Traceback" not in res.output
     res = CliRunner().invoke(main, ["cooperative", "--dry-run", "--json", "--force-model", "--model",
@@ -163,5 +169,24 @@ def test_a_model_of_psm1_still_belongs_when_psm3_joins_but_not_when_psm1_is_move
     assert provenance.rig_identity(three) != provenance.rig_identity(two)
     assert provenance.mismatch(doc, three) is None
     tilted = config.parse({"arms": {"PSM1": {"base_rpy": [0.1, 0, 0]}}}, "tilted.toml")
-    assert provenance.mismatch(doc, tilted).startswith("it was measured on another rig configuration (PSM1's "
-                                                       "mounting or gravity differ")
+    # the line says what moved (issue 45, item 7), not only that a hash differs
+    assert provenance.mismatch(doc, tilted).startswith("PSM1 was measured on another placement (base_rpy "
+                                                       "[0.0, 0.0, 0.0] then, [0.1, 0.0, 0.0] now)")
+    # a result written before the placement was recorded in the clear still says the hashes
+    old = {"provenance": {**doc["provenance"], "arms": [{k: v for k, v in a.items() if k in ("name", "identity",
+                                                                                           "mounting")}
+                                                       for a in doc["provenance"]["arms"]]}}
+    assert provenance.mismatch(sealed_json.seal(old), tilted).startswith(
+        "it was measured on another rig configuration (PSM1's mounting or gravity differ")
+
+
+def test_adding_a_serial_sets_earlier_results_aside_and_says_so_in_one_line():
+    """Results keyed on the arm's identity: a serial added to rig.toml later names itself as
+    the reason, and several runs set aside are one line."""
+    plain = config.parse({"arms": {"PSM1": {"driver": "ros"}}}, "plain.toml")
+    serial = config.parse({"arms": {"PSM1": {"driver": "ros", "serial": "28914"}}}, "serial.toml")
+    doc = sealed_json.seal({"provenance": provenance.live(plain, ["PSM1"], "run")})
+    why = provenance.mismatch(doc, serial)
+    assert "[arms.PSM1] serial was added after it was measured" in why, why
+    line = provenance.set_aside_line([f"skipped identify run B: {why}", f"skipped identify run A: {why}"])
+    assert line.startswith("2 results set aside, the newest: skipped identify run B: ") and "\n" not in line

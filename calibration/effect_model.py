@@ -5,6 +5,7 @@ joint 3 m, m/s, N."""
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Callable
 
@@ -41,7 +42,7 @@ class EffectContext:
         return np.tanh(0.5 * self.slope * v)
 
 
-class Effect:
+class Effect(ABC):
     """One catalogue entry (see calibration.effects): a physical component a rigid-body +
     viscous/Coulomb/offset model lacks. A subclass sets the class attributes and gives its
     `units`, `grid`, `columns`, `_params`, `sanity` and `joint_torque`; a catalogue entry is
@@ -77,9 +78,9 @@ class Effect:
     #: (a friction profile's harmonics), so the largest option's columns serve them all.
     nested_options: bool = False
 
+    @abstractmethod
     def units(self, joint: int) -> dict:
         """{param: unit} on joint (1-3)."""
-        raise NotImplementedError
 
     def grid(self, joint: int) -> tuple:
         """The grid of the non-linear parameter on joint (1-3), or (None,)."""
@@ -94,26 +95,27 @@ class Effect:
         non-linear ones)."""
         return len(self.linear_names_at(g)) + (self.nonlinear_dim if self.grid_name else 0)
 
+    @abstractmethod
     def columns(self, ctx: EffectContext, joint: int, g) -> np.ndarray:
         """(n, 3, k): torque on every joint per unit of each linear parameter, on the raw samples."""
-        raise NotImplementedError
 
     def params(self, theta, g, joint: int, baseline: dict) -> dict:
         """Named parameters from the linear ``theta`` and grid value ``g``; ``baseline``
         carries the joint's identified Fc (for levels like Fs = Fc + dFs)."""
         return self._params(np.asarray(theta, float), g, joint, baseline)
 
+    @abstractmethod
     def _params(self, theta: np.ndarray, g, joint: int, baseline: dict) -> dict:
-        raise NotImplementedError
+        """`params` of a subclass: the named parameters of its linear ``theta``."""
 
     def sanity(self, params: dict, joint: int) -> str | None:
         """None when physically plausible, else the reason it is not."""
         return None
 
+    @abstractmethod
     def joint_torque(self, p: dict, j: int, q, dq, tau_model, rate: float, slope: float, ddq=None,
                      mass_diag=None) -> np.ndarray:
         """(n,) on joint j (or (n, 3) for an effect on every joint) on raw samples (n, 3)."""
-        raise NotImplementedError
 
     def torque(self, params: dict, joint: int, q, dq, tau_model=None, rate: float = 200.0,
                slope: float = 400.0, ddq=None, mass_diag=None) -> np.ndarray:

@@ -35,6 +35,15 @@ class FakeNode:
         self.on_clock(serialize_message(m))
 
 
+class Cell:
+    """A load cell's reader that has taken what the world wrote up to `upto` s."""
+
+    upto = 0.0
+
+    def caught_up(self, t):
+        return self.upto >= t
+
+
 def test_parse_clock_reads_rclpy_bytes_and_refuses_others():
     m = Clock()
     m.clock.sec, m.clock.nanosec = 12, 345_678_901
@@ -64,12 +73,6 @@ def test_a_free_process_answers_every_clock_and_a_holding_one_only_when_its_loop
 
 
 def test_a_free_process_waits_for_its_load_cells_reader_before_it_answers():
-    class Cell:
-        upto = 0.0
-
-        def caught_up(self, t):
-            return self.upto >= t
-
     node, cell = FakeNode(), Cell()
     tb = SimTime(node)
     tb.add_sync(cell)
@@ -118,12 +121,6 @@ def test_a_repeated_clock_is_a_simulator_that_waits_for_another_follower_not_a_s
 
 
 def test_a_live_process_repeats_its_answer_when_it_has_nothing_new_to_say():
-    class Cell:
-        upto = 0.0
-
-        def caught_up(self, t):
-            return self.upto >= t
-
     node, cell = FakeNode(), Cell()
     tb = SimTime(node)
     node.clock(10_000_000)

@@ -16,8 +16,16 @@ tenfold, gave 0.74 N instead of 0.58 N at worst on the string). Weights that fol
 which joints stick jumped at every deadband crossing: the tension's spread carries the
 static friction band of every stuck joint, its weights do not. With two arms
 and one element the tension is the weighted mean of both arms' pulls along the object.
-The estimate is "ambiguous" on a tick where an arm's flags say its force cannot be told
-from the model's error (joint 3 static, a joint at a limit, a singular Jacobian).
+
+The estimate is "ambiguous" on a tick where the tension cannot be told from the model's
+error: an element's spread beyond ``ambiguous_spread`` (N; the spread carries the static
+band of every stuck joint, through how much that joint's torque says of this tension), or
+an arm's flags saying its force is unusable in any direction (a joint at a limit, a
+singular Jacobian). An arm's joint 3 standing still (its tip-force flag) does not make a
+tension ambiguous by itself: in a sideways move joint 3 carries little of it. On the
+simulated rig's string the spread is 0.03-0.16 N while the arms move and 0.48-0.54 N once
+every joint sticks, where the estimate then reads up to 0.5 N off the cell (the friction
+that holds a stuck joint is anywhere in its band, and the model cannot know where).
 
 `TensionSource` is what the cooperative loop is handed: ``update(t, js)`` per tick with the
 arms' newest joint states, the element tensions back. `tension_figures` compares the
@@ -33,6 +41,11 @@ import numpy as np
 from rig.model import psm_kinematics as K
 
 
+#: Spread (N) beyond which an element's tension is ambiguous: half the thesis' 0.5 N hold
+#: tolerance, so that two spreads still fit in it.
+AMBIGUOUS_SPREAD = 0.25
+
+
 class TensionSource:
     """Tension per object element from the arms' tip force estimates.
 
@@ -41,8 +54,13 @@ class TensionSource:
     registration's). ``elements``: the object's elements as pairs of arm names (the load
     cells' order)."""
 
-    def __init__(self, estimators: dict, rcm_frames: dict, elements):
+    def __init__(self, estimators: dict, rcm_frames: dict, elements, ambiguous_spread: float = AMBIGUOUS_SPREAD,
+                 stretch=None):
         self.estimators = dict(estimators)
+        # the object's own stretch across the ticks the torques cannot tell
+        # (calibration.stretch_filter.StretchFilter), or None: the torques alone
+        self.stretch = stretch
+        self.ambiguous_spread = float(ambiguous_spread)
         self.elements = [tuple(e) for e in elements]
         self.arms = [a for a in self.estimators]
         for a, b in self.elements:
@@ -55,8 +73,11 @@ class TensionSource:
         self._stamp: dict[str, float] = {}
         self._sample: dict = {}
         self.tension = np.zeros(len(self.elements))
-        self.spread = np.full(len(self.elements), np.nan)
+        self.torque_tension = np.zeros(len(self.elements))   # the torques' alone (N)
+        self.spread = np.full(len(self.elements), np.nan)      # the torques' spread (N)
+        self._t_newest: float | None = None
         self.ambiguous = False
+        self.why = ""
         self.flags: dict[str, dict] = {}
 
     def tip_world(self, arm: str, q: np.ndarray) -> np.ndarray:
@@ -67,6 +88,9 @@ class TensionSource:
             e.reset()
         self._stamp.clear()
         self._sample.clear()
+        self._t_newest = None
+        if self.stretch is not None:
+            self.stretch.reset()
 
     def update(self, js: dict, default_dt: float) -> np.ndarray:
         """Advance each arm's observer by its newest joint state (``js[arm]`` with
@@ -106,25 +130,53 @@ class TensionSource:
             W[3 * i:3 * i + 3, 3 * i:3 * i + 3] = w
             S[3 * i:3 * i + 3, 3 * i:3 * i + 3] = c
         G = np.linalg.solve(A.T @ W @ A, A.T @ W)       # tensions = G b
-        self.tension = G @ b
+        self.torque_tension = G @ b
         # the spread of the weighted mean, stuck joints' static bands included
         self.spread = np.sqrt(np.clip(np.diag(G @ S @ G.T), 0.0, None))
         self.flags = {a: dict(self._sample[a][1].flags) for a in self.arms}
-        self.ambiguous = any(any(f.values()) for f in self.flags.values())
+        self.why = self._ambiguity()
+        self.ambiguous = bool(self.why)
+        newest = max(self._stamp.values())
+        dt = default_dt if self._t_newest is None or newest <= self._t_newest else newest - self._t_newest
+        self._t_newest = newest
+        if self.stretch is None:
+            self.tension = self.torque_tension.copy()
+        else:
+            lengths = [np.linalg.norm(tips[x] - tips[y]) for x, y in self.elements]
+            self.tension = self.stretch.update(np.array(lengths), self.torque_tension, self.spread, dt)
         return self.tension.copy()
 
+    def _ambiguity(self) -> str:
+        """Why this tick's tension cannot be told from the model's error ("" when it can)."""
+        unusable = [f"{a} {f.replace('_', ' ')}" for a in self.arms for f in ("at_limit", "singular")
+                    if self.flags[a].get(f)]
+        if unusable:
+            return ", ".join(unusable)
+        wide = [k for k, s in enumerate(self.spread) if s > self.ambiguous_spread]
+        if wide:
+            return (f"element {', '.join(map(str, wide))} spread {max(self.spread[wide]):.2f} N > "
+                    f"{self.ambiguous_spread:g} N (stuck joints' static friction)")
+        return ""
 
-def tension_source(dynamics, effects, stick, rcm_frames: dict, arms, elements, gain=None, sigma=None) -> TensionSource:
+
+def tension_source(dynamics, effects, stick, rcm_frames: dict, arms, elements, gain=None, sigma=None,
+                   ambiguous_spread: float = AMBIGUOUS_SPREAD, stiffness: float | None = None,
+                   pulls_only: bool = False) -> TensionSource:
     """A `TensionSource` over ``arms``, each on its own model: ``dynamics``, the model file's
     ``effects`` and joint 3's ``stick`` terms are dicts by arm (a single value is every
-    arm's); ``sigma`` the held-out spread or None."""
+    arm's); ``sigma`` the held-out spread or None. ``stiffness`` (N/m, the object's; None:
+    the torques alone) carries the tension by the object's stretch where the torques cannot
+    tell it (`calibration.stretch_filter`); ``pulls_only`` for a string."""
+    from calibration.stretch_filter import StretchFilter
     from calibration.tip_force import TipForceEstimator
 
     def of(x, a):
         return x[a] if isinstance(x, dict) else x
 
     return TensionSource({a: TipForceEstimator(of(dynamics, a), list(of(effects, a) or []), gain, sigma,
-                                               of(stick, a)) for a in arms}, rcm_frames, elements)
+                                               of(stick, a)) for a in arms}, rcm_frames, elements,
+                         ambiguous_spread,
+                         None if stiffness is None else StretchFilter(len(elements), stiffness, pulls_only))
 
 
 def tension_figures(t: np.ndarray, estimate: np.ndarray, cell: np.ndarray, start: float, end: float) -> dict | None:

@@ -369,14 +369,6 @@ def _run(rig, setup: Setup, progress: bool) -> dict:
         with run.step(STEPS[1]):
             estimate = _attach(rig, setup)
         controller = setup.controller(1.0 / rig.clock.rate)
-        if setup.tension_source == "model":
-            # closed on the estimate, which lags by the observer's filter: no proportional
-            # feedback of it (a stiff string's k_fp rang up to the ceiling at 7-8 Hz), and
-            # the slaves keep their own inertia, whose impedance needs no force fed back
-            # (rig.control.controllers.Impedance; with the spring's 1 kg the loop rang)
-            controller.k_fp = 0.0
-            for imp in controller.impedance.values():
-                imp.Md = None
         model_effects = _model_effects(controller, run)
         sensors = [rig.forces[k] for k in sorted(rig.forces or {})]
         started = _start(controller, rig, setup, sensors, estimate)
@@ -506,7 +498,8 @@ def _attach(rig, setup: Setup):
     object's pull when the loop starts."""
     rig.operator.attach_object(setup.cfg.object["kind"])
     elements = setup.elements
-    estimate = tension_source_for(setup.dyn, setup.effects, setup.stick, setup.rcm_frames, setup.names, elements)
+    estimate = tension_source_for(setup.dyn, setup.effects, setup.stick, setup.rcm_frames, setup.names, elements,
+                                  setup.params["tolerance"], setup.cfg.object)
     dt = 1.0 / rig.clock.rate
     # the simulated object is attached at construction; let it settle under the PIDs
     for _ in range(int(0.5 * rig.clock.rate)):

@@ -57,6 +57,8 @@ class TensionHold:
                     "setpoint": np.empty(n_ticks), "loop_us": np.empty(n_ticks),
                     "x_f": np.empty((n_ticks, len(controller.slaves))), "force_offset": np.empty(n_ticks),
                     "tension_estimate": np.empty((n_ticks, len(controller.elements))),
+                    "estimate_spread": np.empty((n_ticks, len(controller.elements))),
+                    "estimate_torques": np.empty((n_ticks, len(controller.elements))),
                     "estimate_ambiguous": np.zeros(n_ticks, bool)}
         for n in self.names:
             self.log[f"{n}.x"] = np.empty((n_ticks, 3))
@@ -87,6 +89,8 @@ class TensionHold:
         for k_el, value in enumerate(est):
             self.loop.recorder.scalar(figures.TENSION_ESTIMATE_TOPIC + (str(k_el) if k_el else ""), t, float(value))
         self.log["tension_estimate"][tick.k] = est
+        self.log["estimate_spread"][tick.k] = self.estimate.spread
+        self.log["estimate_torques"][tick.k] = self.estimate.torque_tension
         self.log["estimate_ambiguous"][tick.k] = self.estimate.ambiguous
         if self.on_model:
             # the loop closes on the estimate: as fresh as the joint states it came from

@@ -93,21 +93,32 @@ class TensionSource:
             self.stretch.reset()
 
     def update(self, js: dict, default_dt: float) -> np.ndarray:
-        """Advance each arm's observer by its newest joint state (``js[arm]`` with
+        """Advance each arm's observer by its joint states and return the tension per
+        element (N). ``js[arm]``: its newest joint state, or every one since the last call,
+        oldest first (the observer integrates efforts: fed one sample in five of an arm
+        whose own impedance varies its effort within each of the loop's periods, it reads
+        that variation at one phase, a bias of 0.4-0.9 N over the wire). Each has
         ``position``, ``velocity``, ``effort`` and its stamp ``t``; a sample seen already is
-        not fed twice; without stamps every call is ``default_dt`` s after the last) and
-        return the tension per element (N)."""
+        not fed twice; without stamps every sample is ``default_dt`` s after the last."""
         for a in self.arms:
-            s = js[a]
-            stamp = getattr(s, "t", None)
-            last = self._stamp.get(a)
-            if stamp is not None and last is not None and stamp <= last:
-                continue
-            dt = default_dt if stamp is None or last is None else float(stamp) - last
-            self._sample[a] = (np.asarray(s.position, float)[:3],
-                               self.estimators[a].update(s.position, s.velocity, s.effort, dt))
-            self._stamp[a] = float(stamp) if stamp is not None else (last or 0.0) + default_dt
+            for s in (js[a] if isinstance(js[a], (list, tuple)) else [js[a]]):
+                self._feed(a, s, default_dt)
         tips = {a: self.tip_world(a, self._sample[a][0]) for a in self.arms}
+        return self._solve(tips, default_dt)
+
+    def _feed(self, a: str, s, default_dt: float) -> None:
+        stamp = getattr(s, "t", None)
+        last = self._stamp.get(a)
+        if stamp is not None and last is not None and stamp <= last:
+            return
+        dt = default_dt if stamp is None or last is None else float(stamp) - last
+        self._sample[a] = (np.asarray(s.position, float)[:3],
+                           self.estimators[a].update(s.position, s.velocity, s.effort, dt))
+        self._stamp[a] = float(stamp) if stamp is not None else (last or 0.0) + default_dt
+
+    def _solve(self, tips: dict, default_dt: float) -> np.ndarray:
+        """The tensions from every arm's newest force estimate (least squares), carried by
+        the stretch filter where there is one."""
         rows, rhs, weights, covs = [], [], [], []
         for a in self.arms:
             A = np.zeros((3, len(self.elements)))

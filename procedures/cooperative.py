@@ -401,7 +401,7 @@ def _hold(run, rig, setup: Setup, controller, sensors, started, estimate, model_
     run.recorder.metadata(figures.LOOP_METADATA, figures.loop_metadata(
         t_start, names, setup.master, t_start + motion[0], t_start + motion[1], setup.elements))
     loop = ControlLoop(run, clock, {n: rig.arms[n] for n in names}, limits=setup.limits, sensors=sensors,
-                       impedance=servo_ci, loop_time_topic="/cooperative/loop_time_us")
+                       impedance=servo_ci, loop_time_topic="/cooperative/loop_time_us", read="drain")
     loop.newest_force_t = [s.t for s in started.samples]
     loop.prime()
     hold = TensionHold(controller, loop, live, setup.cfg, n_ticks, t_start, started.tension, estimate,
@@ -504,7 +504,7 @@ def _attach(rig, setup: Setup):
     # the simulated object is attached at construction; let it settle under the PIDs
     for _ in range(int(0.5 * rig.clock.rate)):
         rig.clock.tick()
-        estimate.update({n: rig.arms[n].measured_js() for n in setup.names}, dt)
+        estimate.update({n: rig.arms[n].drain_js() or rig.arms[n].measured_js() for n in setup.names}, dt)
     if rig.force is None and setup.tension_source == "cell":
         raise AbortRun("no load cell: the tension cannot be tracked (or close the loop on the model's "
                        "estimate: --tension-source model)")

@@ -33,6 +33,9 @@ import numpy as np
 SETPOINT_TOPIC = "/cooperative/force_setpoint"
 #: The model's tension estimate per tick (issue 47): element 0, then "...1", "...2".
 TENSION_ESTIMATE_TOPIC = "/cooperative/tension_estimate"
+#: ... from the arms' torques alone (before the object's stretch carries it), and its spread.
+TENSION_TORQUES_TOPIC = "/cooperative/tension_estimate_torques"
+TENSION_SPREAD_TOPIC = "/cooperative/tension_estimate_spread"
 LOOP_METADATA = "cooperative_loop"
 MIN_HALF_SPAN_MM = 1.0     # a position panel spans at least +-1 mm: encoder steps stay steps
 MIN_HALF_SPAN_N = 0.1      # the error panel at least +-0.1 N

@@ -85,9 +85,15 @@ class TensionHold:
             if force_age > self.stale_timeout:
                 check_stale_tension(sensors, force_age, self.stale_timeout, self.loop_stale,
                                     self.cell_rate, "[loadcell] stale_timeout")
-        est = self.estimate.update(tick.js, 1.0 / self.loop.clock.rate)
+        # every joint sample since the last tick: the observer integrates the efforts
+        est = self.estimate.update({n: tick.joint_samples.get(n) or tick.js[n] for n in self.names},
+                                   1.0 / self.loop.clock.rate)
+        rec = self.loop.recorder
         for k_el, value in enumerate(est):
-            self.loop.recorder.scalar(figures.TENSION_ESTIMATE_TOPIC + (str(k_el) if k_el else ""), t, float(value))
+            suffix = str(k_el) if k_el else ""
+            rec.scalar(figures.TENSION_ESTIMATE_TOPIC + suffix, t, float(value))
+            rec.scalar(figures.TENSION_TORQUES_TOPIC + suffix, t, float(self.estimate.torque_tension[k_el]))
+            rec.scalar(figures.TENSION_SPREAD_TOPIC + suffix, t, float(self.estimate.spread[k_el]))
         self.log["tension_estimate"][tick.k] = est
         self.log["estimate_spread"][tick.k] = self.estimate.spread
         self.log["estimate_torques"][tick.k] = self.estimate.torque_tension

@@ -22,10 +22,11 @@ error: an element's spread beyond ``ambiguous_spread`` (N; the spread carries th
 band of every stuck joint, through how much that joint's torque says of this tension), or
 an arm's flags saying its force is unusable in any direction (a joint at a limit, a
 singular Jacobian). An arm's joint 3 standing still (its tip-force flag) does not make a
-tension ambiguous by itself: in a sideways move joint 3 carries little of it. On the
-simulated rig's string the spread is 0.03-0.16 N while the arms move and 0.48-0.54 N once
-every joint sticks, where the estimate then reads up to 0.5 N off the cell (the friction
-that holds a stuck joint is anywhere in its band, and the model cannot know where).
+tension ambiguous by itself: in a sideways move joint 3 carries little of it. Where the
+torques cannot tell the tension, the object's own stretch carries it
+(`calibration.stretch_filter`, given the object's stiffness): the tension the loop is
+handed; the torques' own is `torque_tension`, with its `spread` (bench_tension_estimate
+has the figures of both).
 
 `TensionSource` is what the cooperative loop is handed: ``update(t, js)`` per tick with the
 arms' newest joint states, the element tensions back. `tension_figures` compares the

@@ -30,12 +30,17 @@ def estimate_figures(log, params, source: str, cell: bool, estimate) -> dict:
     from calibration.tension_estimate import tension_figures
 
     doc = {"source": source, "loop_closed_on": "model estimate" if source == "model" else "load cell",
-           "estimator": "generalized-momentum observer per arm on the model, J^-T, least squares over the arms",
+           "estimator": "generalized-momentum observer per arm on the model, J^-T, least squares over the arms, "
+                        "carried by the object's stretch (calibration.stretch_filter)",
            "ambiguous_share": float(np.mean(log["estimate_ambiguous"])) if len(log["t"]) else None,
            "ambiguous_means": f"the tension's spread beyond {estimate.ambiguous_spread:g} N (stuck joints' static "
                               "friction, which the model cannot place in its band), a joint at a limit or a "
-                              "singular Jacobian: contact and model error look alike there",
+                              "singular Jacobian: contact and model error look alike there, and the object's "
+                              "stretch carries the estimate",
            "spread_median": float(np.median(log["estimate_spread"])) if len(log["t"]) else None}
+    if estimate.stretch is not None:
+        doc["stiffness_configured"] = estimate.stretch.k0.tolist()
+        doc["stiffness_followed"] = estimate.stretch.k.tolist()
     if cell:
         m0 = params["settle"]
         doc.update(tension_figures(log["t"], log["tension_estimate"], log["tension"], m0, m0 + params["duration"])

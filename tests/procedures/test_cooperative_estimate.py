@@ -8,6 +8,7 @@ import json
 import os
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 from rig.cli import main
@@ -22,19 +23,26 @@ def _invoke(*args):
     return res, (json.loads(lines[-1]) if lines else None)
 
 
-def test_the_loop_closes_on_the_estimate_and_the_cell_judges_it():
-    res, data = _invoke("cooperative", *SHORT, "--tension-source", "model")
-    assert res.exit_code in (0, 4), res.output
+@pytest.mark.parametrize("obj", ["spring", "string"])
+def test_the_loop_closes_on_the_estimate_and_the_cell_judges_it(obj):
+    res, data = _invoke("cooperative", *SHORT, "--object", obj, "--tension-source", "model")
+    # completed: within the tolerance while moving and through the hold after the move,
+    # where every joint sticks and the object's stretch carries the estimate (a string
+    # on the torques alone drifted 0.5 N off the cell there)
+    assert res.exit_code == 0, res.output
+    assert data["status"] == "completed"
     est = data["tension_estimate"]
     assert est["source"] == "model" and est["loop_closed_on"] == "model estimate"
     # the estimate against the cell while moving
-    assert est["rms_difference"] < 0.3 and abs(est["bias"]) < 0.2, est
-    # max_error_during_motion is the cell's: recomputed from the recorded cell
+    assert est["rms_difference"] < 0.3 and est["max_difference"] < 0.6 and abs(est["bias"]) < 0.2, est
+    # max_error_during_motion is the cell's, judged against the thesis' 0.5 N
     rec = read_recording(os.path.join(data["run_dir"], "run.mcap"))
     cell = rec.messages["/loadcell/force"]
     assert len(cell) > 1000
-    assert data["max_error_during_motion"] < 0.75
-    assert "/cooperative/tension_estimate" in rec.counts()
+    assert data["max_error_during_motion"] < 0.5
+    for topic in ("/cooperative/tension_estimate", "/cooperative/tension_estimate_torques",
+                  "/cooperative/tension_estimate_spread"):
+        assert topic in rec.counts()
     with open(os.path.join(data["run_dir"], "result.json")) as f:
         assert json.load(f)["tension_estimate"]["rms_difference"] == est["rms_difference"]
 

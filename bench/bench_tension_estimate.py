@@ -13,6 +13,24 @@ efforts and model, and the cooperative loop closed on it.
    the mean tip force's magnitude (target 0.3 N) and the spread over time (reported).
 
     python bench/bench_tension_estimate.py [--skip-real] [--skip-sim]
+
+Tuning log of calibration.stretch_filter (this bench's cases, the loop on the estimate:
+max |F_cell - 5 N| while moving, spring / string; 2026-11-29):
+
+- the torques alone (no stretch filter), the loop's proportional feedback and the slaves'
+  inertia shaping off: 0.338 / 0.300 N, the string `failed` (after the move it drifted to
+  4.46 N while the estimate read 5.0: every joint stuck, the estimate's spread 0.48 N);
+  holding the force loop on the ambiguous ticks instead made it worse (0.654 N: the
+  slaves kept creeping under their impedance);
+- a scalar filter on the tension (stretch prediction, the torques through the observer's
+  lag, c = 1 s, q = 0.001 N^2/s), the cell's loop gains: 0.139 / 0.130 N, both completed;
+  but replayed with the stiffness 0.5x / 2x off, the estimate's worst while moving went to
+  1.3 / 2.6 N (the torques alone: 0.43 N);
+- the extended filter on (rest length, stiffness), the stiffness within 20 %: 0.251 /
+  0.115 N; 2x off: 0.53 N (string) and 0.78 N (spring) at worst, learned over the run.
+  Within 10 %: 0.227 / 0.130 N, 2x off 1.2 N. 20 % kept.
+- the ambiguity threshold: half the run's tolerance (0.25 N); the spread is 0.03-0.16 N
+  while the arms slide and 0.48-0.54 N with every joint stuck on both objects.
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ mass from the load cell, guide the tool tips onto a common point. Procedures ask
   that a procedure in another process runs unattended against the simulated rig.
 * `drivers.operator.sim.SimOperator`: the in-process simulated rig does it itself.
 
-The side channel (served by `drivers.operator.sim.OperatorServer` in `rig sim`):
+The side channel (served by `drivers.operator.fake_operator_server.FakeOperatorServer` in `rig sim`):
 
   /rig_sim/operator/request  std_msgs/String  {"id": "...", "action": ACTION, ...}
   /rig_sim/operator/reply    std_msgs/String  {"id": "...", "ok": true|false, "detail": "..."}

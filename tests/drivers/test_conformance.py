@@ -15,7 +15,7 @@ import serial
 from drivers.arm.dvrk_arm import RosArm
 from drivers.interfaces import Arm, ForceSample, ForceSensor, ImpedanceArm, Operator, Tracker
 from drivers.loadcell.can import CanLoadCell
-from drivers.loadcell.firmware_fake import FakeLoadCellFirmware
+from drivers.loadcell.fake_firmware import FakeLoadCellFirmware
 from drivers.loadcell.force_calibration import LoadCellCalibration
 from drivers.loadcell.serial_driver import LoadCell
 from drivers.loadcell.sim import SimForceSensor

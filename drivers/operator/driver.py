@@ -49,6 +49,12 @@ class OperatorError(DeviceFault):
     """The operator did not do what was asked (no answer, or an answer saying why not)."""
 
 
+def check_mass(kg) -> None:
+    """A mass a person can hang: finite and >= 0 kg (as the simulated operator checks it)."""
+    if not (np.isfinite(kg) and kg >= 0):
+        raise OperatorError(f"a mass must be >= 0 kg, got {kg}")
+
+
 class ConsoleOperator:
     """A person at this terminal (see the module docstring); `yes`: take every request as done."""
 
@@ -74,6 +80,7 @@ class ConsoleOperator:
         self._ask(f"Attach the {kind or 'object'} and the load cell between the tool tips")
 
     def hang_mass(self, kg: float, element: int | None = None) -> None:
+        check_mass(kg)
         cell = "the load cell" if element is None else f"the load cell of object element {element}"
         self._ask(f"Take everything off {cell}" if kg == 0 else f"Hang {kg:.3f} kg from {cell} and let it settle")
 
@@ -175,6 +182,7 @@ class RosOperator:
         self.request("attach_object", **({"kind": kind} if kind else {}))
 
     def hang_mass(self, kg: float, element: int | None = None) -> None:
+        check_mass(kg)
         self.request("hang_mass", kg=float(kg), **({} if element is None else {"element": int(element)}))
 
     def unplug(self, device: str) -> None:

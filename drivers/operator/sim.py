@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from drivers.loadcell.force_calibration import STANDARD_GRAVITY
-from drivers.operator.driver import OperatorError
+from drivers.operator.driver import OperatorError, check_mass
 
 
 #: N/m, the thesis's objects: the compliant spring and the stiff suture string
@@ -105,13 +105,12 @@ class SimOperator:
             cell.kg = None
 
     def hang_mass(self, kg: float, element: int | None = None) -> None:
+        check_mass(kg)
         cell = self.cell if element is None else self.cells.get(int(element))
         if cell is None:
             raise OperatorError("the simulated rig serves no load cell to hang a mass from"
                                 + ("" if element is None else f" on element {element}; it serves "
                                    f"{sorted(self.cells) or 'none'}"))
-        if not (np.isfinite(kg) and kg >= 0):
-            raise OperatorError(f"a mass must be >= 0 kg, got {kg}")
         cell.kg = float(kg)
         # the mass hangs when the person says so: the cell feels it now, not at the world's
         # next step (on a loaded machine rig sim's loop runs late, and a calibration that

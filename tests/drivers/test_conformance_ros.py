@@ -14,7 +14,6 @@ leaves the arms where it found them, so the tests pass in any order.
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 import rclpy  # noqa: F401  (a declared dependency: a broken install fails here)

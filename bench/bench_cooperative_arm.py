@@ -2,7 +2,7 @@
 
 What `rig cooperative` does over the wire against `rig sim`, with the wire's timing made
 exact and repeatable: the simulated world steps at the rig rate with each arm a whole
-dVRK PSM (`drivers.arm.sim_psm.SimPSM`, its servo_ci run in its servo loop); the arms' state
+dVRK PSM (`drivers.arm.fake_psm.FakePSM`, its servo_ci run in its servo loop); the arms' state
 and the load cell are "published" every ROS period, reach the procedure's loop `--delay`
 periods later, and the loop's commands (master servo_jp, slaves' servo_ci built as the
 crtk_msgs message RosArm sends and read back as rig sim's bridge reads it) act from the

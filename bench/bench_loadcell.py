@@ -25,9 +25,10 @@ import serial
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from drivers.loadcell.can import CanLoadCell, FakeCanLoadCellFirmware  # noqa: E402
+from drivers.loadcell.can import CanLoadCell  # noqa: E402
+from drivers.loadcell.fake_can_firmware import FakeCanLoadCellFirmware  # noqa: E402
 from drivers.loadcell.errors import LoadCellError  # noqa: E402
-from drivers.loadcell.firmware_fake import FakeLoadCellFirmware  # noqa: E402
+from drivers.loadcell.fake_firmware import FakeLoadCellFirmware  # noqa: E402
 from drivers.loadcell.force_calibration import LoadCellCalibration  # noqa: E402
 from drivers.loadcell.serial_driver import LoadCell  # noqa: E402
 

@@ -3,7 +3,7 @@
     .venv/bin/python bench/bench_natnet.py [--seconds 20] [--rates 120,360]
 
 For each mocap rate, a child process steps the simulated rig on the wall clock (1 kHz)
-and streams it through `drivers.natnet.fake_motive.SimMotive` (marker noise, 5 ms of camera
+and streams it through `drivers.natnet.fake_motive.FakeMotiveOnWorld` (marker noise, 5 ms of camera
 latency, 5 % occlusion) to a `drivers.natnet.tracker.NatNetTracker` in this process. Motive's
 clock in the child is `time.monotonic()` (10 MHz ticks), the clock this process reads
 too, and each frame's transmit stamp is taken when the frame is ready to go (as Motive
@@ -43,7 +43,7 @@ def pct(values: list[float], q: float) -> float:
 
 def serve(conn, rate: float, seconds: float) -> None:
     """The Motive side: the simulated rig paced to the wall clock, streamed at `rate`."""
-    from drivers.natnet.fake_motive import SimMotive
+    from drivers.natnet.fake_motive import FakeMotiveOnWorld
     from rig.devices.clock import SimClock
     from rig.config import parse
     from rig.sim.world import world_from_config
@@ -51,8 +51,8 @@ def serve(conn, rate: float, seconds: float) -> None:
     world = world_from_config(parse({}, "built-in simulated rig"), seed=0)
     clock = SimClock(world)
     clock.tick()  # the physics kernel loads on the first step
-    sm = SimMotive(world, clock, noise=0.00025, latency=0.005, occlusion=0.05, rate=rate, seed=1,
-                   command_port=0, data_port=0, epoch=0.0).start()
+    sm = FakeMotiveOnWorld(world, clock, noise=0.00025, latency=0.005, occlusion=0.05, rate=rate, seed=1,
+                           command_port=0, data_port=0, epoch=0.0).start()
     conn.send((sm.motive.command_port, sm.motive.data_port))
     while not sm.motive.clients:  # Motive streams to whoever connects
         clock.tick()

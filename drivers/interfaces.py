@@ -65,24 +65,42 @@ class Arm(Protocol):
 
     name: str
 
-    def measured_js(self) -> JointState: ...
+    def measured_js(self) -> JointState:
+        """The newest measured joint state of joints 1-3, stamped on the rig clock (s)."""
+        ...
 
     def drain_js(self) -> list[JointState]:
         """Every measured joint state since the last drain, oldest first: a loop that could
         not look at every sample (held up, over the wire) still records them all."""
         ...
 
-    def setpoint_js(self) -> JointState: ...
+    def setpoint_js(self) -> JointState:
+        """The arm's joint set-point: after `servo_jp`, its position is the one commanded."""
+        ...
 
-    def measured_cp(self) -> Pose: ...
+    def measured_cp(self) -> Pose:
+        """The tool tip from the measured joints, as the dVRK's measured_cp: its PSM's tool tip
+        (the tool's wrist straight on this rig's 3-joint arm) in the arm's base frame, which
+        is the RCM frame, named "<arm>_base", on an arm without a set-up joint."""
+        ...
 
-    def servo_jp(self, position: np.ndarray) -> None: ...
+    def servo_jp(self, position: np.ndarray) -> None:
+        """A joint position set-point (rad, rad, m) for the arm's joint PID, now; a stream of
+        them follows a path."""
+        ...
 
-    def servo_jf(self, effort: np.ndarray) -> None: ...
+    def servo_jf(self, effort: np.ndarray) -> None:
+        """Joint efforts (N m, N m, N) to the drives, now."""
+        ...
 
-    def move_jp(self, position: np.ndarray, wait: bool = True, timeout: float = 10.0) -> bool: ...
+    def move_jp(self, position: np.ndarray, wait: bool = True, timeout: float = 10.0) -> bool:
+        """A smooth move to `position`; with `wait`, True once there and at rest, False
+        when `timeout` s (of the rig clock) passed first."""
+        ...
 
-    def hold(self) -> None: ...
+    def hold(self) -> None:
+        """Hold the present position (the safe state)."""
+        ...
 
     def power_on(self) -> None:
         """Enable the drives (the arm holds where it is); an arm already on stays as it is."""
@@ -109,7 +127,19 @@ class ImpedanceArm(Arm, Protocol):
         ...
 
     def servo_ci(self, position, orientation=None, stiffness=(0.0, 0.0, 0.0), damping=(0.0, 0.0, 0.0),
-                 bias=(0.0, 0.0, 0.0), **torque) -> None: ...
+                 bias=(0.0, 0.0, 0.0), **torque) -> None:
+        """A Cartesian impedance about the tool-tip goal `position` (m) and `orientation`
+        (3x3), run by the arm in its own servo loop: per axis a spring `stiffness` (N/m),
+        a damper `damping` (N s/m) and a `bias` (N); `torque`: the orientation's gains."""
+        ...
+
+    def servo_ci_problem(self) -> str | None:
+        """None when `servo_ci` reaches the arm's servo loop (the message type can be built
+        here and the arm's console takes it); else why not, as one line (no newline) that
+        names the arm's servo_ci topic and what is missing (the message type here, or the
+        console's subscription), for a procedure to refuse a slave with. It may wait a few
+        seconds of wall time for the ROS graph (discovery), never longer."""
+        ...
 
 
 @runtime_checkable
@@ -141,10 +171,16 @@ class Tracker(Protocol):
     """An optical motion-capture system."""
 
     def frames(self) -> list[TrackerFrame]:
-        """Every frame received since the last call, oldest first."""
+        """Every frame received since the last call, oldest first, each once, a body that
+        could not be tracked in a frame None in it. Raises a `rig.faults.DeviceFault`
+        (`MocapStaleError`) once the stream has been silent for its stale timeout (s); the
+        frames received before stay for the next call."""
         ...
 
-    def latest(self) -> TrackerFrame: ...
+    def latest(self) -> TrackerFrame:
+        """The newest frame; raises as `frames` when the stream is stale, and before the
+        first frame."""
+        ...
 
     def close(self) -> None: ...
 
@@ -175,9 +211,12 @@ class Operator(Protocol):
 
     def hang_mass(self, kg: float, element: int | None = None) -> None:
         """Hang `kg` kilograms from the load cell (0: take everything off it); `element`:
-        which object element's cell, on a rig with one per element (None: the one cell)."""
+        which object element's cell, on a rig with one per element (None: the one cell).
+        A mass that is not finite and >= 0 kg is refused (`OperatorError`)."""
         ...
 
     def touch(self, arms: dict, point_index: int, goal_world: np.ndarray) -> None:
-        """Bring every arm's tool tip to one common physical point (the index-th)."""
+        """Bring every arm's tool tip (its measured_cp, wrist straight) to one common
+        physical point (the index-th, near `goal_world`: m in the world frame) and hold it
+        there until the next command."""
         ...

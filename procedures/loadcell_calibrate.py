@@ -22,7 +22,7 @@ from pathlib import Path
 import click
 
 from drivers.loadcell.errors import LoadCellError
-from drivers.loadcell.firmware_fake import FakeLoadCellFirmware
+from drivers.loadcell.fake_firmware import FakeLoadCellFirmware
 from drivers.loadcell.force_calibration import STANDARD_GRAVITY, LoadCellCalibration
 from drivers.loadcell.protocol import FIRMWARE_MAX_RATE_HZ
 from drivers.loadcell.serial_driver import LoadCell

@@ -5,7 +5,7 @@ configuration as a whole dVRK 2.4 PSM on its CRTK ROS 2 topics (six joints and t
 the large needle driver unless `--tool` names another, the streams every `--ros-period`
 s as `dvrk_system -p`, operating_state and the other events on change, the kinematics
 services, `/system` or `/console` names), mocap poses on ROS 2 (and Motive's NatNet with
-`--natnet`), each load cell's firmware fake on a pseudo-terminal (`drivers.loadcell.firmware_process`;
+`--natnet`), each load cell's firmware fake on a pseudo-terminal (`drivers.loadcell.fake_firmware_process`;
 the configured port becomes a link to it), and the operator's side channel: the manual
 steps of a procedure done by a simulated person, the faults a test injects.
 
@@ -270,7 +270,7 @@ def _serve_loadcells(cfg, world, elements, loadcell: bool, sim_time: bool):
     object_spec = world.object
     firmwares, cells, links = [], [], []
     if loadcell and cfg.loadcell["driver"] != "none" and object_spec is not None:
-        from drivers.loadcell.firmware_process import FirmwareProcess
+        from drivers.loadcell.fake_firmware_process import FakeFirmwareProcess
 
         first = min(cfg.loadcell["element"], len(elements) - 1)
         order = [first] + [k for k in range(len(elements)) if k != first]
@@ -280,7 +280,7 @@ def _serve_loadcells(cfg, world, elements, loadcell: bool, sim_time: bool):
             if sim_time:
                 # on simulated time the "Arduino" converts on the world's clock, stepped by the
                 # world's loop: its samples are where the world is, however fast that runs
-                from drivers.loadcell.firmware_fake import FakeLoadCellFirmware
+                from drivers.loadcell.fake_firmware import FakeLoadCellFirmware
 
                 cell = CellLoad(world, k)
                 # its micros() is the world's time, as the samples' stamps on simulated time
@@ -289,8 +289,8 @@ def _serve_loadcells(cfg, world, elements, loadcell: bool, sim_time: bool):
                 cell.pump, cell.cable = fw.pump, fw.unplug
             else:
                 # each "Arduino" in its own process: its samples keep their pace whatever this
-                # loop is doing (see drivers.loadcell.firmware_process)
-                fw = FirmwareProcess(**fw_kwargs)
+                # loop is doing (see drivers.loadcell.fake_firmware_process)
+                fw = FakeFirmwareProcess(**fw_kwargs)
                 cell = CellLoad(world, k, sink=fw.set_tension, cable=fw.unplug)
             firmwares.append(fw)
             cell.update()
@@ -314,16 +314,16 @@ def _serve_loadcells(cfg, world, elements, loadcell: bool, sim_time: bool):
 
 def _serve_natnet(cfg, world, server, natnet_host, natnet_version):
     """The fake Motive on the loopback, fed by the world (started)."""
-    from drivers.natnet.fake_motive import SimMotive, parse_version
+    from drivers.natnet.fake_motive import FakeMotiveOnWorld, parse_version
 
     m = cfg.mocap
     try:
         # Motive's clock counts from before its first frame, as a PC's counter does
-        natnet = SimMotive(world, server.clock, noise=m["noise"], latency=m["latency"],
-                           occlusion=m["occlusion"], rate=m["rate"], seed=world.seed + 1,
-                           host=natnet_host, command_port=m["command_port"], data_port=m["data_port"],
-                           multicast=m["multicast"], version=parse_version(natnet_version),
-                           epoch=time.time() - 3600.0).start()
+        natnet = FakeMotiveOnWorld(world, server.clock, noise=m["noise"], latency=m["latency"],
+                                   occlusion=m["occlusion"], rate=m["rate"], seed=world.seed + 1,
+                                   host=natnet_host, command_port=m["command_port"], data_port=m["data_port"],
+                                   multicast=m["multicast"], version=parse_version(natnet_version),
+                                   epoch=time.time() - 3600.0).start()
     except OSError as exc:
         raise InputError(
             f"cannot serve NatNet on {natnet_host}:{m['command_port']} (data {m['data_port']}): "

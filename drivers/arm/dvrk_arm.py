@@ -161,10 +161,9 @@ class RosArm(ArmStreams, ArmOperatingState):
                  on_stale: StaleCallback | None = None, console: str = "/console", qos_depth: int = 10,
                  streams: tuple[str, ...] = ALL_STREAMS, polled: Callable[[], float] | None = None,
                  states: bool = True, setting: str | None = None, control_node=None, time_base=None):
-        from geometry_msgs.msg import PoseStamped, WrenchStamped
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState as JointStateMsg
-        from std_msgs.msg import Empty, String
+        from std_msgs.msg import Empty
 
         if watchdog <= 0:
             raise ValueError(f"watchdog must be > 0 s, got {watchdog}")
@@ -184,6 +183,32 @@ class RosArm(ArmStreams, ArmOperatingState):
         self._time = time_base if time_base is not None else WallTime()
         self._JointState = JointStateMsg
         self._Empty = Empty
+        self._init_readings()
+        if on_stale:
+            self._stale_callbacks.append(on_stale)
+        self._console = console if console == "auto" else "/" + console.strip("/")
+        if self._console != "auto":
+            self._set_console(self._console)
+
+        # Best effort matches both reliable (the dVRK's default) and best-effort publishers,
+        # and never lets a slow reader hold up a 1 kHz stream with retransmissions.
+        sensor_qos = QoSProfile(depth=qos_depth, history=HistoryPolicy.KEEP_LAST,
+                                reliability=ReliabilityPolicy.BEST_EFFORT)
+        command_qos = QoSProfile(depth=qos_depth, history=HistoryPolicy.KEEP_LAST,
+                                 reliability=ReliabilityPolicy.RELIABLE)
+        self._subscribe_streams(streams, sensor_qos, command_qos)
+        self._StringStamped = None
+        if states:
+            self._connect_states(sensor_qos, command_qos)
+        else:
+            self.states_error = "states=False"
+        self._command_qos = command_qos
+        if self._console != "auto":
+            self._console_publishers()
+        self._start_threads(spin)
+
+    def _init_readings(self) -> None:
+        """What the arm has heard (nothing yet): its streams, operating state, faults, counters."""
         self._lock = threading.Lock()
         self._cond = threading.Condition(self._lock)
         # every measured_js since the last drain_js() (a few seconds at the dVRK's rates)
@@ -191,7 +216,7 @@ class RosArm(ArmStreams, ArmOperatingState):
         self._js: JointState | None = None
         self._js_rx: float | None = None  # time_base.now() of the last measured_js
         self._latest: dict[str, object] = {}
-        self._stale_callbacks: list[StaleCallback] = [on_stale] if on_stale else []
+        self._stale_callbacks: list[StaleCallback] = []
         self._stale_fired = False
         self.stale_events = 0
         self.received = 0
@@ -227,17 +252,13 @@ class RosArm(ArmStreams, ArmOperatingState):
         self._control_subs: list = []  # operating_state and error, on the control node
         self._impedance_type = None
         self._stamps: deque[float] = deque(maxlen=64)  # header stamps of the newest measured_js
-        self._console = console if console == "auto" else "/" + console.strip("/")
-        if self._console != "auto":
-            self._set_console(self._console)
 
-        # Best effort matches both reliable (the dVRK's default) and best-effort publishers,
-        # and never lets a slow reader hold up a 1 kHz stream with retransmissions.
-        sensor_qos = QoSProfile(depth=qos_depth, history=HistoryPolicy.KEEP_LAST,
-                                reliability=ReliabilityPolicy.BEST_EFFORT)
-        command_qos = QoSProfile(depth=qos_depth, history=HistoryPolicy.KEEP_LAST,
-                                 reliability=ReliabilityPolicy.RELIABLE)
-        t = self.topic
+    def _subscribe_streams(self, streams: tuple[str, ...], sensor_qos, command_qos) -> None:
+        """Subscribe measured_js and the other `streams`; the joint command publishers."""
+        from geometry_msgs.msg import PoseStamped, WrenchStamped
+        from sensor_msgs.msg import JointState as JointStateMsg
+
+        node, t = self.node, self.topic
         store = {"setpoint_js": (JointStateMsg, lambda m: self._model_joints(self._joint_state(m))),
                  "measured_cp": (PoseStamped, self._pose),
                  "local/measured_cp": (PoseStamped, self._pose), "body/measured_cf": (WrenchStamped, self._wrench)}
@@ -255,37 +276,40 @@ class RosArm(ArmStreams, ArmOperatingState):
                 msg_type, t[key], lambda m, key=key, convert=convert: self._store(key, convert(m)), sensor_qos))
         self._pubs = {k: node.create_publisher(JointStateMsg, t[k], command_qos)
                       for k in ("servo_jp", "servo_jf", "move_jp")}
-        self._StringStamped = None
-        if states:
-            try:
-                from crtk_msgs.msg import OperatingState as OperatingStateMsg, StringStamped
-            except ImportError as exc:  # a platform the shipped messages were not built for
-                self.states_error = str(exc).splitlines()[0]
-            else:
-                self._StringStamped = StringStamped
-                control = self.control_node
-                self._control_subs = [
-                    control.create_subscription(OperatingStateMsg, t["operating_state"], self._on_operating_state,
-                                                sensor_qos),
-                    control.create_subscription(String, t["error"], self._on_error, sensor_qos)]
-                self._state_command = control.create_publisher(StringStamped, t["state_command"], command_qos)
-                try:
-                    from crtk_msgs.msg import CartesianImpedance
-                    from crtk_msgs.srv import TriggerOperatingState
-                except ImportError:
-                    pass
-                else:
-                    self._state_client = control.create_client(TriggerOperatingState, t["operating_state"])
-                    # made with the others, so that discovery has matched it before a first servo_ci
-                    self._impedance_type = CartesianImpedance
-                    self._pubs["servo_ci"] = node.create_publisher(CartesianImpedance, f"{self.namespace}/servo_ci",
-                                                                   command_qos)
-        else:
-            self.states_error = "states=False"
-        self._command_qos = command_qos
-        if self._console != "auto":
-            self._console_publishers()
 
+    def _connect_states(self, sensor_qos, command_qos) -> None:
+        """The operating state, error and state commands on the control node, and servo_ci,
+        where the CRTK messages load (else `states_error` says why not)."""
+        from std_msgs.msg import String
+
+        node, t = self.node, self.topic
+        try:
+            from crtk_msgs.msg import OperatingState as OperatingStateMsg, StringStamped
+        except ImportError as exc:  # a platform the shipped messages were not built for
+            self.states_error = str(exc).splitlines()[0]
+        else:
+            self._StringStamped = StringStamped
+            control = self.control_node
+            self._control_subs = [
+                control.create_subscription(OperatingStateMsg, t["operating_state"], self._on_operating_state,
+                                            sensor_qos),
+                control.create_subscription(String, t["error"], self._on_error, sensor_qos)]
+            self._state_command = control.create_publisher(StringStamped, t["state_command"], command_qos)
+            try:
+                from crtk_msgs.msg import CartesianImpedance
+                from crtk_msgs.srv import TriggerOperatingState
+            except ImportError:
+                pass
+            else:
+                self._state_client = control.create_client(TriggerOperatingState, t["operating_state"])
+                # made with the others, so that discovery has matched it before a first servo_ci
+                self._impedance_type = CartesianImpedance
+                self._pubs["servo_ci"] = node.create_publisher(CartesianImpedance, f"{self.namespace}/servo_ci",
+                                                               command_qos)
+
+    def _start_threads(self, spin: bool) -> None:
+        """The executor spinning the nodes (`spin`: else someone else spins them) and the watchdog."""
+        node = self.node
         self._closing = threading.Event()
         self._executor = None
         self._spin_thread = None

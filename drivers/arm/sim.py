@@ -11,8 +11,11 @@ and console behaviour seen through ROS are these.
   of Table 4.2 and the peak acceleration within `acceleration_ratio` of `DDQ_MAX`. It is
   advanced by a clock listener, so with wait=False the arm keeps moving while the caller
   ticks the clock for other reasons, and with wait=True move_jp ticks the clock itself;
-* measured_cp is the forward kinematics of the *measured* joints (what the dVRK reports),
-  in the RCM frame; `measured_cp_world()` is the same pose in the world frame.
+* measured_cp is the forward kinematics of the *measured* joints as the dVRK reports it: the
+  tool tip of its whole PSM with the large needle driver, wrist straight
+  (`rig.model.psm_arm_kinematics.RIG_TIP_TO_TOOL_TIP` beyond the shaft end this module's
+  kinematics calls the tip), in the arm's base frame (the RCM frame, "<arm>_base", as a dVRK
+  without a set-up joint); `measured_cp_world()` is the same pose in the world frame.
 
 Units: rad and m for joints (joint 3 in m), N m and N for efforts, s for times.
 """
@@ -124,19 +127,23 @@ class SimArm:
         return JointState(self.clock.now(), q, dq, effort, self.joint_names)
 
     def measured_cp(self) -> Pose:
-        """Tool-tip pose in the RCM frame from the measured joints (dVRK measured_cp)."""
-        q = self.world.measured_js(self.name)[0]
-        T = K.tip_pose_rcm(q)
-        return Pose(self.clock.now(), T[:3, 3].copy(), T[:3, :3].copy(), f"{self.name}_rcm")
+        """The dVRK's tool-tip pose from the measured joints (measured_cp: the module docstring)."""
+        T = self._tool_tip()
+        return Pose(self.clock.now(), T[:3, 3].copy(), T[:3, :3].copy(), f"{self.name}_base")
+
+    def _tool_tip(self) -> np.ndarray:
+        """The tool tip (4x4) in the RCM frame, wrist straight, from the measured joints."""
+        from rig.model.psm_arm_kinematics import RIG_TIP_TO_TOOL_TIP
+
+        return K.tip_pose_rcm(self.world.measured_js(self.name)[0]) @ RIG_TIP_TO_TOOL_TIP
 
     def local_measured_cp(self) -> Pose:
         """dVRK local/measured_cp: the RCM-frame pose (no base frame is configured on a PSM)."""
         return self.measured_cp()
 
     def measured_cp_world(self) -> Pose:
-        """The measured tool-tip pose in the rig's world frame."""
-        q = self.world.measured_js(self.name)[0]
-        T = self.world.arms[self.name].rcm_world @ K.tip_pose_rcm(q)
+        """The measured tool-tip pose (measured_cp's) in the rig's world frame."""
+        T = self.world.arms[self.name].rcm_world @ self._tool_tip()
         return Pose(self.clock.now(), T[:3, 3].copy(), T[:3, :3].copy(), "world")
 
     def body_measured_cf(self) -> Wrench:

@@ -8,9 +8,11 @@ out-of-order, device restarts; device micros() -> host seconds, with u32 wraparo
 crystal drift), `errors`, `force_calibration` (counts -> newtons from two known masses, plus
 a tare offset), this module, the drivers `serial_driver` (`LoadCell`, given an open
 pyserial-like port, implements `drivers.interfaces.ForceSensor`; `serial_port` opens it) and
-`can` (`CanLoadCell`), and the fakes: `device_model`, `firmware_fake` (the sketch's behaviour
-on a pseudo-terminal, fed by a tension source (N), with noise, drift, saturation, corrupt
-frames and unplugging), `firmware_process`, `sim`.
+`can` (`CanLoadCell`), and the fakes: `device_model` (the firmware's physics), the far end's
+emulators `fake_firmware` (the sketch's behaviour on a pseudo-terminal, fed by a tension
+source (N), with noise, drift, saturation, corrupt frames and unplugging),
+`fake_firmware_process` (the same in a process of its own, for `rig sim`) and
+`fake_can_firmware` (the CAN build on a python-can virtual bus), and the in-process twin `sim`.
 
 Units: force in newtons (N, tension positive), time in seconds on the host clock unless
 a name ends in `_us` (device microseconds), raw ADC values in counts.

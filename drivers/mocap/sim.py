@@ -20,7 +20,11 @@
   component order is `quaternion_order` ("xyzw" like Motive and ROS, or "wxyz" like
   Vicon or Eigen). `SimFrame.quaternions` hold exactly that order; the `Pose.rotation`
   matrices of `SimFrame.bodies` are decoded from those quaternions with the declared
-  order through `matrix_from_quaternion`, so a wrong declaration shows as a wrong pose.
+  order through `matrix_from_quaternion`, so a wrong declaration shows as a wrong pose;
+* the cable: `unplug()` stops the stream (a fault a test or the simulated operator
+  injects); once no frame was delivered for `stale_timeout` s of the clock, `frames()` and
+  `latest()` raise `MocapStaleError` as the drivers do (the frames delivered before stay
+  buffered), and `latest()` raises it before the first frame too.
 
 Frames are in the world frame of the simulated rig (the mocap frame). Units: m, s.
 """
@@ -34,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.interfaces import Pose, TrackerFrame
+from drivers.mocap.ros_tracker import MocapStaleError
 from drivers.common.quaternion import ORDERS, XYZW, matrix_to_quat_xyzw, quat_xyzw_to_matrix, reorder_quaternion
 
 
@@ -106,12 +111,14 @@ class SimTracker:
     noise: marker noise, m per coordinate (1 sigma); latency: s from capture to delivery;
     occlusion: probability per body and frame; rate: Hz; quaternion_order: the source's
     component order ("xyzw" or "wxyz"); seed: its own random stream (independent of the
-    world's); bodies: names of the marker bodies to track (default all).
+    world's); bodies: names of the marker bodies to track (default all); stale_timeout: s
+    without a frame before reads raise (`[mocap] stale_timeout`).
     """
 
     def __init__(self, world, clock, noise: float = 0.00025, latency: float = 0.005,
                  occlusion: float = 0.0, rate: float = 120.0, quaternion_order: str = XYZW,
-                 seed: int = 0, bodies: list[str] | None = None, max_buffer: int = 100_000):
+                 seed: int = 0, bodies: list[str] | None = None, max_buffer: int = 100_000,
+                 stale_timeout: float = 2.0):
         if quaternion_order not in ORDERS:
             raise ValueError(f"quaternion_order must be one of {ORDERS}, got {quaternion_order!r}")
         if noise < 0 or latency < 0 or not 0 <= occlusion < 1 or rate <= 0:
@@ -139,10 +146,17 @@ class SimTracker:
         self._delivered: deque[SimFrame] = deque(maxlen=max_buffer)
         self._latest: SimFrame | None = None
         self._closed = False
+        if not stale_timeout > 0:
+            raise ValueError(f"stale_timeout must be > 0 s, got {stale_timeout}")
+        self.stale_timeout = float(stale_timeout)
+        self.unplugged = False
+        self._last_delivery = clock.now() + self.latency  # the first frame is due then
         clock.add_listener(self._on_tick)
 
     # -- device side (clock listener) -------------------------------------------------
     def _on_tick(self, t: float) -> None:
+        if self.unplugged:
+            return
         eps = 1e-9
         if t + eps >= self._next_capture:
             self._in_flight.append(self.capture(t))
@@ -152,6 +166,7 @@ class SimTracker:
             frame = self._in_flight.popleft()
             self._delivered.append(frame)
             self._latest = frame
+            self._last_delivery = t
 
     def capture(self, t: float) -> SimFrame:
         """One frame of the present world state stamped `t` (s); not queued for delivery."""
@@ -187,18 +202,35 @@ class SimTracker:
                         quaternion_order=self.quaternion_order, marker_error=errors)
 
     # -- Tracker interface ------------------------------------------------------------
+    def unplug(self) -> None:
+        """Pull the tracker's cable: no frame is captured or delivered from now on."""
+        self.unplugged = True
+        self._in_flight.clear()
+
+    def check_stale(self) -> None:
+        """Raise MocapStaleError once no frame was delivered for `stale_timeout` s."""
+        age = self.clock.now() - self._last_delivery
+        if age > self.stale_timeout:
+            why = "its cable is unplugged" if self.unplugged else "the clock ran on without a capture"
+            raise MocapStaleError(f"simulated mocap stale beyond {self.stale_timeout:g} s ([mocap] stale_timeout): "
+                                  f"no frame for {age:.3f} s ({why})")
+
     def frames(self) -> list[SimFrame]:
-        """Every frame delivered since the last call, oldest first."""
+        """Every frame delivered since the last call, oldest first; raises MocapStaleError
+        (keeping them) when the stream is stale."""
+        self.check_stale()
         out = list(self._delivered)
         self._delivered.clear()
         self.stats.delivered += len(out)
         return out
 
     def latest(self) -> SimFrame:
-        """The newest delivered frame (raises RuntimeError before the first one arrives)."""
+        """The newest delivered frame; raises MocapStaleError before the first one arrives
+        or when the stream is stale."""
+        self.check_stale()
         if self._latest is None:
-            raise RuntimeError(f"no mocap frame delivered yet (rate {self.rate:g} Hz, latency "
-                               f"{self.latency * 1e3:.1f} ms); tick the clock first")
+            raise MocapStaleError(f"no mocap frame delivered yet (rate {self.rate:g} Hz, latency "
+                                  f"{self.latency * 1e3:.1f} ms); tick the clock first")
         return self._latest
 
     def close(self) -> None:

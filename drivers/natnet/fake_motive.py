@@ -9,9 +9,9 @@ multicast stream leaves through the loopback interface with a TTL of 0, so no da
 leaves the machine. The bytes are those of `drivers.natnet` (NATNET_PROTOCOL.md) in the
 bitstream version it is given (3.0, 3.1, 4.0, 4.1).
 
-`SimMotive` is Motive watching the simulated rig: a `drivers.mocap.sim.SimTracker` on the
-world's clock (marker noise, the rigid-body solve, occlusion and latency, as the in-process
-fake tracker) whose delivered frames `pump()` hands to a FakeMotive. An occluded body stays
+`FakeMotiveOnWorld` is Motive watching the simulated rig: a `drivers.mocap.sim.SimTracker` on
+the world's clock (marker noise, the rigid-body solve, occlusion and latency, as the
+in-process twin of the tracker) whose delivered frames `pump()` hands to a FakeMotive. An occluded body stays
 in its frame with the tracking-valid flag cleared (position 0, identity orientation, mean
 error 0), as Motive streams a rigid body it lost; its visible markers are still sent as
 labelled markers.
@@ -304,7 +304,7 @@ class FakeMotive:
         self.data.close()
 
 
-class SimMotive:
+class FakeMotiveOnWorld:
     """Motive watching the simulated rig (see the module docstring).
 
     world, clock: the simulated world and the clock that steps it; noise (m), latency (s),
@@ -321,7 +321,7 @@ class SimMotive:
                                   quaternion_order=XYZW, seed=seed, bodies=bodies)
         self.motive = FakeMotive([(b, self.tracker.layouts[b]) for b in self.tracker.bodies], rate=rate, **server)
 
-    def start(self) -> "SimMotive":
+    def start(self) -> "FakeMotiveOnWorld":
         self.motive.start()
         return self
 

@@ -11,7 +11,7 @@ mass from the load cell, guide the tool tips onto a common point. Procedures ask
   that a procedure in another process runs unattended against the simulated rig.
 * `drivers.operator.sim.SimOperator`: the in-process simulated rig does it itself.
 
-The side channel (served by `drivers.operator.sim.OperatorServer` in `rig sim`):
+The side channel (served by `drivers.operator.fake_operator_server.FakeOperatorServer` in `rig sim`):
 
   /rig_sim/operator/request  std_msgs/String  {"id": "...", "action": ACTION, ...}
   /rig_sim/operator/reply    std_msgs/String  {"id": "...", "ok": true|false, "detail": "..."}
@@ -49,6 +49,12 @@ class OperatorError(DeviceFault):
     """The operator did not do what was asked (no answer, or an answer saying why not)."""
 
 
+def check_mass(kg) -> None:
+    """A mass a person can hang: finite and >= 0 kg (as the simulated operator checks it)."""
+    if not (np.isfinite(kg) and kg >= 0):
+        raise OperatorError(f"a mass must be >= 0 kg, got {kg}")
+
+
 class ConsoleOperator:
     """A person at this terminal (see the module docstring); `yes`: take every request as done."""
 
@@ -74,6 +80,7 @@ class ConsoleOperator:
         self._ask(f"Attach the {kind or 'object'} and the load cell between the tool tips")
 
     def hang_mass(self, kg: float, element: int | None = None) -> None:
+        check_mass(kg)
         cell = "the load cell" if element is None else f"the load cell of object element {element}"
         self._ask(f"Take everything off {cell}" if kg == 0 else f"Hang {kg:.3f} kg from {cell} and let it settle")
 
@@ -175,6 +182,7 @@ class RosOperator:
         self.request("attach_object", **({"kind": kind} if kind else {}))
 
     def hang_mass(self, kg: float, element: int | None = None) -> None:
+        check_mass(kg)
         self.request("hang_mass", kg=float(kg), **({} if element is None else {"element": int(element)}))
 
     def unplug(self, device: str) -> None:

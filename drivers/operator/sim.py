@@ -1,11 +1,9 @@
 """The simulated operator: what a person does by hand on the real rig, done by the simulation.
 
-* `SimOperator`: in-process, on the simulated world a procedure drives itself.
-* `OperatorServer`: the same, served by `rig sim` on the side channel of
-  `drivers.operator.driver` (request / reply topics), so a procedure in another process gets its
-  manual steps done unattended. Requests arrive on the executor thread and are queued;
-  `rig sim`'s main thread, the only one that touches the world, calls `apply()` between
-  steps and publishes the replies.
+`SimOperator` is the in-process twin of the operator, on the simulated world a procedure
+drives itself; `rig sim` serves the same on the side channel of `drivers.operator.driver`
+through `drivers.operator.fake_operator_server.FakeOperatorServer`, so that a procedure in
+another process (`RosOperator`) gets its manual steps done unattended.
 
 The actions (drivers.operator.driver.ACTIONS): markers are mounted by construction, so confirm
 does nothing; detach/attach take the object off the tool tips or put it back; hang_mass
@@ -17,18 +15,15 @@ whatever the calibration believes) and holds it there; unplug pulls the load cel
 the person pushes a joint of the arm past its upper limit, which a powered arm's limit
 check faults on; `servo_watchdog`: the arm's watchdog on servo commands is armed with a
 timeout, or disarmed with 0), on the arms `rig sim` serves behind their operating state
-(`drivers.arm.sim_arm_state`).
+(`drivers.arm.fake_arm_state`).
 """
 
 from __future__ import annotations
 
-import json
-from collections import deque
-
 import numpy as np
 
 from drivers.loadcell.force_calibration import STANDARD_GRAVITY
-from drivers.operator.driver import ACTIONS, REPLY_TOPIC, REQUEST_TOPIC, OperatorError
+from drivers.operator.driver import OperatorError, check_mass
 
 
 #: N/m, the thesis's objects: the compliant spring and the stiff suture string
@@ -75,7 +70,7 @@ class SimOperator:
                  cells: dict[int, CellLoad] | None = None, states: dict | None = None):
         self.world = world
         self.arms = arms or {}
-        self.states = states or {}  # arm -> drivers.arm.sim_arm_state.SimArmState (rig sim's arms)
+        self.states = states or {}  # arm -> drivers.arm.fake_arm_state.FakeArmState (rig sim's arms)
         self.cell = cell
         # element -> its cell, where the rig has a cell per object element
         self.cells = dict(cells) if cells else ({cell.element: cell} if cell is not None else {})
@@ -110,13 +105,12 @@ class SimOperator:
             cell.kg = None
 
     def hang_mass(self, kg: float, element: int | None = None) -> None:
+        check_mass(kg)
         cell = self.cell if element is None else self.cells.get(int(element))
         if cell is None:
             raise OperatorError("the simulated rig serves no load cell to hang a mass from"
                                 + ("" if element is None else f" on element {element}; it serves "
                                    f"{sorted(self.cells) or 'none'}"))
-        if not (np.isfinite(kg) and kg >= 0):
-            raise OperatorError(f"a mass must be >= 0 kg, got {kg}")
         cell.kg = float(kg)
         # the mass hangs when the person says so: the cell feels it now, not at the world's
         # next step (on a loaded machine rig sim's loop runs late, and a calibration that
@@ -188,7 +182,7 @@ class SimOperator:
     def hold_touch(self) -> None:
         """Keep touching tips where the person holds them, step after step: left to the
         arm's PID alone they would sag under gravity before a client in another process
-        reads them. `OperatorServer` calls it every step until the next request or a
+        reads them. `FakeOperatorServer` calls it every step until the next request or a
         command to the arm."""
         for name, q in self.pinned.items():
             self.world.set_state(name, q)
@@ -199,68 +193,3 @@ class SimOperator:
             self.pinned.clear()
         else:
             self.pinned.pop(name, None)
-
-
-class OperatorServer:
-    """`SimOperator` on the ROS 2 side channel (see the module docstring); node: rig sim's node."""
-
-    def __init__(self, operator: SimOperator, node):
-        from rclpy.qos import QoSProfile
-        from std_msgs.msg import String
-
-        self.operator = operator
-        self.node = node
-        self._String = String
-        self._queue: deque = deque()
-        qos = QoSProfile(depth=10)
-        self._pub = node.create_publisher(String, REPLY_TOPIC, qos)
-        self._sub = node.create_subscription(String, REQUEST_TOPIC, lambda m: self._queue.append(m), qos)
-        self.served: dict[str, int] = {}
-        self.gone = False  # the person left (unplug "operator"): requests go unanswered
-        operator.cables["operator"] = self._leave
-
-    def _leave(self) -> None:
-        self.gone = True
-
-    def apply(self) -> None:
-        """Carry out the queued requests and reply to each (main thread, between steps);
-        once the person has left, requests are dropped unanswered."""
-        while self._queue:
-            msg = self._queue.popleft()
-            if self.gone:
-                continue
-            try:
-                doc = json.loads(msg.data)
-                key = doc["id"]
-                action = doc["action"]
-            except (ValueError, KeyError, TypeError):
-                self.node.get_logger().warning(f"operator: malformed request ignored: {msg.data[:200]!r}")
-                continue
-            ok, detail = True, "done"
-            self.operator.release()  # the person lets go of the tips for whatever comes next
-            try:
-                self._do(action, doc)
-            except (OperatorError, ValueError, TypeError, KeyError) as exc:
-                ok, detail = False, str(exc)
-            self.served[action] = self.served.get(action, 0) + 1
-            self._pub.publish(self._String(data=json.dumps({"id": key, "ok": ok, "detail": detail})))
-
-    def _do(self, action: str, doc: dict) -> None:
-        op = self.operator
-        if action not in ACTIONS:
-            raise OperatorError(f"unknown action {action!r}; known: {', '.join(ACTIONS)}")
-        if action == "confirm":
-            op.confirm(str(doc.get("message", "")))
-        elif action == "detach_object":
-            op.detach_object()
-        elif action == "attach_object":
-            op.attach_object(doc.get("kind"))
-        elif action == "hang_mass":
-            op.hang_mass(float(doc["kg"]), doc.get("element"))
-        elif action == "unplug":
-            op.unplug(str(doc.get("device", "")))
-        elif action == "fault":
-            op.fault(str(doc.get("arm", "")), str(doc.get("kind", "")), int(doc.get("joint", 1)),
-                     float(doc.get("timeout", 0.1)))
-        else:
-            op.touch(list(doc["arms"]), int(doc.get("index", 0)), doc["goal"])

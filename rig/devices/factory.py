@@ -117,6 +117,8 @@ def open_rig(cfg, arms: list[str] | None = None, *, seed: int | None = None,
         from drivers.operator.sim import SimOperator
 
         rig.operator = SimOperator(rig.world, rig.arms)
+        if rig.tracker is not None:  # a person can pull the tracker's cable, as in `rig sim`
+            rig.operator.cables["mocap"] = rig.tracker.unplug
         return rig
     rig = _open_ros(cfg, names, uses, arm_streams)
     try:
@@ -158,7 +160,8 @@ def _open_simulated(cfg, names: list[str], seed: int | None, uses) -> Rig:
     m = cfg.mocap
     if "mocap" in uses and m["driver"] != "none":
         rig.tracker = SimTracker(world, clock, noise=m["noise"], latency=m["latency"],
-                                 occlusion=m["occlusion"], rate=m["rate"], seed=world.seed + 1)
+                                 occlusion=m["occlusion"], rate=m["rate"], seed=world.seed + 1,
+                                 stale_timeout=m["stale_timeout"])
         rig._closers.append(rig.tracker.close)
     return rig
 

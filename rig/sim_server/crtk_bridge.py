@@ -1,7 +1,7 @@
 """The CRTK ROS 2 interface of one served dVRK PSM: its topics, services and events, as the dVRK bridges them.
 
-`ArmBridge` puts a `drivers.arm.sim_psm.SimPSM` and its operating state
-(`drivers.arm.sim_arm_state.SimArmState`) on the topics that jhu-cisst/cisst-ros's CRTK bridge
+`ArmBridge` puts a `drivers.arm.fake_psm.FakePSM` and its operating state
+(`drivers.arm.fake_arm_state.FakeArmState`) on the topics that jhu-cisst/cisst-ros's CRTK bridge
 (`mts_ros_crtk_bridge_provided.cpp`) gives a dVRK 2.4 PSM under /<arm>:
 
 * published every ROS period while someone subscribes (and only then built), as CDR bytes
@@ -91,8 +91,8 @@ def _quat_matrix(q) -> np.ndarray:
 
 
 def impedance_from_msg(m):
-    """A crtk_msgs/CartesianImpedance as `drivers.arm.sim_psm.Impedance`."""
-    from drivers.arm.sim_psm import Impedance
+    """A crtk_msgs/CartesianImpedance as `drivers.arm.fake_psm.Impedance`."""
+    from drivers.arm.fake_psm import Impedance
 
     def gains(g):
         return tuple(np.array([v.x, v.y, v.z], float) for v in (g.p, g.d, g.bias, g.deadband))
@@ -108,7 +108,7 @@ def impedance_from_msg(m):
 class ArmBridge:
     """One served PSM's CRTK topics on `node` (see the module docstring).
 
-    psm: the `SimPSM`; state: its `SimArmState`; queue(fn, key, msg): how a received
+    psm: the `FakePSM`; state: its `FakeArmState`; queue(fn, key, msg): how a received
     command reaches the main thread; stamp_ns(t): the header stamp (ns) of a sample at sim
     time t; event_stamp_ns(): the header stamp (ns) of an event published now (strictly
     increasing); servo_ci: subscribe to it, as a dVRK 2.2+ console's bridge does (False: a

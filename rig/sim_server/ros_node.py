@@ -2,8 +2,8 @@
 
 `SimServer` is what `rig sim` runs, in one process, paced to the wall clock:
 
-* every simulated arm as a whole dVRK 2.4 PSM (`drivers.arm.sim_psm.SimPSM` behind its
-  operating state `drivers.arm.sim_arm_state.SimArmState`) on the CRTK topics of
+* every simulated arm as a whole dVRK 2.4 PSM (`drivers.arm.fake_psm.FakePSM` behind its
+  operating state `drivers.arm.fake_arm_state.FakeArmState`) on the CRTK topics of
   `rig.sim_server.crtk_bridge.ArmBridge`: the streams every ROS period (`ros_period`, as
   `dvrk_system -p`), each only while it has a subscriber (looked up at 10 Hz, and at once
   from the publisher's matched event), written straight to CDR bytes, the events (operating_state, error, warning, status, goal_reached, the
@@ -13,13 +13,13 @@
   string_to_speech are accepted and logged; /console/teleop/... (enable, set_scale,
   select, unselect; scale, selected, unselected published latched) as the dVRK's console;
 * the mocap system as geometry_msgs/PoseStamped on /<prefix>/<body>/pose at the mocap
-  rate, while any body's topic has a subscriber (`drivers.mocap.sim.SimTracker`: noise,
-  occlusion, latency; an occluded body is not published in that frame);
-* the operator's side channel (`drivers.operator.sim.OperatorServer`): the manual steps
+  rate, while any body's topic has a subscriber (`drivers.mocap.fake_ros_mocap.FakeRosMocap`:
+  noise, occlusion, latency; an occluded body is not published in that frame);
+* the operator's side channel (`drivers.operator.fake_operator_server.FakeOperatorServer`): the manual steps
   of a procedure done by the simulation, and the faults a test injects.
 
 Threads: the main thread applies the received commands, runs each arm's servo loop
-(`SimPSM.control`), steps the world and the wrists, publishes and paces (sleeps to
+(`FakePSM.control`), steps the world and the wrists, publishes and paces (sleeps to
 `start + k / rate`); an executor thread spins the node, whose subscriptions only queue
 (the world has one writer) and whose services answer from kinematics alone. Stream
 stamps are `wall time at start + simulated time`; event stamps are the wall time when
@@ -57,14 +57,14 @@ class SimServer:
                  mocap: dict | None = None, seed: int = 0, console: str = "/console", cells: list | None = None,
                  executor: str = "events", object_spec=None, tool: str | None = None, sim_time: bool = False,
                  lockstep: bool = True, lockstep_timeout: float = 3.0, servo_ci: bool = True):
-        from geometry_msgs.msg import PoseStamped
         from rclpy.qos import DurabilityPolicy, QoSProfile
         from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, String
 
-        from drivers.operator.sim import OperatorServer, SimOperator
+        from drivers.operator.fake_operator_server import FakeOperatorServer
+        from drivers.operator.sim import SimOperator
         from drivers.arm.sim import SimArm
-        from drivers.arm.sim_arm_state import SimArmState
-        from drivers.arm.sim_psm import SimPSM
+        from drivers.arm.fake_arm_state import FakeArmState
+        from drivers.arm.fake_psm import FakePSM
         from rig.devices.clock import SimClock
         from rig.sim_server.crtk_bridge import ArmBridge
         from rig.model.psm_tool import tool as tool_named
@@ -74,10 +74,10 @@ class SimServer:
         self.node = node
         self.clock = SimClock(world)
         the_tool = tool_named(tool) if tool else None
-        # SimArm: the operator's hands on joints 1-3 (a touch holds a tip); SimPSM: the arm
+        # SimArm: the operator's hands on joints 1-3 (a touch holds a tip); FakePSM: the arm
         self.sim_arms = {n: SimArm(world, n, self.clock) for n in arms}
-        self.psms = {n: SimPSM(world, n, self.clock, tool=the_tool) for n in arms}
-        self.states = {n: SimArmState(self.psms[n]) for n in arms}
+        self.psms = {n: FakePSM(world, n, self.clock, tool=the_tool) for n in arms}
+        self.states = {n: FakeArmState(self.psms[n]) for n in arms}
         self.rate = self.clock.rate
         self.ros_period = float(ros_period)
         self.ros_every = max(1, int(round(self.ros_period * self.rate)))
@@ -125,24 +125,20 @@ class SimServer:
                                                        lambda m, what=what: self._teleop(what, m), qos))
         self._teleop_pub["scale"].publish(Float64(data=self.teleop["scale"]))
         self._String = String
-        self.operator = OperatorServer(SimOperator(world, self.sim_arms, cell=(cells or [None])[0],
-                                                   cells={c.element: c for c in cells or []}, states=self.states,
-                                                   object_spec=object_spec), node)
+        self.operator = FakeOperatorServer(SimOperator(world, self.sim_arms, cell=(cells or [None])[0],
+                                                       cells={c.element: c for c in cells or []},
+                                                       states=self.states, object_spec=object_spec), node)
         self.cells = list(cells or [])
         self.operator.operator.cables["mocap"] = self._unplug_mocap
         self.mocap_unplugged = False
-        self.tracker = None
-        self.natnet = None  # a drivers.natnet.fake_motive.SimMotive when serving NatNet (`--natnet`)
-        self._mocap_pub: dict = {}
-        self._mocap = mocap
-        self._seed = seed
+        self.natnet = None  # a drivers.natnet.fake_motive.FakeMotiveOnWorld when serving NatNet (`--natnet`)
+        self.mocap = None  # the ROS poses: a drivers.mocap.fake_ros_mocap.FakeRosMocap
         if mocap is not None:
-            from drivers.mocap.ros_tracker import pose_topic
-            from rig.sim.world import default_marker_bodies
+            from drivers.mocap.fake_ros_mocap import FakeRosMocap
 
-            bodies = [mb.name for n in world.names for mb in default_marker_bodies(n)] + ["world"]
-            self._mocap_pub = {b: node.create_publisher(PoseStamped, pose_topic(mocap["prefix"], b), qos)
-                               for b in bodies}
+            self.mocap = FakeRosMocap(world, self.clock, node, prefix=mocap["prefix"], noise=mocap["noise"],
+                                      latency=mocap["latency"], occlusion=mocap["occlusion"], rate=mocap["rate"],
+                                      seed=seed + 1, qos=qos)
         self._refresh_watched()
         self.command_errors = 0
         self.state_commands = 0
@@ -264,37 +260,14 @@ class SimServer:
         """Which streams have subscribers; start or stop the mocap system to match."""
         for b in self.bridges.values():
             b.refresh_watched()
-        watched = any(p.get_subscription_count() > 0 for p in self._mocap_pub.values())
-        if watched and self.tracker is None:
-            from drivers.mocap.sim import SimTracker
-
-            m = self._mocap
-            self.tracker = SimTracker(self.world, self.clock, noise=m["noise"], latency=m["latency"],
-                                      occlusion=m["occlusion"], rate=m["rate"], quaternion_order="xyzw",
-                                      seed=self._seed + 1)
-        elif not watched and self.tracker is not None:
-            self.tracker.close()
-            self.tracker = None
+        if self.mocap is not None:
+            self.mocap.refresh_watched()
 
     def _unplug_mocap(self) -> None:
         """The tracker's cable pulled (a fault for tests): no pose is published from now on."""
         self.mocap_unplugged = True
-
-    def _publish_mocap(self) -> None:
-        from drivers.common.cdr import write_pose_stamped
-
-        frames = self.tracker.frames()
-        if self.mocap_unplugged:
-            return
-        for frame in frames:
-            stamp = self._stamp_ns(frame.t)
-            for body, pose in frame.bodies.items():
-                if pose is None:
-                    continue  # occluded: bridges publish nothing for a lost body
-                # frame.quaternion_order == "xyzw", as on the wire
-                xyzw = frame.quaternions[body]
-                self._mocap_pub[body].publish(write_pose_stamped(stamp, "world", pose.position.tolist() + [
-                    float(xyzw[0]), float(xyzw[1]), float(xyzw[2]), float(xyzw[3])]))
+        if self.mocap is not None:
+            self.mocap.unplug()
 
     def _publish_clock(self, t: float) -> None:
         """/clock at world time `t` (rosgraph_msgs/Clock), after the period's streams."""
@@ -329,8 +302,8 @@ class SimServer:
             b.publish_streams(world.t)
             b.publish_events()
             b.published = 0
-        if self.tracker is not None:
-            self._publish_mocap()
+        if self.mocap is not None:
+            self.mocap.publish(self._stamp_ns)
         if self.sim_time:
             self._publish_clock(world.t)
         t_start = world.t
@@ -367,8 +340,8 @@ class SimServer:
                     self._publish_clock(t)
             if k % self._refresh_every == 0:
                 self._refresh_watched()
-            if self.tracker is not None:
-                self._publish_mocap()
+            if self.mocap is not None:
+                self.mocap.publish(self._stamp_ns)
             if self.natnet is not None and not self.mocap_unplugged:
                 self.natnet.pump(self._epoch0)  # Motive's clock is the stamps' timeline
             if lockstep is not None and lockstep.active:

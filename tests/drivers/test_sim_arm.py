@@ -57,15 +57,24 @@ def test_servo_jf_moves_each_joint_the_way_it_is_pushed(rig):
 
 
 def test_measured_cp_is_the_kinematics_of_the_measured_joints(rig):
+    """The dVRK's measured_cp, as RosArm reads it from a console: the whole PSM's tool tip
+    (the large needle driver, wrist straight) in the arm's base frame (the RCM frame)."""
+    from rig.model.psm_arm_kinematics import PSMKinematics
+
     world, clock, arm = rig
     arm.move_jp([0.3, -0.2, 0.16], timeout=5.0)
     q = arm.measured_js().position
     cp = arm.measured_cp()
-    T = K.tip_pose_rcm(q)
-    assert np.allclose(cp.position, T[:3, 3]) and np.allclose(cp.rotation, T[:3, :3])
-    assert np.allclose(cp.position, K.tip_in_rcm(q), atol=1e-9)
-    # the world-frame variant agrees with the world's true tip within encoder quantisation
-    assert np.allclose(arm.measured_cp_world().position, world.tip_world("PSM1"), atol=1e-4)
+    T = PSMKinematics().forward(np.concatenate([q, np.zeros(3)]))
+    assert np.allclose(cp.position, T[:3, 3], atol=1e-9) and np.allclose(cp.rotation, T[:3, :3], atol=1e-9)
+    assert cp.frame == "PSM1_base"
+    # 9.1 mm beyond the shaft end (what the world's kinematics calls the tip), along the shaft
+    shaft_end = K.tip_in_rcm(q)
+    assert np.linalg.norm(cp.position - shaft_end) == pytest.approx(0.0091, abs=1e-4)
+    # the world-frame variant agrees with the world's true tool within encoder quantisation
+    Tw = world.arms["PSM1"].rcm_world @ T
+    assert np.allclose(arm.measured_cp_world().position, Tw[:3, 3], atol=1e-9)
+    assert np.linalg.norm(arm.measured_cp_world().position - world.tip_world("PSM1")) == pytest.approx(0.0091, abs=2e-4)
     assert np.allclose(arm.local_measured_cp().position, cp.position)
 
 

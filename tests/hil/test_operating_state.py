@@ -124,7 +124,7 @@ def _ready_psm2(served: ServedRig):
 
 
 def test_a_never_enabled_arm_drops_commands_warns_and_does_not_move(served):
-    from drivers.arm.sim_arm_state import NOT_READY_PERIOD
+    from drivers.arm.fake_arm_state import NOT_READY_PERIOD
 
     c = _fresh(served, ("PSM2 enabled",)).client
     arm = c.arm
@@ -157,7 +157,7 @@ def test_a_never_enabled_arm_drops_commands_warns_and_does_not_move(served):
 
 
 def test_enable_and_home_through_rosarm_within_the_timeout(served):
-    from drivers.arm.sim_arm_state import HOMING
+    from drivers.arm.fake_arm_state import HOMING
 
     c = _fresh(served, ("PSM2 enabled",)).client
     served.changed.add("PSM2 enabled")

@@ -22,7 +22,7 @@ def test_force_frame_is_right_handed_with_x_along_u(u):
 def test_feedforward_reaches_joints_1_to_3_and_nothing_reaches_the_wrist():
     """The dVRK applies the servo_ci wrench through the body Jacobian (J_b^T w): with no
     spring or damper the bias alone must give the feedforward torques on joints 1-3 and
-    zero on the wrist (drivers.arm.sim_psm.Impedance is rig sim's run of the same message)."""
+    zero on the wrist (drivers.arm.fake_psm.Impedance is rig sim's run of the same message)."""
     from crtk_msgs.msg import CartesianImpedance
 
     from drivers.arm.dvrk_arm import impedance_message

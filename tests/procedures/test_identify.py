@@ -218,7 +218,7 @@ def test_stream_aborts_before_the_limit_when_the_arm_tracks_worse_than_its_margi
         lowest.append(float(line.split("joint 3 at ")[1].split(" m")[0]))
         assert 0.0 < lowest[0] <= 0.25 * 0.002  # within the last quarter of the margin, above the limit
         dev.clock.sleep(0.5)  # the run held the arm: it stops short of the console's fault band
-        from drivers.arm.sim_arm_state import LIMIT_MARGIN
+        from drivers.arm.fake_arm_state import LIMIT_MARGIN
         assert min(world_q3) > -LIMIT_MARGIN[2]
         assert dev.arms["PSM1"].measured_js().position[2] > -LIMIT_MARGIN[2]
     finally:

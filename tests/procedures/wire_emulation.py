@@ -2,7 +2,7 @@
 
 `emulate` runs what `rig cooperative` does over the wire against `rig sim`, with the
 wire's timing made exact and repeatable: the simulated world steps at the rig rate with
-each arm a whole dVRK PSM (`drivers.arm.sim_psm.SimPSM`, its servo_ci run in its servo loop);
+each arm a whole dVRK PSM (`drivers.arm.fake_psm.FakePSM`, its servo_ci run in its servo loop);
 the arms' state and the load cell are "published" every ROS period and reach the
 procedure's loop `delay` periods later; the loop's commands (master servo_jp, slaves'
 servo_ci built as the crtk_msgs message `RosArm` sends and read back as rig sim's bridge
@@ -35,7 +35,7 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
     from crtk_msgs.msg import CartesianImpedance
 
     from drivers.arm.dvrk_arm import impedance_message
-    from drivers.arm.sim_psm import SimPSM
+    from drivers.arm.fake_psm import FakePSM
     from procedures.cooperative import build_controller
     from rig import config
     from rig.control.arm_impedance import servo_ci_goal
@@ -54,7 +54,7 @@ def emulate(kind: str = "spring", period: float = 0.01, delay: float = 1.0, forc
     master = names[-1]
     world = world_from_config(cfg, names, seed=seed)
     clock = SimClock(world)
-    psms = {n: SimPSM(world, n, clock) for n in names}
+    psms = {n: FakePSM(world, n, clock) for n in names}
     for p in psms.values():
         p.homed = True
     rcm = {n: cfg.base_matrix(n) @ __import__("rig.model.psm_kinematics", fromlist=["RCM_FRAME"]).RCM_FRAME for n in names}

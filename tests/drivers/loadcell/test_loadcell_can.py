@@ -17,7 +17,8 @@ import can
 import pytest
 
 from drivers.interfaces import ForceSensor
-from drivers.loadcell.can import CanLoadCell, FakeCanLoadCellFirmware, decode_can_sample, encode_can_sample
+from drivers.loadcell.can import CanLoadCell, decode_can_sample, encode_can_sample
+from drivers.loadcell.fake_can_firmware import FakeCanLoadCellFirmware
 from drivers.loadcell.errors import LoadCellCommandError, LoadCellDisconnected
 from drivers.loadcell.force_calibration import LoadCellCalibration
 from drivers.loadcell.protocol import RawSample

@@ -16,7 +16,7 @@ import pytest
 import serial
 
 from drivers.loadcell.errors import LoadCellCommandError, LoadCellDisconnected
-from drivers.loadcell.firmware_fake import FakeLoadCellFirmware
+from drivers.loadcell.fake_firmware import FakeLoadCellFirmware
 from drivers.loadcell.force_calibration import STANDARD_GRAVITY, LoadCellCalibration
 from drivers.loadcell.protocol import ADC_HX711
 from drivers.loadcell.serial_driver import LoadCell

@@ -1,6 +1,6 @@
 """The fake Motive on the loopback and the NatNet driver over real UDP sockets.
 
-The simulated rig's marker bodies go through `SimMotive` (SimTracker's noise, occlusion
+The simulated rig's marker bodies go through `FakeMotiveOnWorld` (SimTracker's noise, occlusion
 and latency, FakeMotive's bytes) and `NatNetTracker`; what comes out is checked against
 what was sent (bit for bit, up to float32) and against the true marker positions (within
 the marker noise). The waits are guards against a hang, never figures.
@@ -14,7 +14,7 @@ import time
 import numpy as np
 import pytest
 
-from drivers.natnet.fake_motive import FakeMotive, SimMotive, check_loopback
+from drivers.natnet.fake_motive import FakeMotive, FakeMotiveOnWorld, check_loopback
 from drivers.natnet.frame_of_data import decode_frame
 from drivers.natnet.messages import decode_server_info, encode_connect, pack_message, split_message
 from drivers.natnet.model_definitions import decode_modeldef
@@ -118,11 +118,11 @@ def test_a_unicast_client_that_stops_keeping_alive_is_forgotten():
 
 
 def _run(version, multicast="", occlusion=0.1, frames=150, latency=0.005):
-    """Serve the simulated rig through SimMotive to a NatNetTracker; (sent SimFrames by
+    """Serve the simulated rig through FakeMotiveOnWorld to a NatNetTracker; (sent SimFrames by
     frame number, true markers by capture time, received frames, motive, tracker)."""
     world, clock = world_and_clock(seed=3)
-    sm = SimMotive(world, clock, noise=NOISE, latency=latency, occlusion=occlusion, rate=120.0, seed=11,
-                   command_port=0, data_port=0, version=version, multicast=multicast).start()
+    sm = FakeMotiveOnWorld(world, clock, noise=NOISE, latency=latency, occlusion=occlusion, rate=120.0, seed=11,
+                           command_port=0, data_port=0, version=version, multicast=multicast).start()
     truth = {}
     clock.add_listener(lambda t: truth.__setitem__(round(t, 6), world.marker_positions()))
     sent = {}
@@ -211,7 +211,7 @@ def test_multicast_on_the_loopback():
 
 def test_the_configured_tracker_opens_connects_and_names_the_rigs_bodies():
     world, clock = world_and_clock()
-    sm = SimMotive(world, clock, command_port=0, data_port=0).start()
+    sm = FakeMotiveOnWorld(world, clock, command_port=0, data_port=0).start()
     cfg = {"server": "127.0.0.1", "command_port": sm.motive.command_port, "data_port": sm.motive.data_port,
            "multicast": ""}
     tracker = open_natnet_tracker(cfg, ["PSM1_tool", "world"], timeout=30.0, stale_timeout=1e9)

@@ -39,7 +39,7 @@ def _die_with_parent(parent: int) -> None:
 
 
 def _child(tension, conn, parent: int, kwargs: dict) -> None:
-    from drivers.loadcell.firmware_fake import FakeLoadCellFirmware
+    from drivers.loadcell.fake_firmware import FakeLoadCellFirmware
 
     _die_with_parent(parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us (Ctrl-C reaches the group)
@@ -59,7 +59,7 @@ def _child(tension, conn, parent: int, kwargs: dict) -> None:
             return
 
 
-class FirmwareProcess:
+class FakeFirmwareProcess:
     """`FakeLoadCellFirmware(**kwargs)` in a child process (see the module docstring)."""
 
     def __init__(self, **kwargs):

@@ -1,4 +1,4 @@
-"""The dVRK's operating state as rig sim serves it (drivers.arm.sim_arm_state), in-process on the
+"""The dVRK's operating state as rig sim serves it (drivers.arm.fake_arm_state), in-process on the
 simulated clock: the transitions, the dropped commands and their throttled warning, busy,
 the faults. Over the wire: tests/hil/test_operating_state.py."""
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from drivers.arm.sim import SimArm
-from drivers.arm.sim_arm_state import HOMING, NOT_READY_PERIOD, POWERING, SimArmState
+from drivers.arm.fake_arm_state import HOMING, NOT_READY_PERIOD, POWERING, FakeArmState
 from rig import config
 from rig.devices.clock import SimClock
 from rig.sim.world import world_from_config
@@ -19,7 +19,7 @@ class _Rig:
         self.world = world_from_config(config.load(None), arms=["PSM1"], with_object=False)
         self.clock = SimClock(self.world)
         self.arm = SimArm(self.world, "PSM1", self.clock)
-        self.state = SimArmState(self.arm)
+        self.state = FakeArmState(self.arm)
 
     @property
     def t(self) -> float:

@@ -1,4 +1,4 @@
-"""The whole simulated dVRK PSM (drivers.arm.sim_psm) in-process: its control modes against the
+"""The whole simulated dVRK PSM (drivers.arm.fake_psm) in-process: its control modes against the
 dVRK's semantics and its numbers against the kinematics (rig.model.psm_arm_kinematics). Over the
 wire, with the dVRK's own client: tests/hil/test_dvrk_client.py."""
 
@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.arm.sim_arm_state import SimArmState
-from drivers.arm.sim_psm import Impedance, SimPSM
+from drivers.arm.fake_arm_state import FakeArmState
+from drivers.arm.fake_psm import Impedance, FakePSM
 from rig import config
 from rig.devices.clock import SimClock
 from rig.model.psm_arm_kinematics import PSMKinematics
@@ -19,8 +19,8 @@ class _Rig:
     def __init__(self):
         self.world = world_from_config(config.load(None), arms=["PSM1"], with_object=False)
         self.clock = SimClock(self.world)
-        self.psm = SimPSM(self.world, "PSM1", self.clock)
-        self.state = SimArmState(self.psm)
+        self.psm = FakePSM(self.world, "PSM1", self.clock)
+        self.state = FakeArmState(self.psm)
         self.kin = PSMKinematics()
 
     @property

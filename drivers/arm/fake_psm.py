@@ -1,6 +1,6 @@
 """A whole dVRK PSM on the simulated rig: six joints and the jaw behind the dVRK arm's control modes.
 
-`SimPSM` is what `rig sim` serves for each arm over the CRTK topics (rig.sim_server.crtk_bridge). It
+`FakePSM` is what `rig sim` serves for each arm over the CRTK topics (rig.sim_server.crtk_bridge). It
 follows sawIntuitiveResearchKit's arm and PSM components (mtsIntuitiveResearchKitArm.cpp,
 mtsIntuitiveResearchKitPSM.cpp) where a client can see the difference:
 
@@ -35,7 +35,7 @@ mtsIntuitiveResearchKitPSM.cpp) where a client can see the difference:
   which ends the busy state on the next period; `goal_reached` events say whether it did.
 
 What the server publishes and the operating state (enable, home, faults, "arm not ready")
-live elsewhere: the state in `drivers.arm.sim_arm_state.SimArmState` (which wraps this object),
+live elsewhere: the state in `drivers.arm.fake_arm_state.FakeArmState` (which wraps this object),
 the topics in `rig.sim_server.crtk_bridge`. Messages for <arm>/status, warning and error are queued in
 `messages` as (level, text), other events (goal_reached, trajectory ratio) in `events`.
 
@@ -123,7 +123,7 @@ def _wrench(J: np.ndarray, effort: np.ndarray) -> np.ndarray:
     return w
 
 
-class SimPSM:
+class FakePSM:
     """One arm of a `rig.sim.world.SimWorld` as a whole dVRK PSM (see the module docstring).
 
     world, name, clock: the simulated rig, the arm's name, its clock (`rig.devices.clock.SimClock`);

@@ -1,8 +1,10 @@
-"""The dVRK arm's operating state, simulated: what `rig sim` serves beside each arm.
+"""The dVRK arm's operating state, emulated: what `rig sim` serves beside each arm.
 
-`SimArmState` puts a served `drivers.arm.sim.SimArm` (the fake the in-process tests use)
-behind the state machine of a dVRK arm (sawIntuitiveResearchKit's arm component, as its
-documentation and messages describe it), on the simulated clock:
+`FakeArmState` is the far end of the arm driver's state handling (`drivers.arm.dvrk_arm_state`):
+it puts a served arm (the console's PSM `drivers.arm.fake_psm.FakePSM` in `rig sim`, or the
+in-process `drivers.arm.sim.SimArm` in tests) behind the state machine of a dVRK arm
+(sawIntuitiveResearchKit's arm component, as its documentation and messages describe it), on
+the simulated clock:
 
 * It starts DISABLED, not homed. `enable` powers the arm (DISABLED and busy for POWERING s,
   then ENABLED). `home` (accepted DISABLED or ENABLED, as on the dVRK) enables it if need
@@ -68,10 +70,10 @@ _ALLOWED = {
 }
 
 
-class SimArmState:
-    """A served SimArm behind the dVRK's operating state (see the module docstring).
+class FakeArmState:
+    """A served arm behind the dVRK's operating state (see the module docstring).
 
-    arm: the SimArm; limits: the joint limits whose crossing faults the arm (Table 4.2);
+    arm: the FakePSM (or SimArm); limits: the joint limits whose crossing faults the arm (Table 4.2);
     servo_watchdog: s without a servo command, in servo mode, before the arm faults (None:
     no watchdog, as a dVRK's ROS interface has none of its own).
     """

@@ -499,7 +499,7 @@ def _attach(rig, setup: Setup):
     rig.operator.attach_object(setup.cfg.object["kind"])
     elements = setup.elements
     estimate = tension_source_for(setup.dyn, setup.effects, setup.stick, setup.rcm_frames, setup.names, elements,
-                                  setup.params["tolerance"], setup.cfg.object)
+                                  setup.params.get("tolerance", _parameter("tolerance").default), setup.cfg.object)
     dt = 1.0 / rig.clock.rate
     # the simulated object is attached at construction; let it settle under the PIDs
     for _ in range(int(0.5 * rig.clock.rate)):

@@ -21,7 +21,6 @@ stops raises ClockStopped after `drivers.common.time_base.STALL` s of wall time.
 
 from __future__ import annotations
 
-import time
 from typing import Callable
 
 
@@ -116,9 +115,3 @@ class SimFollower:
                 driver.close()
         self.time.close()
         self.session.close()
-
-
-def wall_guard(seconds: float):
-    """A deadline on the wall clock against a hang only (a test's figure never rests on it)."""
-    end = time.monotonic() + seconds
-    return lambda: time.monotonic() < end

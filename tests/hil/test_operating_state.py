@@ -44,8 +44,6 @@ pytestmark = [pytest.mark.ros, pytest.mark.hil]
 
 #: s of the world's time a never-enabled arm is streamed servo_jp
 STREAM = 3.0
-
-
 #: s of wall time, guards against a hang only (no figure rests on them)
 HANG = 120.0
 

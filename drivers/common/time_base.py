@@ -171,12 +171,8 @@ class SimTime:
         self._lock = threading.Lock()
         self._Header = Header
         qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-        # raw: the stamp is all there is; one a period, beside the arms' streams. Best effort,
-        # as ROS's own ClockQoS: only the newest clock matters, and a reliable reader delivers
-        # in order, holding every later clock behind a lost one until the writer repairs it
-        # (its heartbeat: seconds) -- under load that froze the clock for a live simulator
-        self._sub = node.create_subscription(Clock, CLOCK_TOPIC, self._on_clock,
-                                             QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True)
+        # raw: the stamp is all there is; one a period, beside the arms' streams
+        self._sub = node.create_subscription(Clock, CLOCK_TOPIC, self._on_clock, qos, raw=True)
         self._pub = node.create_publisher(Header, ANSWER_TOPIC, qos) if self.lockstep else None
         self._node = node
         #: devices read on threads of their own, with `caught_up(t)` (a load cell): a period

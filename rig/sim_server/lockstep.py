@@ -97,10 +97,7 @@ class Lockstep:
         self.late_commands = 0
         self.waits = 0
         self.wait_s = 0.0  # wall s the world spent waiting for answers
-        # best effort: an answer counts what it says (the newest period, the commands sent so
-        # far), and a live process repeats it every HEARTBEAT; a reliable reader would hold
-        # every later answer behind a lost one until the writer repairs it (seconds under load)
-        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
         self._sub = node.create_subscription(Header, ANSWER_TOPIC, self._on_answer, qos)
 
     @property

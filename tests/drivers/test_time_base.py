@@ -19,7 +19,6 @@ class FakeNode:
     def create_subscription(self, msg_type, topic, callback, qos, raw=False):
         assert topic == "/clock" and msg_type is Clock and raw
         self.on_clock = callback
-        self.clock_qos = qos
         return object()
 
     def create_publisher(self, msg_type, topic, qos):
@@ -157,15 +156,3 @@ def test_nothing_is_answered_after_bye():
     tb.answer()
     tb.close()
     assert len(node.answers) == n
-
-
-def test_the_clock_is_heard_best_effort():
-    """Only the newest clock matters (a live simulator that waits repeats it): a reliable
-    reader would hold every later clock behind a lost one until the writer repaired it, and
-    the clock would stand still for a live simulator (two procedures stopped on ClockStopped
-    in three loaded HIL runs, the world 20 ms on in those 2 s)."""
-    from rclpy.qos import ReliabilityPolicy
-
-    node = FakeNode()
-    SimTime(node)
-    assert node.clock_qos.reliability == ReliabilityPolicy.BEST_EFFORT

@@ -111,7 +111,7 @@ class SimServer:
         self._clock_lock = threading.Lock()
         self._clock_at: float | None = None  # monotonic s of the last /clock published (None: none yet)
         #: on simulated time, repeats the newest /clock while the world's loop is held up
-        #: anywhere (see `_repeat_clock`)
+        #: anywhere (`_repeat_while_held`)
         self._repeater = threading.Thread(target=self._repeat_while_held, name="sim-clock-repeat", daemon=True)
         self._subs = []
         for what in ("power_on", "power_off", "home"):

@@ -107,7 +107,12 @@ class SimServer:
                 from rig.sim_server.lockstep import Lockstep
 
                 self.lockstep = Lockstep(node, timeout=lockstep_timeout, log=node.get_logger().info,
-                                         repeat=lambda: self._clock_pub.publish(self._clock_msg))
+                                         repeat=self._repeat_clock)
+        self._clock_lock = threading.Lock()
+        self._clock_at: float | None = None  # monotonic s of the last /clock published (None: none yet)
+        #: on simulated time, repeats the newest /clock while the world's loop is held up
+        #: anywhere (`_repeat_while_held`)
+        self._repeater = threading.Thread(target=self._repeat_while_held, name="sim-clock-repeat", daemon=True)
         self._subs = []
         for what in ("power_on", "power_off", "home"):
             self._subs.append(node.create_subscription(Empty, f"{self.console}/{what}",
@@ -272,8 +277,32 @@ class SimServer:
     def _publish_clock(self, t: float) -> None:
         """/clock at world time `t` (rosgraph_msgs/Clock), after the period's streams."""
         ns = self._stamp_ns(t)
-        self._clock_msg.clock.sec, self._clock_msg.clock.nanosec = divmod(ns, 1_000_000_000)
-        self._clock_pub.publish(self._clock_msg)
+        with self._clock_lock:
+            self._clock_msg.clock.sec, self._clock_msg.clock.nanosec = divmod(ns, 1_000_000_000)
+            self._clock_pub.publish(self._clock_msg)
+            self._clock_at = time.monotonic()
+
+    def _repeat_clock(self) -> None:
+        """Publish the newest /clock again (the same stamp: time does not move)."""
+        with self._clock_lock:
+            if self._clock_at is not None:
+                self._clock_pub.publish(self._clock_msg)
+                self._clock_at = time.monotonic()
+
+    def _repeat_while_held(self) -> None:
+        """Its own thread: the newest /clock again every HEARTBEAT s of wall time while the
+        world's loop publishes none, wherever the loop is held up: waiting for its
+        followers (`Lockstep.wait` repeats too), or in the kernel. The served load cells'
+        pty is read in the loop on simulated time, and on a loaded machine a read of its
+        master end was held there 1-3.6 s while a procedure opened the cell's port (probed:
+        the world thread in os.read); its followers took the silent simulator for a dead one
+        (ClockStopped). A clock repeated tells them it lives, and its time does not move."""
+        from drivers.common.time_base import HEARTBEAT
+
+        while not self.stop.wait(HEARTBEAT / 2):
+            at = self._clock_at
+            if at is not None and time.monotonic() - at > HEARTBEAT:
+                self._repeat_clock()
 
     # -- the loop -------------------------------------------------------------------------
     def _tick(self) -> None:
@@ -293,6 +322,8 @@ class SimServer:
     def serve(self, duration: float | None = None, on_ready=None) -> dict:
         """Step, publish and pace until `stop` is set or `duration` s of sim time passed."""
         self._spin_thread.start()
+        if self.sim_time:
+            self._repeater.start()
         world = self.world
         # One untimed tick first: loading the compiled physics kernel and the first
         # publications take a fraction of a second that would count as a stall.
@@ -387,6 +418,8 @@ class SimServer:
 
     def close(self) -> None:
         self.stop.set()
+        if self._repeater.is_alive():
+            self._repeater.join(timeout=1.0)
         self._executor.shutdown(timeout_sec=1.0)
         if self._spin_thread.is_alive():
             self._spin_thread.join(timeout=1.0)

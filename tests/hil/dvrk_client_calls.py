@@ -59,7 +59,12 @@ class Recorder:
         return value
 
 
-def until(read, done, limit: float = 30.0):
+#: s of wall time the client's own waits are given (enable, home, a move's wait): caps, so
+#: that a loaded machine's slowness is waited out; a command that never completes still fails
+CAP = 60.0
+
+
+def until(read, done, limit: float = CAP):
     """What `read()` returns once `done(value)` holds, or after `limit` s (the caller's
     assertion then fails on it). This rig sim runs on the wall clock, as against a real
     console: on a loaded machine a fixed sleep measures the machine; a wait for what the
@@ -70,6 +75,18 @@ def until(read, done, limit: float = 30.0):
         if done(value) or time.monotonic() - t0 > limit:
             return value
         time.sleep(0.01)
+
+
+def at_rest(psm, goal=None, tolerance: float = 3e-3, speed: float = 2e-3):
+    """Wait (until) for the arm at rest, at `goal` (joints, within `tolerance`) if given:
+    joints 1-3 slower than `speed` (rad/s, m/s). What a read "at rest" needs, however long
+    the machine takes to get the arm there."""
+    def still(v):
+        return bool(numpy.all(numpy.abs(numpy.asarray(v[0])[:3]) < speed))
+
+    if goal is not None:
+        until(psm.measured_jp, lambda v: numpy.allclose(v[0], goal, atol=tolerance))
+    until(psm.measured_jv, still)
 
 
 def run(ral, arm_name: str, system_name: str) -> dict:
@@ -86,17 +103,18 @@ def run(ral, arm_name: str, system_name: str) -> dict:
         system = dvrk.system(ral=ral)
         console = dvrk.console(ral=ral)
     ral.spin()
-    rec("check_connections", ral.check_connections, 10.0)
-    rec("enable", psm.enable, 10.0)
-    rec("home", psm.home, 10.0)
+    rec("check_connections", ral.check_connections, CAP)
+    rec("enable", psm.enable, CAP)
+    rec("home", psm.home, CAP)
     rec("operating_state", psm.operating_state)
     rec("is_homed", psm.is_homed)
     rec("is_enabled", psm.is_enabled)
     # joint space: a move to where the tool is past the cannula, straight
     goal = numpy.array([0.0, 0.0, 0.12, 0.0, 0.0, 0.0])
     h = rec("move_jp", psm.move_jp, goal)
-    rec("move_jp.wait", h.wait, False, 30.0) if h else None
+    rec("move_jp.wait", h.wait, False, CAP) if h else None
     time.sleep(0.5)
+    at_rest(psm, goal)  # the readings below are compared "at rest", a few ms apart
     rec("measured_js", psm.measured_js)
     rec("measured_jp", psm.measured_jp)
     rec("measured_jv", psm.measured_jv)
@@ -122,7 +140,7 @@ def run(ral, arm_name: str, system_name: str) -> dict:
     rec("inverse_kinematics", psm.inverse_kinematics, jp, cp)
     # a move to where the arm is: busy rises and falls, the wait returns at once
     h = rec("move_jp.same", psm.move_jp, jp)
-    rec("move_jp.same.wait", h.wait, False, 10.0) if h else None
+    rec("move_jp.same.wait", h.wait, False, CAP) if h else None
     # a move with a busy loop, as dvrk_move_wait_test.py
     goal = numpy.copy(jp)
     goal[0] += 0.1
@@ -134,11 +152,14 @@ def run(ral, arm_name: str, system_name: str) -> dict:
         time.sleep(0.001)
     rec.calls["move_jp.busy_loop"] = {"ok": True, "value": loops, "s": time.monotonic() - t0}
     time.sleep(0.5)
+    at_rest(psm, goal)
     rec("after_busy_loop.measured_jp", psm.measured_jp)
     # relative moves
+    before_jr, _ = psm.measured_jp()
     h = rec("move_jr", psm.move_jr, numpy.array([-0.1, 0.05, 0.0, 0.2, 0.0, 0.0]))
-    rec("move_jr.wait", h.wait, False, 30.0) if h else None
+    rec("move_jr.wait", h.wait, False, CAP) if h else None
     time.sleep(0.5)
+    at_rest(psm, before_jr + numpy.array([-0.1, 0.05, 0.0, 0.2, 0.0, 0.0]), tolerance=5e-3)
     rec("after_move_jr.measured_jp", psm.measured_jp)
     rec("after_move_jr.setpoint_jp", psm.setpoint_jp)
     # servo_jp: a 2 s sine on joint 1 at 100 Hz, then servo_jr
@@ -163,7 +184,7 @@ def run(ral, arm_name: str, system_name: str) -> dict:
     rec("move_cp.start", lambda: cp0)
     g = PyKDL.Frame(cp0.M, cp0.p + PyKDL.Vector(0.02, 0.0, 0.0))
     h = rec("move_cp", psm.move_cp, g)
-    rec("move_cp.wait", h.wait, False, 30.0) if h else None
+    rec("move_cp.wait", h.wait, False, CAP) if h else None
     time.sleep(0.5)
     until(psm.measured_cp, lambda v: (v[0].p - g.p).Norm() < 1e-3)
     rec("after_move_cp.measured_cp", psm.measured_cp)
@@ -184,14 +205,14 @@ def run(ral, arm_name: str, system_name: str) -> dict:
     psm.trajectory_j_set_ratio(1.0)
     # jaw
     h = rec("jaw.open", psm.jaw.open, math.radians(60.0))
-    rec("jaw.open.wait", h.wait, False, 20.0) if h else None
+    rec("jaw.open.wait", h.wait, False, CAP) if h else None
     time.sleep(0.5)
     until(psm.jaw.measured_jp, lambda v: abs(v[0][0] - math.radians(60.0)) < 0.01)
     rec("jaw.after_open.measured_jp", psm.jaw.measured_jp)
     rec("jaw.setpoint_js", psm.jaw.setpoint_js)
     rec("jaw.measured_js", psm.jaw.measured_js)
     h = rec("jaw.close", psm.jaw.close)
-    rec("jaw.close.wait", h.wait, False, 20.0) if h else None
+    rec("jaw.close.wait", h.wait, False, CAP) if h else None
     time.sleep(0.5)
     until(psm.jaw.measured_jp, lambda v: v[0][0] < 0.01)
     rec("jaw.after_close.measured_jp", psm.jaw.measured_jp)
@@ -210,7 +231,7 @@ def run(ral, arm_name: str, system_name: str) -> dict:
     rec("body_set_cf_orientation_absolute", psm.body_set_cf_orientation_absolute, False)
     time.sleep(0.5)
     for kind, cf in (("spatial", psm.spatial.measured_cf), ("body", psm.body.measured_cf)):
-        t_end = time.monotonic() + 5.0
+        t_end = time.monotonic() + CAP
         while time.monotonic() < t_end:
             w, t_w = cf()
             js = psm.measured_js()
@@ -230,15 +251,20 @@ def run(ral, arm_name: str, system_name: str) -> dict:
 
     commands = {"servo_jf": lambda: psm.servo_jf(tau), "spatial_cf": lambda: wrench("spatial"),
                 "body_cf": lambda: wrench("body")}
-    def setpoint_after(sent: float):
-        """The first setpoint_js stamped 20 ms or more after `sent` (the arm's own clock;
-        on a loaded machine the arm runs behind)."""
-        t_end = time.monotonic() + 3.0
-        sp = psm.setpoint_js()
-        while sp[3] < sent + 0.02 and time.monotonic() < t_end:
-            time.sleep(0.002)
+    def setpoint_after(sent: float, also=lambda sp: True):
+        """The first setpoint_js stamped 20 ms or more after `sent` (the arm's own clock)
+        of a period in which the arm runs on efforts: its position set-point is the
+        measured position of the same period (rig sim's effort mode; in position mode it
+        is the goal the PID holds), and `also(setpoint_js)`. So the command has reached the
+        arm, however late a loaded machine delivered it; after CAP s, the newest setpoint_js."""
+        t_end = time.monotonic() + CAP
+        while True:
             sp = psm.setpoint_js()
-        return sp
+            js = psm.measured_js()
+            on_efforts = sp[3] == js[3] and numpy.array_equal(numpy.asarray(sp[0])[:3], numpy.asarray(js[0])[:3])
+            if (sp[3] >= sent + 0.02 and on_efforts and also(sp)) or time.monotonic() > t_end:
+                return sp
+            time.sleep(0.002)
 
     for name, command in commands.items():
         sent = ral.to_sec(ral.now())
@@ -254,20 +280,24 @@ def run(ral, arm_name: str, system_name: str) -> dict:
     time.sleep(0.2)
     sent = ral.to_sec(ral.now())
     rec("servo_jf.gc", psm.servo_jf, numpy.zeros(6))
-    rec("after_servo_jf_gc.setpoint_js", setpoint_after, sent)
+    # with the compensation on, the arm applies more than the zero command (use_gravity_compensation
+    # and servo_jf travel on two topics: a loaded machine may deliver the second first)
+    compensated = lambda sp: bool(numpy.any(numpy.asarray(sp[2])[:3] != 0.0))  # noqa: E731
+    rec("after_servo_jf_gc.setpoint_js", setpoint_after, sent, compensated)
     psm.hold()
     time.sleep(0.3)
     sent = ral.to_sec(ral.now())
     rec("free", psm.free)
-    rec("after_free.setpoint_js", setpoint_after, sent)
+    rec("after_free.setpoint_js", setpoint_after, sent, compensated)
     rec("hold", psm.hold)
     time.sleep(1.0)
+    at_rest(psm)  # held: the arm comes to rest where it was
     rec("after_hold.measured_js", psm.measured_js)
     time.sleep(0.3)
     rec("after_hold.later_jp", psm.measured_jp)
     rec("use_gravity_compensation.off", psm.use_gravity_compensation, False)
     rec("set_tool_present", psm.set_tool_present, True)
-    rec("insert_jp", lambda: psm.insert_jp(0.1).wait(False, 30.0))
+    rec("insert_jp", lambda: psm.insert_jp(0.1).wait(False, CAP))
     time.sleep(0.3)
     until(psm.measured_jp, lambda v: abs(v[0][2] - 0.1) < 1e-3)
     rec("after_insert.measured_jp", psm.measured_jp)
@@ -285,10 +315,10 @@ def run(ral, arm_name: str, system_name: str) -> dict:
     until(lambda: console.teleop_is_selected("MTMR_PSM1"), bool)
     rec("console.teleop_is_selected", console.teleop_is_selected, "MTMR_PSM1")
     # state: disable and enable again (the arm keeps is_homed, as the dVRK)
-    rec("disable", psm.disable, 10.0)
+    rec("disable", psm.disable, CAP)
     rec("after_disable.operating_state", psm.operating_state)
-    rec("enable.again", psm.enable, 10.0)
-    rec("home.again", psm.home, 10.0)
+    rec("enable.again", psm.enable, CAP)
+    rec("home.again", psm.home, CAP)
     return rec.calls
 
 

@@ -65,12 +65,14 @@ def _ctrl_c_reaches_children() -> None:
 
 @dataclass
 class Outcome:
-    """How one `rig` process ended: exit code, its --json document (None if none), stderr, wall s."""
+    """How one `rig` process ended: exit code, its --json document (None if none), stderr, wall
+    s, and what `rig sim` said on its stderr meanwhile (its lockstep's joins, leaves and losses)."""
 
     code: int
     doc: dict | None
     stderr: str
     seconds: float
+    sim_said: str = ""
 
     @property
     def last_line(self) -> str:
@@ -80,7 +82,7 @@ class Outcome:
 
 def completed(out: Outcome, what: str) -> dict:
     """The --json document of a run that must have completed, with no traceback (asserts)."""
-    assert out.code == 0, f"rig {what} exited {out.code}: {out.stderr[-3000:]}"
+    assert out.code == 0, f"rig {what} exited {out.code}: {out.stderr[-3000:]}\nrig sim said: {out.sim_said[-2000:]}"
     assert out.doc is not None and out.doc["status"] == "completed", out.stderr[-3000:]
     assert "Traceback" not in out.stderr
     return out.doc
@@ -201,6 +203,7 @@ class ServedRig:
         argv = [sys.executable, "-m", "rig.cli", *args] + (["--json"] if json_doc else [])
         _ctrl_c_reaches_children()
         self.runs_since_start += 1
+        said_from = len(self.sim_err)
         t0 = time.monotonic()
         proc = subprocess.Popen(argv, cwd=self.folder, env=env or self.env(), text=True,
                                 stdin=subprocess.PIPE if stdin is not None else subprocess.DEVNULL,
@@ -221,7 +224,7 @@ class ServedRig:
             self.faulted = True
         docs = [ln for ln in out.splitlines() if ln.startswith("{") and ln.rstrip().endswith("}")]
         doc = json.loads(docs[-1]) if docs else None
-        return Outcome(proc.returncode, doc, err, time.monotonic() - t0)
+        return Outcome(proc.returncode, doc, err, time.monotonic() - t0, "".join(self.sim_err[said_from:]))
 
     @staticmethod
     def _watched(proc: subprocess.Popen, stdin: str | None, timeout: float, text: str, fn) -> tuple[str, str]:

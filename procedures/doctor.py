@@ -24,7 +24,8 @@ import time
 import click
 
 from rig.commands.exit_codes import EXIT_ABORTED, EXIT_COMPLETED, EXIT_INPUT
-from rig.commands.options import config_from_context, json_option
+from rig.commands.options import config_from_context
+from rig.commands.procedure import procedure_command
 
 STEPS = ("this machine", "the ROS devices (arms' consoles, mocap, operator)", "the load cell",
          "the results found for this rig")
@@ -60,23 +61,17 @@ def diagnose(cfg, timeout: float, say=None) -> list:
     return checks
 
 
-@click.command(name="doctor")
+@procedure_command("doctor", STEPS, steps_help="List what is checked and exit.", yes=False)
 @click.option("--timeout", type=click.FloatRange(min=0.5, max=60.0), default=3.0, show_default=True,
               help="Seconds each device is listened for before it is reported silent (the ROS devices share one "
                    "wait; the load cell's board is given 2.5 s more to come out of its reset).")
-@click.option("--steps", "list_steps", is_flag=True, help="List what is checked and exit.")
-@json_option
-@click.pass_context
-def command(ctx, timeout: float, list_steps: bool, as_json: bool) -> None:
+def command(ctx, timeout: float, as_json: bool) -> None:
     """Check this rig from its rig.toml before any procedure: one line per check.
 
     Lines start with ok, todo (a result not made yet, with the command that makes it) or
     fail (what to do). Exit 0 when every device answers as the procedures need, 3 when a
     device does not, 5 when this machine's or rig.toml's set-up is wrong. Nothing moves.
     """
-    if list_steps:
-        click.echo("\n".join(f"{i + 1}. {s}" for i, s in enumerate(STEPS)))
-        return
     cfg = config_from_context(ctx)
     t0 = time.monotonic()
     checks = diagnose(cfg, timeout, say=None if as_json else click.echo)

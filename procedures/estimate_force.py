@@ -34,10 +34,9 @@ from pathlib import Path
 import click
 import numpy as np
 
-from rig.commands.abort import exit_on_abort
 from rig.commands.exit_codes import EXIT_INPUT
-from rig.commands.options import json_option
-from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.parameters import Parameter
+from rig.commands.procedure import procedure_command
 from rig.commands.report import emit_result
 from rig.runs.run import Run
 
@@ -223,23 +222,14 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
     return rn.result
 
 
-@click.command(name=PROCEDURE)
+@procedure_command(PROCEDURE, STEPS, PARAMETERS, steps_help="List the steps and exit.", yes=False, context=False)
 @click.argument("run_dir", required=False)
-@with_parameters(PARAMETERS)
-@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit.")
-@json_option
-@exit_on_abort
-def command(run_dir, parameters, list_steps: bool, as_json: bool) -> None:
+def command(run_dir, parameters, as_json: bool) -> None:
     """The force at the tool tip over a recording (RUN or --csv FILE), from the arm's joints,
     efforts and model: momentum observer, J^-T, in the arm's base frame (N). Writes force.csv
     and force.png to the run folder; --json gives mean_force (N, base frame), mean_magnitude
     (N) and the spread (N). Units: SI (m, N, rad, s, Hz).
     """
-    if list_steps:
-        for i, s in enumerate(STEPS, 1):
-            click.echo(f"{i}. {s}")
-        return
-
     def usage(line: str) -> None:
         click.echo(f"rig {PROCEDURE}: {line} (rig {PROCEDURE} --help)", err=True)
         sys.exit(2)

@@ -39,8 +39,9 @@ def exit_code(checks) -> int:
     return EXIT_ABORTED if EXIT_ABORTED in codes else EXIT_INPUT
 
 
-def diagnose(cfg, timeout: float, say=None) -> list:
-    """Every check of `cfg`'s rig, in order; `say(line)` is called as each line is known."""
+def run(cfg, timeout: float, say=None) -> dict:
+    """Every check of `cfg`'s rig, in order, as the result document ("status", "exit_code",
+    "checks"); `say(line)` is called as each check's line is known. Records no run."""
     from rig.devices import preflight, preflight_loadcell
     from rig.runs import preflight_results
 
@@ -58,7 +59,18 @@ def diagnose(cfg, timeout: float, say=None) -> list:
         add(preflight.ros_devices(cfg, timeout))
     add(preflight_loadcell.loadcell(cfg))
     add(preflight_results.results(cfg))
-    return checks
+    code = exit_code(checks)
+    return {"status": "completed" if code == 0 else "failed", "exit_code": code,
+            "checks": [c.__dict__ for c in checks]}
+
+
+def report(result: dict, source: str, seconds: float) -> str:
+    """The summary line of a doctor's `result`: `source` the rig.toml, `seconds` its time."""
+    checks = result["checks"]
+    failed = [c for c in checks if c["status"] == "fail"]
+    todo = [c for c in checks if c["status"] == "todo"]
+    return (f"rig doctor: {len(checks) - len(failed) - len(todo)} ok, {len(todo)} to do, {len(failed)} failed "
+            f"({source}, {seconds:.1f} s)")
 
 
 @procedure_command("doctor", STEPS, steps_help="List what is checked and exit.", yes=False)
@@ -74,14 +86,9 @@ def command(ctx, timeout: float, as_json: bool) -> None:
     """
     cfg = config_from_context(ctx)
     t0 = time.monotonic()
-    checks = diagnose(cfg, timeout, say=None if as_json else click.echo)
-    code = exit_code(checks)
-    failed = [c for c in checks if c.status == "fail"]
-    todo = [c for c in checks if c.status == "todo"]
-    summary = (f"rig doctor: {len(checks) - len(failed) - len(todo)} ok, {len(todo)} to do, {len(failed)} failed "
-               f"({cfg.source}, {time.monotonic() - t0:.1f} s)")
+    result = run(cfg, timeout, say=None if as_json else click.echo)
+    summary = report(result, cfg.source, time.monotonic() - t0)
     if as_json:
-        click.echo(json.dumps({"status": "completed" if code == 0 else "failed", "exit_code": code,
-                               "checks": [c.__dict__ for c in checks]}))
+        click.echo(json.dumps(result))
     click.echo(summary, err=True)
-    ctx.exit(code)
+    ctx.exit(result["exit_code"])

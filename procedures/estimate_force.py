@@ -127,7 +127,7 @@ def write_csv(path: Path, forces, flag_names) -> None:
                fmt=["%.4f"] + ["%.6g"] * 6 + ["%d"] * len(flag_names))
 
 
-def plot(path: Path, forces, title: str) -> None:
+def figures(path: Path, forces, title: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -152,7 +152,7 @@ def plot(path: Path, forces, title: str) -> None:
     plt.close(fig)
 
 
-def report_text(result: dict) -> str:
+def report(result: dict) -> str:
     def vec(v):
         return "(" + ", ".join(f"{x:+.3f}" for x in v) + ")"
 
@@ -215,7 +215,7 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
             result["files"] = {"csv": str(path)}
             if parameters["plots"]:
                 png = rn.dir / "force.png"
-                plot(png, forces, f"tip force estimate: {source}")
+                figures(png, forces, f"tip force estimate: {source}")
                 result["files"]["png"] = str(png)
             result["summary"] = {"mean_magnitude": round(result["mean_magnitude"], 4)}
             rn.finish(result)
@@ -248,4 +248,4 @@ def command(run_dir, parameters, as_json: bool) -> None:
         where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
         click.echo(f"rig {PROCEDURE}: {exc}{where}", err=True)
         sys.exit(EXIT_INPUT)
-    emit_result(result, as_json, report_text(result))
+    emit_result(result, as_json, report(result))

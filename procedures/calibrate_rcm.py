@@ -142,8 +142,8 @@ def table_6_1(arms: dict) -> str:
 
 
 def report(result: dict) -> str:
-    """Table 6.1 of the arms calibrated, and the run folder."""
-    return table_6_1(result["arms"]) + f"\nrun folder: {result['run_dir']}"
+    """Table 6.1 of the arms (or the body) calibrated."""
+    return table_6_1(result["arms"])
 
 
 # ----------------------------------------------------------------------------- measuring
@@ -253,5 +253,5 @@ def command(ctx, parameters, from_csv, body, as_json: bool) -> None:
         # a run of the rig that could not be fitted missed its purpose; a take given as a
         # file that cannot carry the fit is the user's input
         sys.exit(EXIT_INPUT if from_csv else EXIT_MISSED)
-    emit_result(result, as_json, report(result))
+    emit_result(result, as_json, report(result) + f"\nrun folder: {result['run_dir']}")
     exit_for_status(PROCEDURE, result)

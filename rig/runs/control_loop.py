@@ -36,6 +36,7 @@ from typing import Callable, Iterator, Protocol
 import numpy as np
 
 from drivers.common.quaternion import matrix_to_quat_xyzw
+from drivers.interfaces import Tracker, TrackerFrame
 from rig.control.arm_command import ArmCommand, CommandKind
 
 
@@ -59,7 +60,7 @@ def marker_topic(label: str) -> str:
     return f"/mocap/markers/{label.replace(':', '/')}"
 
 
-def record_frames(recorder, frames) -> None:
+def record_frames(recorder, frames: list[TrackerFrame]) -> None:
     """Record mocap frames (drivers.interfaces.TrackerFrame): each seen body's pose and each
     seen marker, at the frame's time; an occluded body or a lost marker (None) is skipped."""
     for f in frames:
@@ -135,9 +136,9 @@ class ControlLoop:
     elements in order) and `tracker` (a mocap Tracker) on `clock`, recorded by `run`; see
     the module docstring. `joint_names`: record each joint state's joint names too."""
 
-    def __init__(self, run, clock, arms: dict, *, limits=None, sensors=(), tracker=None, read: str = "newest",
-                 impedance: ImpedanceSender | None = None, loop_time_topic: str | None = None,
-                 record_commands: bool = True, joint_names: bool = False):
+    def __init__(self, run, clock, arms: dict, *, limits=None, sensors=(), tracker: Tracker | None = None,
+                 read: str = "newest", impedance: ImpedanceSender | None = None,
+                 loop_time_topic: str | None = None, record_commands: bool = True, joint_names: bool = False):
         if read not in ("newest", "drain"):
             raise ValueError(f"read must be 'newest' or 'drain', got {read!r}")
         self.run_ = run
@@ -182,7 +183,7 @@ class ControlLoop:
             out.append(new)
         return out
 
-    def _drain_tracker(self) -> list:
+    def _drain_tracker(self) -> list[TrackerFrame]:
         if self.tracker is None:
             return []
         frames = self.tracker.frames()

@@ -149,7 +149,7 @@ def report(result: dict) -> str:
 # ----------------------------------------------------------------------------- measuring
 
 def run(cfg, parameters: dict, run_root=None, progress: bool = True,
-                      procedure: str = PROCEDURE) -> dict:
+        procedure: str = PROCEDURE) -> dict:
     """The live procedure as a function (CLI, bench and `rig register` call it)."""
     arms = list(cfg.arms) if parameters["arm"] == "all" else [parameters["arm"]]
     for a in arms:

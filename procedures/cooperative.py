@@ -149,9 +149,9 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
         cfg.object["stiffness"] = 2450.0 if object_kind == "spring" else 20000.0
     cfg.object["arms"] = names
     result = run(cfg, names, master, dict(parameters), translation, rotation, mode,
-                             model_path=model_path, seed=seed, dry_run=dry_run, ros_commands=ros_commands,
-                             interactive=interactive, parameter_set=parameters, force_model=force_model,
-                             slave_control=slave_control, tension_source=tension_source)
+                 model_path=model_path, seed=seed, dry_run=dry_run, ros_commands=ros_commands,
+                 interactive=interactive, parameter_set=parameters, force_model=force_model,
+                 slave_control=slave_control, tension_source=tension_source)
     emit_result(result, as_json, report=report(result))
     exit_for_status("cooperative", result)
 
@@ -299,8 +299,8 @@ class Setup:
 
 
 def run(cfg, names, master, params, translation, rotation, mode, *, model_path=None, seed=None,
-                    dry_run=False, ros_commands=False, interactive=False, parameter_set=None, model=None,
-                    progress=True, force_model=False, slave_control="auto", tension_source="cell"):
+        dry_run=False, ros_commands=False, interactive=False, parameter_set=None, model=None,
+        progress=True, force_model=False, slave_control="auto", tension_source="cell"):
     """The procedure; returns the result document. `model` overrides the model file (tests, bench).
 
     slave_control: "arm" (the slaves' impedance in the arm: servo_ci), "effort" (closed
@@ -393,7 +393,7 @@ def _hold(run, rig, setup: Setup, controller, sensors, started, estimate, model_
     be none when the loop closes on it."""
     clock, names = rig.clock, setup.names
     live = LiveCommands(controller, setup.ros_commands, setup.interactive, run.recorder, names, setup.limits,
-                         maximum_force=_parameter("force").maximum, say=run.say)
+                        maximum_force=_parameter("force").maximum, say=run.say)
     n_ticks = int(round(setup.total * clock.rate))
     servo_ci = None
     if setup.slave_control == "arm":
@@ -430,7 +430,7 @@ def _timing(loop, hold, rate: float, arms: int) -> dict:
     lt_raw = loop.timing()
     done = len(lt_raw["t"])
     lt = loop_timing(hold.log["t"][:done], rate, lt_raw["overruns"], lt_raw["skipped"], lt_raw["repeated_js"],
-                      arms, hold.log["loop_us"][:done])
+                     arms, hold.log["loop_us"][:done])
     lt["arm_clock_jumps"] = int(lt_raw["arm_clock_jumps"])
     lt["arm_clock_jump_ms_max"] = 1e3 * lt_raw["arm_clock_jump_max"]
     ages = lt_raw["sample_age_ms"]
@@ -443,10 +443,10 @@ def _report(run, setup: Setup, controller, hold, live, timing: dict, model_effec
     params, names, master, kind = setup.params, setup.names, setup.master, setup.cfg.object["kind"]
     n_ticks = len(hold.log["t"])
     result = force_error_figures(hold.log, params, names, master, setup.mode, kind, controller,
-                      last_live=None if live.last_applied is None else live.last_applied - t_start)
+                                 last_live=None if live.last_applied is None else live.last_applied - t_start)
     result["loop_timing"] = timing
     result["loop_timing"].update(force_hold_figures(hold.blind_ticks, n_ticks, hold.blind_longest,
-                                                     hold.max_force_age))
+                                                    hold.max_force_age))
     if setup.ros_commands or setup.interactive:
         result["live_commands"] = live.summary(t_start)
     result["slave_control"] = slave_control_text(setup.slave_control, setup.mode, hold.loop.clock.rate)

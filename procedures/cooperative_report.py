@@ -107,7 +107,7 @@ def force_hold_figures(blind_ticks: int, n_ticks: int, longest: float, max_age: 
 
 
 def loop_timing(t: np.ndarray, rate: float, overruns: int, skipped: int, repeated_js: int, arms: int,
-                 step_us: np.ndarray | None = None) -> dict:
+                step_us: np.ndarray | None = None) -> dict:
     """The control loop's timing: tick periods (ms; on the simulated rig exactly 1/rate),
     ticks that began late (overruns) or were skipped, per 10 000 ticks, and the share of
     arm reads that found no new measured_js since the tick before (per 10 000 reads)."""

@@ -77,7 +77,7 @@ def _api_run(monkeypatch, patch):
               "tension_ceiling": 15.0}
     patch(monkeypatch)
     return coop.run(cfg, ["PSM1", "PSM2"], "PSM2", params, np.array([0.02, 0, 0]), np.zeros(3),
-                                "impedance", progress=False)
+                    "impedance", progress=False)
 
 
 def test_effort_ceiling_aborts_and_every_moved_arm_holds(monkeypatch):
@@ -185,7 +185,7 @@ def _api_run_serial_timeout(monkeypatch, patch):
               "tension_ceiling": 15.0, "tolerance": 2.0}
     patch(monkeypatch)
     return coop.run(cfg, ["PSM1", "PSM2"], "PSM2", params, np.array([0.02, 0, 0]), np.zeros(3),
-                                "impedance", progress=False)
+                    "impedance", progress=False)
 
 
 def test_force_loop_holds_while_samples_do_not_reach_it(monkeypatch):

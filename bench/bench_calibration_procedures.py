@@ -39,7 +39,7 @@ def main() -> int:
              "mocap_bt": 0.0}
     t0 = time.perf_counter()
     for s in args.seeds:
-        r = link_lengths.run_link_lengths(cfg, resolve(link_lengths.PARAMETERS, {"seed": s}), progress=False)
+        r = link_lengths.run(cfg, resolve(link_lengths.PARAMETERS, {"seed": s}), progress=False)
         e = r["truth"]["errors"]
         name, v = max(e["lengths"].items(), key=lambda kv: abs(kv[1]))
         if abs(v) > worst["len"]:
@@ -48,18 +48,18 @@ def main() -> int:
         if v > worst["axis"]:
             worst["axis"], worst["axis_name"] = v, name
         worst["ll_rcm"] = max(worst["ll_rcm"], e["rcm"])
-        r = calibrate_rcm.run_calibrate_rcm(cfg, resolve(calibrate_rcm.PARAMETERS, {"seed": s, "arm": "PSM1"}),
+        r = calibrate_rcm.run(cfg, resolve(calibrate_rcm.PARAMETERS, {"seed": s, "arm": "PSM1"}),
                                             progress=False)
         t = r["arms"]["PSM1"]["truth"]
         worst["rcm"] = max(worst["rcm"], t["rcm_error"])
         worst["rcm_frame"] = max(worst["rcm_frame"], t["rcm_frame_rotation_error_deg"])
         worst["rcm_a10"] = max([worst["rcm_a10"]] + list(t["methods"].values()))
-        r = register.run_register(cfg, resolve(register.PARAMETERS, {"seed": s}), progress=False)
+        r = register.run(cfg, resolve(register.PARAMETERS, {"seed": s}), progress=False)
         t = r["truth"]["PSM2"]
         worst["touch_t"] = max(worst["touch_t"], t["rcm_translation_error"], t["base_translation_error"])
         worst["touch_r"] = max(worst["touch_r"], t["rcm_rotation_error_deg"])
         if not args.no_mocap_register:
-            r = register.run_register(cfg, resolve(register.PARAMETERS, {"seed": s, "method": "mocap",
+            r = register.run(cfg, resolve(register.PARAMETERS, {"seed": s, "method": "mocap",
                                                                         "remeasure": True}), progress=False)
             t = r["truth"]["PSM2"]
             worst["mocap_t"] = max(worst["mocap_t"], t["rcm_translation_error"])

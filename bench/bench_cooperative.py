@@ -70,7 +70,8 @@ def model_with_error(error: float, seed: int) -> PSMDynamics:
 
 def run_case(kind: str, arms: list[str], seed: int, mode: str = "impedance", deadband: float = 0.4,
              duration: float = 5.0, stiffness: float | None = None) -> dict:
-    from procedures.cooperative import PARAMETERS, run_cooperative
+    from procedures import cooperative
+    from procedures.cooperative import PARAMETERS
 
     doc = {"rig": {"seed": seed},
            "arms": {"PSM1": {}, "PSM2": {"base_xyz": [config.DEFAULT_PSM2_X, 0, 0], "base_rpy": [0, 0, np.pi]}},
@@ -88,7 +89,7 @@ def run_case(kind: str, arms: list[str], seed: int, mode: str = "impedance", dea
     params.update({"force": 5.0, "duration": duration, "settle": 2.0, "hold_after": 2.0, "deadband": deadband,
                    "tension_ceiling": 15.0})
     move = np.array([0.05, 0.0, 0.0])
-    return run_cooperative(cfg, arms, arms[-1] if len(arms) == 2 else "PSM1", params, move, np.zeros(3), mode,
+    return cooperative.run(cfg, arms, arms[-1] if len(arms) == 2 else "PSM1", params, move, np.zeros(3), mode,
                            model=model_with_error(0.15, seed), seed=seed, progress=False)
 
 

@@ -60,16 +60,15 @@ def main() -> int:
 
     rows = []
     if not a.skip_sim:
+        from procedures import friction_ramp, identify
         from procedures.friction_ramp import PARAMETERS as FR_PARAMS
-        from procedures.friction_ramp import run_friction_ramp
         from procedures.identify import PARAMETERS as ID_PARAMS
-        from procedures.identify import run_live
 
         toml = tmp / "rig.toml"
         toml.write_text(f"[effects.PSM1]\nstiction = [0.0, 0.0, {STICTION}]\n")
         cfg = config.load(toml)
         t0 = time.perf_counter()
-        r = run_live(cfg, resolve(ID_PARAMS, {}), progress=False)
+        r = identify.run(cfg, resolve(ID_PARAMS, {}), progress=False)
         t_id = time.perf_counter() - t0
         truth = np.array(r["truth"]["sdp_vs_true_relative_error"])
         moving = np.array(r["validation_moving"]["sdp"])
@@ -114,7 +113,7 @@ def main() -> int:
              r['fit_seconds']['selection'] + r['fit_seconds']['fit'] < 10),
         ]
         t0 = time.perf_counter()
-        f = run_friction_ramp(cfg, resolve(FR_PARAMS, {}), progress=False)
+        f = friction_ramp.run(cfg, resolve(FR_PARAMS, {}), progress=False)
         t_fr = time.perf_counter() - t0
         tr = f["truth"]
         e_pos = abs(f["Fs_pos"] - tr["expected_Fs_pos"]) / STICTION

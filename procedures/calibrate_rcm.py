@@ -92,7 +92,7 @@ def truth_errors(world, arm: str, res: dict, fit: PivotFit, q3: float) -> dict:
                         for m, v in res["methods"].items() if isinstance(v, dict)}}
 
 
-def figure_6_2(fits: dict[str, PivotFit], truths: dict[str, np.ndarray | None], path) -> None:
+def figures(fits: dict[str, PivotFit], truths: dict[str, np.ndarray | None], path) -> None:
     """Per-frame RCM estimates R_k b_tip + p_k and the fitted RCM, in mm about the fit."""
     import matplotlib
     matplotlib.use("Agg")
@@ -141,10 +141,15 @@ def table_6_1(arms: dict) -> str:
     return "\n".join(lines)
 
 
+def report(result: dict) -> str:
+    """Table 6.1 of the arms (or the body) calibrated."""
+    return table_6_1(result["arms"])
+
+
 # ----------------------------------------------------------------------------- measuring
 
-def run_calibrate_rcm(cfg, parameters: dict, run_root=None, progress: bool = True,
-                      procedure: str = PROCEDURE) -> dict:
+def run(cfg, parameters: dict, run_root=None, progress: bool = True,
+        procedure: str = PROCEDURE) -> dict:
     """The live procedure as a function (CLI, bench and `rig register` call it)."""
     arms = list(cfg.arms) if parameters["arm"] == "all" else [parameters["arm"]]
     for a in arms:
@@ -175,7 +180,7 @@ def run_calibrate_rcm(cfg, parameters: dict, run_root=None, progress: bool = Tru
                     truths[a] = np.array(res["truth"]["rcm_true"])
                 results[a], fits[a] = res, fit
             with run.step(STEPS[5]):
-                figure_6_2(fits, truths, run.dir / "rcm.png")
+                figures(fits, truths, run.dir / "rcm.png")
                 first = results[arms[0]]
                 result = {"rcm": first["rcm"], "tip_offset": first["tip_offset"], "rms": first["rms"],
                           "arm": arms[0], "frame": "mocap", "arms": results,
@@ -190,7 +195,7 @@ def run_calibrate_rcm(cfg, parameters: dict, run_root=None, progress: bool = Tru
     return run.result
 
 
-def run_from_csv(path: str, body: str, parameters: dict, run_root=None, progress: bool = True) -> dict:
+def run_offline(path: str, body: str, parameters: dict, run_root=None, progress: bool = True) -> dict:
     """Pivot calibration of `body` from a Motive CSV export (no arm moves, no RCM frame)."""
     from drivers.mocap.motive_csv import MotiveCsvError, read_motive_csv
     from drivers.common.quaternion import matrix_to_quat_xyzw
@@ -210,7 +215,7 @@ def run_from_csv(path: str, body: str, parameters: dict, run_root=None, progress
                                   matrix_to_quat_xyzw(R[k]), "mocap")
             fit, allf = pivot_all(R, p, parameters["ransac_threshold"], parameters["method"])
         with run.step(STEPS[5]):
-            figure_6_2({body: fit}, {}, run.dir / "rcm.png")
+            figures({body: fit}, {}, run.dir / "rcm.png")
             res = {**fit.summary(), "methods": allf["table"], "body": body,
                    "frames_occluded": int((~track.valid).sum()), "length_unit": take.length_unit}
             result = {"rcm": res["rcm"], "tip_offset": res["tip_offset"], "rms": res["rms"], "frame": "mocap",
@@ -239,14 +244,14 @@ def command(ctx, parameters, from_csv, body, as_json: bool) -> None:
         raise click.UsageError("--from-csv and --body go together (the file and the tool's rigid body name)")
     try:
         if from_csv:
-            result = run_from_csv(from_csv, body, parameters)
+            result = run_offline(from_csv, body, parameters)
         else:
-            result = run_calibrate_rcm(config_from_context(ctx), parameters)
+            result = run(config_from_context(ctx), parameters)
     except FitError as exc:
         where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
         click.echo(f"rig {PROCEDURE}: refused: {exc}{where}", err=True)
         # a run of the rig that could not be fitted missed its purpose; a take given as a
         # file that cannot carry the fit is the user's input
         sys.exit(EXIT_INPUT if from_csv else EXIT_MISSED)
-    emit_result(result, as_json, table_6_1(result["arms"]) + f"\nrun folder: {result['run_dir']}")
+    emit_result(result, as_json, report(result) + f"\nrun folder: {result['run_dir']}")
     exit_for_status(PROCEDURE, result)

@@ -29,10 +29,10 @@ from procedures import cooperative_figures as figures
 from procedures.cooperative_estimate import estimate_figures as _estimate_figures
 from procedures.cooperative_estimate import stamps as _stamps
 from procedures.cooperative_estimate import tension_source_for
-from procedures.cooperative_live import KEY_STEP_M, KEY_STEP_N, KEY_STEP_RAD, SLEW_M, SLEW_N, SLEW_RAD, _LiveCommands
+from procedures.cooperative_live import KEY_STEP_M, KEY_STEP_N, KEY_STEP_RAD, SLEW_M, SLEW_N, SLEW_RAD, LiveCommands
 from procedures.cooperative_loop import ServoCI, TensionHold, plot_hint
-from procedures.cooperative_report import (_figures, _filter_delays, _force_hold_figures, _loop_timing, _missed,
-                                           _slave_control_text, format_report)
+from procedures.cooperative_report import (filter_delays, force_error_figures, force_hold_figures, loop_timing,
+                                           missed_bound, report, slave_control_text)
 from rig.commands.exit_codes import InputError
 from rig.commands.options import config_from_context
 from rig.commands.parameters import Parameter
@@ -148,11 +148,11 @@ def command(ctx, parameters, move, rotate, arms, master, object_kind, mode, mode
         cfg.object["kind"] = object_kind
         cfg.object["stiffness"] = 2450.0 if object_kind == "spring" else 20000.0
     cfg.object["arms"] = names
-    result = run_cooperative(cfg, names, master, dict(parameters), translation, rotation, mode,
-                             model_path=model_path, seed=seed, dry_run=dry_run, ros_commands=ros_commands,
-                             interactive=interactive, parameter_set=parameters, force_model=force_model,
-                             slave_control=slave_control, tension_source=tension_source)
-    emit_result(result, as_json, report=format_report(result))
+    result = run(cfg, names, master, dict(parameters), translation, rotation, mode,
+                 model_path=model_path, seed=seed, dry_run=dry_run, ros_commands=ros_commands,
+                 interactive=interactive, parameter_set=parameters, force_model=force_model,
+                 slave_control=slave_control, tension_source=tension_source)
+    emit_result(result, as_json, report=report(result))
     exit_for_status("cooperative", result)
 
 
@@ -298,9 +298,9 @@ class Setup:
                                 self.slave_control)
 
 
-def run_cooperative(cfg, names, master, params, translation, rotation, mode, *, model_path=None, seed=None,
-                    dry_run=False, ros_commands=False, interactive=False, parameter_set=None, model=None,
-                    progress=True, force_model=False, slave_control="auto", tension_source="cell"):
+def run(cfg, names, master, params, translation, rotation, mode, *, model_path=None, seed=None,
+        dry_run=False, ros_commands=False, interactive=False, parameter_set=None, model=None,
+        progress=True, force_model=False, slave_control="auto", tension_source="cell"):
     """The procedure; returns the result document. `model` overrides the model file (tests, bench).
 
     slave_control: "arm" (the slaves' impedance in the arm: servo_ci), "effort" (closed
@@ -384,8 +384,8 @@ def _hold(run, rig, setup: Setup, controller, sensors, started, estimate, model_
     `estimate`: the model's tension estimate (issue 47), updated every tick; `sensors` may
     be none when the loop closes on it."""
     clock, names = rig.clock, setup.names
-    live = _LiveCommands(controller, setup.ros_commands, setup.interactive, run.recorder, names, setup.limits,
-                         maximum_force=_parameter("force").maximum, say=run.say)
+    live = LiveCommands(controller, setup.ros_commands, setup.interactive, run.recorder, names, setup.limits,
+                        maximum_force=_parameter("force").maximum, say=run.say)
     n_ticks = int(round(setup.total * clock.rate))
     servo_ci = None
     if setup.slave_control == "arm":
@@ -421,8 +421,8 @@ def _hold(run, rig, setup: Setup, controller, sensors, started, estimate, model_
 def _timing(loop, hold, rate: float, arms: int) -> dict:
     lt_raw = loop.timing()
     done = len(lt_raw["t"])
-    lt = _loop_timing(hold.log["t"][:done], rate, lt_raw["overruns"], lt_raw["skipped"], lt_raw["repeated_js"],
-                      arms, hold.log["loop_us"][:done])
+    lt = loop_timing(hold.log["t"][:done], rate, lt_raw["overruns"], lt_raw["skipped"], lt_raw["repeated_js"],
+                     arms, hold.log["loop_us"][:done])
     lt["arm_clock_jumps"] = int(lt_raw["arm_clock_jumps"])
     lt["arm_clock_jump_ms_max"] = 1e3 * lt_raw["arm_clock_jump_max"]
     ages = lt_raw["sample_age_ms"]
@@ -434,20 +434,20 @@ def _timing(loop, hold, rate: float, arms: int) -> dict:
 def _report(run, setup: Setup, controller, hold, live, timing: dict, model_effects, motion, t_start) -> dict:
     params, names, master, kind = setup.params, setup.names, setup.master, setup.cfg.object["kind"]
     n_ticks = len(hold.log["t"])
-    result = _figures(hold.log, params, names, master, setup.mode, kind, controller,
-                      last_live=None if live.last_applied is None else live.last_applied - t_start)
+    result = force_error_figures(hold.log, params, names, master, setup.mode, kind, controller,
+                                 last_live=None if live.last_applied is None else live.last_applied - t_start)
     result["loop_timing"] = timing
-    result["loop_timing"].update(_force_hold_figures(hold.blind_ticks, n_ticks, hold.blind_longest,
-                                                     hold.max_force_age))
+    result["loop_timing"].update(force_hold_figures(hold.blind_ticks, n_ticks, hold.blind_longest,
+                                                    hold.max_force_age))
     if setup.ros_commands or setup.interactive:
         result["live_commands"] = live.summary(t_start)
-    result["slave_control"] = _slave_control_text(setup.slave_control, setup.mode, hold.loop.clock.rate)
+    result["slave_control"] = slave_control_text(setup.slave_control, setup.mode, hold.loop.clock.rate)
     result["tension_estimate"] = _estimate_figures(hold.log, params, setup.tension_source, bool(hold.loop.sensors),
                                                    hold.estimate)
     result.update({"model": setup.model_note, "models": setup.models, "model_effects": model_effects,
                    "registration": setup.registration_note, "arms": names, "master": master, "mode": setup.mode,
-                   "object": kind, "filter_delay": _filter_delays(controller), "warnings": list(setup.warnings)})
-    missed = _missed(result, params)
+                   "object": kind, "filter_delay": filter_delays(controller), "warnings": list(setup.warnings)})
+    missed = missed_bound(result, params)
     trace = figures.trace_from_log(hold.log, names, master, motion,
                                    f"{run.dir.name} ({'failed: ' + missed if missed else 'completed'})",
                                    tolerance=params.get("tolerance"), ceiling=params.get("tension_ceiling"),

@@ -14,7 +14,7 @@ KEY_STEP_M, KEY_STEP_RAD, KEY_STEP_N = 0.002, 0.05, 0.5      # m, rad, N
 SLEW_M, SLEW_RAD, SLEW_N = 0.01, 0.1, 2.0                    # m/s, rad/s, N/s
 
 
-class _LiveCommands:
+class LiveCommands:
     """Increments from the keyboard and from ROS 2 topics (thesis 6.3 teleop).
 
     /psm/cmd_vel (geometry_msgs/Twist): linear = Cartesian increment of the object in the
@@ -56,7 +56,7 @@ class _LiveCommands:
         if ros:
             self._start_ros()
 
-    def __enter__(self) -> "_LiveCommands":
+    def __enter__(self) -> "LiveCommands":
         return self
 
     def __exit__(self, *exc) -> bool:

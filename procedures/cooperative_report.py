@@ -7,7 +7,7 @@ import numpy as np
 from procedures import cooperative_figures as figures
 
 
-def _slave_control_text(slave_control: str, mode: str, rate: float) -> str:
+def slave_control_text(slave_control: str, mode: str, rate: float) -> str:
     if mode == "position":
         return f"position (slaves on servo_jp at {rate:g} Hz, thesis 7.7.3)"
     if slave_control == "arm":
@@ -16,7 +16,7 @@ def _slave_control_text(slave_control: str, mode: str, rate: float) -> str:
     return f"effort (servo_jf: this loop closed the slaves' impedance at {rate:g} Hz)"
 
 
-def _missed(result: dict, params: dict) -> str | None:
+def missed_bound(result: dict, params: dict) -> str | None:
     """What the run missed of its purpose (None: met). It exists to reach the tension and
     hold it within the tolerance while the object moves."""
     tol, force = params["tolerance"], params["force"]
@@ -30,7 +30,7 @@ def _missed(result: dict, params: dict) -> str | None:
     return None
 
 
-def _figures(log, params, names, master, mode, kind, controller, last_live: float | None = None) -> dict:
+def force_error_figures(log, params, names, master, mode, kind, controller, last_live: float | None = None) -> dict:
     """Force-error figures. Errors are taken against the live set-point (--force plus the
     increments received so far); `last_live` (s since the loop started) is when the last
     live increment was applied: the hold figures (peak-to-peak, limit cycle) start `settle`
@@ -99,15 +99,15 @@ def _timing_line(lt: dict | None) -> str:
                if lt.get("force_hold_per_10k") else ""))
 
 
-def _force_hold_figures(blind_ticks: int, n_ticks: int, longest: float, max_age: float) -> dict:
+def force_hold_figures(blind_ticks: int, n_ticks: int, longest: float, max_age: float) -> dict:
     """Ticks on which the force loop held because the newest tension was older than
     `max_age` (s), per 10 000 ticks, and the oldest tension such a tick found (ms)."""
     return {"force_hold_per_10k": blind_ticks * 1e4 / max(n_ticks, 1),
             "force_hold_longest_ms": 1e3 * longest, "force_max_age_ms": 1e3 * max_age}
 
 
-def _loop_timing(t: np.ndarray, rate: float, overruns: int, skipped: int, repeated_js: int, arms: int,
-                 step_us: np.ndarray | None = None) -> dict:
+def loop_timing(t: np.ndarray, rate: float, overruns: int, skipped: int, repeated_js: int, arms: int,
+                step_us: np.ndarray | None = None) -> dict:
     """The control loop's timing: tick periods (ms; on the simulated rig exactly 1/rate),
     ticks that began late (overruns) or were skipped, per 10 000 ticks, and the share of
     arm reads that found no new measured_js since the tick before (per 10 000 reads)."""
@@ -125,7 +125,7 @@ def _loop_timing(t: np.ndarray, rate: float, overruns: int, skipped: int, repeat
                                           if step_us is not None and len(step_us) else 0.0)}
 
 
-def _filter_delays(controller) -> dict:
+def filter_delays(controller) -> dict:
     jf = controller.joint_filter[controller.master]
     ff = controller.force_filter
     out = {}
@@ -144,7 +144,7 @@ def _model_lines(result: dict) -> list[str]:
     return [f"  model {m.get('note') or m.get('file')}" for m in models.values()]
 
 
-def format_report(result: dict) -> str:
+def report(result: dict) -> str:
     if result.get("status") == "dry-run":
         return "\n".join([f"plan checked for {', '.join(result['arms'])} (master {result['master']}): inside every "
                           "limit; nothing moved"] + _model_lines(result)

@@ -157,7 +157,7 @@ def _save(fig, path_dir: Path, name: str, out: dict) -> None:
     out[name] = str(path_dir / name)
 
 
-#: Units of the workflow's explaining variables (`calibration.discrepancy.detection._variable`), rotary
+#: Units of the workflow's explaining variables (`calibration.discrepancy.detection.detection_variable`), rotary
 #: joints 1-2 and the insertion joint 3.
 _VARIABLE_UNITS = {"q": ("rad", "m"), "dq": ("rad/s", "m/s"), "ddq": ("rad/s^2", "m/s^2"),
                    "u": ("N m", "N"), "travel since reversal ": ("rad", "m")}
@@ -172,7 +172,13 @@ def variable_label(name: str) -> str:
     return f"{name}{what} [{unit}]"
 
 
-def plot_residuals(pairs: list[dict], structured: list[dict], w, path_dir: Path) -> dict:
+def figures(pairs: list[dict], structured: list[dict], w, generalisation: dict, path_dir: Path) -> dict:
+    """The residual PNGs (before and after each effect, and of what nothing explained) and
+    the generalisation bar chart, in `path_dir`; their paths by name."""
+    return _residuals_figures(pairs, structured, w, path_dir) | _generalisation_figure(generalisation, path_dir)
+
+
+def _residuals_figures(pairs: list[dict], structured: list[dict], w, path_dir: Path) -> dict:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -207,9 +213,9 @@ def plot_residuals(pairs: list[dict], structured: list[dict], w, path_dir: Path)
     for d in structured:
         j = d["joint"]
         att = w.attribute(j)
-        from calibration.discrepancy.detection import _variable
+        from calibration.discrepancy.detection import detection_variable
 
-        x = _variable(w, att["variable"])
+        x = detection_variable(w, att["variable"])
         r = w.residual()[:, j - 1]
         ho = w.mov_ho[j - 1]
         fig, ax = plt.subplots(figsize=(7, 4.2))
@@ -272,7 +278,7 @@ def verdict_words(result: dict) -> str:
     return "; ".join(parts)
 
 
-def report_text(result: dict) -> str:
+def report(result: dict) -> str:
     b = result["baseline"]
     lines = [f"rig discrepancy: {verdict_words(result)}",
              f"data: {result['data']['source']}",
@@ -469,8 +475,7 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
                            "summary": {"verdict": result["verdict"], "effects": " ".join(kept) or "none"}})
             if parameters["plots"]:
                 structured = [d for d in result["detection"]["final"] if d["structured"]]
-                result["plots"] = plot_residuals(pairs, structured, w, rn.dir)
-                result["plots"].update(plot_generalisation(gate.doc, rn.dir))
+                result["plots"] = figures(pairs, structured, w, gate.doc, rn.dir)
             rn.finish(result)
     return rn.result
 
@@ -530,7 +535,7 @@ def _heldout_figures(gate, result, workflow_result: dict) -> dict:
     return out | {"rms_written": w.heldout_rms(pred).tolist(), "rel_written": w.heldout_rel(pred).tolist()}
 
 
-def plot_generalisation(doc: dict, path_dir: Path) -> dict:
+def _generalisation_figure(doc: dict, path_dir: Path) -> dict:
     """Bar chart: relative error per joint of the plain and the written model on the other
     motion (or cross-validated), the effects that were not confirmed named."""
     import matplotlib
@@ -577,4 +582,4 @@ def command(run_dir, parameters, as_json: bool) -> None:
             PredictionError) as exc:
         click.echo(f"rig {PROCEDURE}: {exc}", err=True)
         sys.exit(EXIT_INPUT)  # the data or the model named cannot carry the analysis
-    emit_result(result, as_json, report_text(result))
+    emit_result(result, as_json, report(result))

@@ -24,7 +24,8 @@ import time
 import click
 
 from rig.commands.exit_codes import EXIT_ABORTED, EXIT_COMPLETED, EXIT_INPUT
-from rig.commands.options import config_from_context, json_option
+from rig.commands.options import config_from_context
+from rig.commands.procedure import procedure_command
 
 STEPS = ("this machine", "the ROS devices (arms' consoles, mocap, operator)", "the load cell",
          "the results found for this rig")
@@ -38,8 +39,9 @@ def exit_code(checks) -> int:
     return EXIT_ABORTED if EXIT_ABORTED in codes else EXIT_INPUT
 
 
-def diagnose(cfg, timeout: float, say=None) -> list:
-    """Every check of `cfg`'s rig, in order; `say(line)` is called as each line is known."""
+def run(cfg, timeout: float, say=None) -> dict:
+    """Every check of `cfg`'s rig, in order, as the result document ("status", "exit_code",
+    "checks"); `say(line)` is called as each check's line is known. Records no run."""
     from rig.devices import preflight, preflight_loadcell
     from rig.runs import preflight_results
 
@@ -57,36 +59,36 @@ def diagnose(cfg, timeout: float, say=None) -> list:
         add(preflight.ros_devices(cfg, timeout))
     add(preflight_loadcell.loadcell(cfg))
     add(preflight_results.results(cfg))
-    return checks
+    code = exit_code(checks)
+    return {"status": "completed" if code == 0 else "failed", "exit_code": code,
+            "checks": [c.__dict__ for c in checks]}
 
 
-@click.command(name="doctor")
+def report(result: dict, source: str, seconds: float) -> str:
+    """The summary line of a doctor's `result`: `source` the rig.toml, `seconds` its time."""
+    checks = result["checks"]
+    failed = [c for c in checks if c["status"] == "fail"]
+    todo = [c for c in checks if c["status"] == "todo"]
+    return (f"rig doctor: {len(checks) - len(failed) - len(todo)} ok, {len(todo)} to do, {len(failed)} failed "
+            f"({source}, {seconds:.1f} s)")
+
+
+@procedure_command("doctor", STEPS, steps_help="List what is checked and exit.", yes=False)
 @click.option("--timeout", type=click.FloatRange(min=0.5, max=60.0), default=3.0, show_default=True,
               help="Seconds each device is listened for before it is reported silent (the ROS devices share one "
                    "wait; the load cell's board is given 2.5 s more to come out of its reset).")
-@click.option("--steps", "list_steps", is_flag=True, help="List what is checked and exit.")
-@json_option
-@click.pass_context
-def command(ctx, timeout: float, list_steps: bool, as_json: bool) -> None:
+def command(ctx, timeout: float, as_json: bool) -> None:
     """Check this rig from its rig.toml before any procedure: one line per check.
 
     Lines start with ok, todo (a result not made yet, with the command that makes it) or
     fail (what to do). Exit 0 when every device answers as the procedures need, 3 when a
     device does not, 5 when this machine's or rig.toml's set-up is wrong. Nothing moves.
     """
-    if list_steps:
-        click.echo("\n".join(f"{i + 1}. {s}" for i, s in enumerate(STEPS)))
-        return
     cfg = config_from_context(ctx)
     t0 = time.monotonic()
-    checks = diagnose(cfg, timeout, say=None if as_json else click.echo)
-    code = exit_code(checks)
-    failed = [c for c in checks if c.status == "fail"]
-    todo = [c for c in checks if c.status == "todo"]
-    summary = (f"rig doctor: {len(checks) - len(failed) - len(todo)} ok, {len(todo)} to do, {len(failed)} failed "
-               f"({cfg.source}, {time.monotonic() - t0:.1f} s)")
+    result = run(cfg, timeout, say=None if as_json else click.echo)
+    summary = report(result, cfg.source, time.monotonic() - t0)
     if as_json:
-        click.echo(json.dumps({"status": "completed" if code == 0 else "failed", "exit_code": code,
-                               "checks": [c.__dict__ for c in checks]}))
+        click.echo(json.dumps(result))
     click.echo(summary, err=True)
-    ctx.exit(code)
+    ctx.exit(result["exit_code"])

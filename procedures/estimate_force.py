@@ -34,10 +34,9 @@ from pathlib import Path
 import click
 import numpy as np
 
-from rig.commands.abort import exit_on_abort
 from rig.commands.exit_codes import EXIT_INPUT
-from rig.commands.options import json_option
-from rig.commands.parameters import Parameter, with_parameters
+from rig.commands.parameters import Parameter
+from rig.commands.procedure import procedure_command
 from rig.commands.report import emit_result
 from rig.runs.run import Run
 
@@ -128,7 +127,7 @@ def write_csv(path: Path, forces, flag_names) -> None:
                fmt=["%.4f"] + ["%.6g"] * 6 + ["%d"] * len(flag_names))
 
 
-def plot(path: Path, forces, title: str) -> None:
+def figures(path: Path, forces, title: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -153,7 +152,7 @@ def plot(path: Path, forces, title: str) -> None:
     plt.close(fig)
 
 
-def report_text(result: dict) -> str:
+def report(result: dict) -> str:
     def vec(v):
         return "(" + ", ".join(f"{x:+.3f}" for x in v) + ")"
 
@@ -216,30 +215,21 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
             result["files"] = {"csv": str(path)}
             if parameters["plots"]:
                 png = rn.dir / "force.png"
-                plot(png, forces, f"tip force estimate: {source}")
+                figures(png, forces, f"tip force estimate: {source}")
                 result["files"]["png"] = str(png)
             result["summary"] = {"mean_magnitude": round(result["mean_magnitude"], 4)}
             rn.finish(result)
     return rn.result
 
 
-@click.command(name=PROCEDURE)
+@procedure_command(PROCEDURE, STEPS, PARAMETERS, steps_help="List the steps and exit.", yes=False, context=False)
 @click.argument("run_dir", required=False)
-@with_parameters(PARAMETERS)
-@click.option("--steps", "list_steps", is_flag=True, help="List the steps and exit.")
-@json_option
-@exit_on_abort
-def command(run_dir, parameters, list_steps: bool, as_json: bool) -> None:
+def command(run_dir, parameters, as_json: bool) -> None:
     """The force at the tool tip over a recording (RUN or --csv FILE), from the arm's joints,
     efforts and model: momentum observer, J^-T, in the arm's base frame (N). Writes force.csv
     and force.png to the run folder; --json gives mean_force (N, base frame), mean_magnitude
     (N) and the spread (N). Units: SI (m, N, rad, s, Hz).
     """
-    if list_steps:
-        for i, s in enumerate(STEPS, 1):
-            click.echo(f"{i}. {s}")
-        return
-
     def usage(line: str) -> None:
         click.echo(f"rig {PROCEDURE}: {line} (rig {PROCEDURE} --help)", err=True)
         sys.exit(2)
@@ -258,4 +248,4 @@ def command(run_dir, parameters, list_steps: bool, as_json: bool) -> None:
         where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
         click.echo(f"rig {PROCEDURE}: {exc}{where}", err=True)
         sys.exit(EXIT_INPUT)
-    emit_result(result, as_json, report_text(result))
+    emit_result(result, as_json, report(result))

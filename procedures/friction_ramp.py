@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 import click
 import numpy as np
@@ -221,7 +222,17 @@ def constant_velocity_sweeps(run, arm, clock, dyn, q_ref, speeds, p: dict, step)
     return {"passes": passes, "samples": np.array(samples)}
 
 
-def plot_ramps(ramps: dict, path) -> None:
+def figures(ramps: dict, sweeps: dict, fits: dict, run_dir) -> dict:
+    """Figures 5.6 (the force ramps) and 5.5 (friction against velocity) as PNGs in
+    `run_dir`; their paths by figure."""
+    paths = {"figure_5_6": str(Path(run_dir) / "figure_5_6_force_ramp.png"),
+             "figure_5_5": str(Path(run_dir) / "figure_5_5_friction_velocity.png")}
+    _ramps_figure(ramps, paths["figure_5_6"])
+    _friction_figure(sweeps, fits, paths["figure_5_5"])
+    return paths
+
+
+def _ramps_figure(ramps: dict, path) -> None:
     """Figure 5.6 style: applied force beyond compensation vs velocity (and vs time)."""
     import matplotlib
 
@@ -249,7 +260,7 @@ def plot_ramps(ramps: dict, path) -> None:
     plt.close(fig)
 
 
-def plot_friction(sweeps: dict, fits: dict, path) -> None:
+def _friction_figure(sweeps: dict, fits: dict, path) -> None:
     """Figure 5.5 style: friction force vs velocity, pass means and the fits."""
     import matplotlib
 
@@ -281,7 +292,7 @@ def plot_friction(sweeps: dict, fits: dict, path) -> None:
     plt.close(fig)
 
 
-def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = True) -> dict:
+def run(cfg, parameters: dict, run_root=None, progress: bool = True) -> dict:
     """The procedure as a function (CLI, tests and bench). Returns the result."""
     from rig.devices.factory import open_rig
 
@@ -317,12 +328,7 @@ def run_friction_ramp(cfg, parameters: dict, run_root=None, progress: bool = Tru
                 fits = _fits(sweeps, ramps)
                 fs_pos, fs_neg = ramps["pos"]["force"], ramps["neg"]["force"]
             with run.step(STEPS[5]):
-                plots = {}
-                if parameters["plots"]:
-                    plot_ramps(ramps, run.dir / "figure_5_6_force_ramp.png")
-                    plot_friction(sweeps, fits, run.dir / "figure_5_5_friction_velocity.png")
-                    plots = {"figure_5_6": str(run.dir / "figure_5_6_force_ramp.png"),
-                             "figure_5_5": str(run.dir / "figure_5_5_friction_velocity.png")}
+                plots = figures(ramps, sweeps, fits, run.dir) if parameters["plots"] else {}
                 if fs_pos is None or fs_neg is None:
                     missing = "positive" if fs_pos is None else "negative"
                     raise AbortRun(f"joint 3 did not break away in the {missing} direction up to "
@@ -428,7 +434,7 @@ def simulated_truth(world, arm_name: str, dyn, ramps: dict) -> dict:
     return out
 
 
-def report_text(r: dict) -> str:
+def report(r: dict) -> str:
     lines = [f"friction-ramp: {r.get('status', '')}",
              f"joint 3 breakaway beyond the compensation ({r['compensation']['model']}): "
              f"Fs+ = {r['Fs_pos']:+.3f} N, Fs- = {r['Fs_neg']:+.3f} N",
@@ -470,10 +476,10 @@ def command(ctx, parameters, as_json: bool) -> None:
     from rig.model.model_file import ModelFileError
 
     try:
-        result = run_friction_ramp(config_from_context(ctx), parameters)
+        result = run(config_from_context(ctx), parameters)
     except (FrictionFitError, ModelFileError) as exc:
         where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
         click.echo(f"rig {PROCEDURE}: {exc}{where}", err=True)
         sys.exit(1)
-    emit_result(result, as_json, report_text(result))
+    emit_result(result, as_json, report(result))
     exit_for_status(PROCEDURE, result)

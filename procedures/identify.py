@@ -81,8 +81,8 @@ from calibration.identification import (CUTOFF_HZ, DEADBAND, FILTER_ORDER, FitOu
                                         fit_with_effects)
 from calibration.identification_validation import predict, validation_table
 from procedures.identify_options import effects_from, parse_gravity, parse_position_friction, parse_slope
-from procedures.identify_plots import plot_torques, plot_trajectory
-from procedures.identify_report import PUBLISHED_7DOF, _fmt3, missed_purpose, report_text, table_5_1
+from procedures.identify_figures import torques_figure, trajectory_figure
+from procedures.identify_report import PUBLISHED_7DOF, fmt3, missed_purpose, report, table_5_1
 from procedures.identify_trajectories import design_excitation, plant_of, reach_start, stream_trajectory
 from rig.commands.exit_codes import InputError
 from rig.commands.options import config_from_context
@@ -281,7 +281,7 @@ def _torque_plots(run, outcome, train, val, val_source: str) -> dict:
     for name, data, title in (("figure_5_2_training.png", train, "Training trajectory (Figure 5.2 style)"),
                               ("figure_5_3_validation.png", val, f"Validation: {val_source} (Figure 5.3 style)")):
         preds = {m: predict(outcome, data, m) for m in ("ols", "wls", "sdp")}
-        plot_torques(data.t - data.t[0], data.tau, preds, run.dir / name, title)
+        torques_figure(data.t - data.t[0], data.tau, preds, run.dir / name, title)
         plots[name] = str(run.dir / name)
     return plots
 
@@ -380,7 +380,7 @@ def run_offline(parameters: dict, run_root=None, progress: bool = True) -> dict:
     return run.result
 
 
-def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dict:
+def run(cfg, parameters: dict, run_root=None, progress: bool = True) -> dict:
     """`rig identify` on the rig (or the simulated rig). Returns the result."""
     from calibration.datasets import processed
     from calibration.blas_threads import blas_threads
@@ -438,7 +438,7 @@ def run_live(cfg, parameters: dict, run_root=None, progress: bool = True) -> dic
             with run.step(STEPS_LIVE[6]):
                 extra = _live_extra(design, rec_x, rec_v, left_out, arm_name, clock.rate)
                 if parameters["plots"]:
-                    plot_trajectory(rec_x["t"] - rec_x["t"][0], rec_x["q"], rec_x["dq"], run.dir / "figure_5_1_excitation.png",
+                    trajectory_figure(rec_x["t"] - rec_x["t"][0], rec_x["q"], rec_x["dq"], run.dir / "figure_5_1_excitation.png",
                                     f"Excitation trajectory as measured ({parameters['frequency']} Hz, "
                                     f"{parameters['harmonics']} harmonics)")
                 stick, ramp_note = earlier_stick_slip(cfg, arm_name)
@@ -474,7 +474,7 @@ def _design(cfg, arm_name: str, parameters: dict, g_config, limits, st, say) -> 
     margin, vmargin = design["margin"], design["validation_margin"]
     say("margins kept from the limits, measured on the arm's simulated plant at "
         f"{margin.rate:g} Hz ({margin.safety:g} x its tracking, the {margin.stall:g} s stall test, the "
-        f"sensors): position {_fmt3(margin.position)} rad, rad, m; velocity {_fmt3(margin.velocity)} "
+        f"sensors): position {fmt3(margin.position)} rad, rad, m; velocity {fmt3(margin.velocity)} "
         "rad/s, rad/s, m/s")
     st.update(parameters["starts"])
     for tr, m, what in ((traj, margin, "excitation"), (vtraj, vmargin, "validation")):
@@ -582,10 +582,10 @@ def command(ctx, parameters, as_json: bool) -> None:
         if offline:
             result = run_offline(parameters, progress=True)
         else:
-            result = run_live(config_from_context(ctx), parameters)
+            result = run(config_from_context(ctx), parameters)
     except errors as exc:
         where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
         click.echo(f"rig {PROCEDURE}: {exc}{where}", err=True)
         sys.exit(1)
-    emit_result(result, as_json, report_text(result))
+    emit_result(result, as_json, report(result))
     exit_for_status(PROCEDURE, result)

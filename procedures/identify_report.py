@@ -49,11 +49,11 @@ def table_5_1(outcome: FitOutcome, excitation: dict | None) -> dict:
             "note": "residuals are ||tau - W_b beta|| over all samples and joints (mixed N m and N), as Table 5.1"}
 
 
-def _fmt3(v, digits=4) -> str:
+def fmt3(v, digits=4) -> str:
     return " / ".join(f"{x:.{digits}f}" for x in v)
 
 
-def report_text(result: dict) -> str:
+def report(result: dict) -> str:
     lines = [f"identify: {result.get('status', '')}"]
     v = result.get("validation", {})
     rms = result.get("validation_rms", {})
@@ -62,15 +62,15 @@ def report_text(result: dict) -> str:
                      "of the fit; for a motion the model never saw, `rig validate` another recording)")
         lines.append("  method  rel. error j1 / j2 / j3        RMS j1 [N m] / j2 [N m] / j3 [N]")
         for m in ("ols", "wls", "sdp"):
-            lines.append(f"  {m.upper():6s}  {_fmt3(v[m]):28s}  {_fmt3(rms.get(m, [np.nan] * 3))}")
+            lines.append(f"  {m.upper():6s}  {fmt3(v[m]):28s}  {fmt3(rms.get(m, [np.nan] * 3))}")
         mv = result.get("validation_moving", {}).get("sdp")
         if mv:
-            lines.append(f"  SDP on moving samples only (|dq| above the 7.5.1 deadband): {_fmt3(mv)}")
+            lines.append(f"  SDP on moving samples only (|dq| above the 7.5.1 deadband): {fmt3(mv)}")
         mu = result.get("validation_moving_unfiltered", {}).get("sdp")
         if mu and result.get("parallel_filter"):
-            lines.append(f"  the same with the model's efforts not low-passed like the torques: {_fmt3(mu)}")
+            lines.append(f"  the same with the model's efforts not low-passed like the torques: {fmt3(mu)}")
         if result.get("source") == "csv":
-            lines.append(f"  published 7-DOF (SDP, unseen trajectory): {_fmt3(PUBLISHED_7DOF, 3)} "
+            lines.append(f"  published 7-DOF (SDP, unseen trajectory): {fmt3(PUBLISHED_7DOF, 3)} "
                          "(not like for like: other trajectory, other model)")
     g = result.get("gravity")
     if g:
@@ -102,7 +102,7 @@ def report_text(result: dict) -> str:
     if result.get("truth"):
         tr = result["truth"]
         lines.append(f"simulated rig truth: SDP model vs true-parameter torques on the validation data, "
-                     f"rel. error {_fmt3(tr['sdp_vs_true_relative_error'])}")
+                     f"rel. error {fmt3(tr['sdp_vs_true_relative_error'])}")
     if result.get("model"):
         lines.append(f"model file: {result['model']}")
     if result.get("run_dir"):

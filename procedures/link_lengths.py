@@ -150,7 +150,7 @@ def compare_truth(result: dict, truth: dict) -> dict:
 
 # ----------------------------------------------------------------------------- report
 
-def report_table(result: dict) -> str:
+def report(result: dict) -> str:
     nom = result["nominal"]["lengths"]
     truth = result.get("truth", {}).get("lengths")
     lines = ["Table 4.1 quantities (m):",
@@ -174,7 +174,7 @@ def report_table(result: dict) -> str:
     return "\n".join(lines)
 
 
-def plot(result: dict, q1: Capture, q2: Capture, bodies: dict, path) -> None:
+def figures(result: dict, q1: Capture, q2: Capture, bodies: dict, path) -> None:
     """Pitch-plane picture: marker traces of the q2 sweep and the fitted axes, plus the
     fitted-minus-nominal lengths with their uncertainties."""
     import matplotlib
@@ -256,7 +256,7 @@ def missed_bound(result: dict) -> str | None:
             "tracking (occlusion, loose bodies) and sweep again")
 
 
-def run_link_lengths(cfg, parameters: dict, run_root=None, progress: bool = True) -> dict:
+def run(cfg, parameters: dict, run_root=None, progress: bool = True) -> dict:
     """The procedure as a function (the CLI and the bench call it). Returns the result."""
     arm_name = parameters["arm"]
     seed = None if parameters["seed"] < 0 else parameters["seed"]
@@ -305,7 +305,7 @@ def run_link_lengths(cfg, parameters: dict, run_root=None, progress: bool = True
                     result["truth"] = {"lengths": truth["lengths"],
                                        "errors": compare_truth(result, truth)}
             with run.step(STEPS[6]):
-                plot(result, phases[0], phases[1], bodies, run.dir / "link_lengths.png")
+                figures(result, phases[0], phases[1], bodies, run.dir / "link_lengths.png")
                 result.pop("_W2", None)
                 result["plot"] = str(run.dir / "link_lengths.png")
                 result["summary"] = {k: v["value"] for k, v in result["lengths"].items()}
@@ -329,10 +329,10 @@ def command(ctx, parameters, as_json: bool) -> None:
     """
     cfg = config_from_context(ctx)
     try:
-        result = run_link_lengths(cfg, parameters)
+        result = run(cfg, parameters)
     except FitError as exc:
         where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
         click.echo(f"rig {PROCEDURE}: refused: {exc}{where}", err=True)
         sys.exit(1)
-    emit_result(result, as_json, report_table(result) + f"\nrun folder: {result['run_dir']}")
+    emit_result(result, as_json, report(result) + f"\nrun folder: {result['run_dir']}")
     exit_for_status(PROCEDURE, result)

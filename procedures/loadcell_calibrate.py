@@ -128,17 +128,14 @@ def command(ctx, mass1: float, mass2: float, port: str | None, element: int | No
               "seconds": seconds, "rate_hz": rate_hz}
     # Progress and the end line on stderr and result.json with its timings, as every
     # procedure: the run engine (rig.runs.run) writes them. No arm moves, none is claimed.
-    with Run(CALIBRATION_PROCEDURE, parameters=params, config=cfg.snapshot(), steps=list(STEPS)) as run:
-        result = _calibrate(run, cfg, params, element)
-        run.finish(result, result.pop("status"), result.get("error"))
-    result = run.result
+    result = run(cfg, params, element)
     if result["status"] != "completed":
         if as_json:  # the document first, as every procedure's --json
             click.echo(result_json(result, indent=None))
         # it ran and missed its bound, or its readings made no calibration: a failed run
-        click.echo(f"rig {CALIBRATION_PROCEDURE}: failed: {result['error']} (run folder {run.dir})", err=True)
+        click.echo(f"rig {CALIBRATION_PROCEDURE}: failed: {result['error']} (run folder {result['run_dir']})", err=True)
         sys.exit(EXIT_MISSED)
-    emit_result(result, as_json, format_report(result))
+    emit_result(result, as_json, report(result))
 
 
 class _Devices:
@@ -160,9 +157,19 @@ class _Devices:
             self.session.close()
 
 
-def _calibrate(run: Run, cfg, params: dict, element: int | None) -> dict:
+def run(cfg, params: dict, element: int | None) -> dict:
+    """The procedure, recorded by the run engine: its result document, "status"
+    ("completed", or "failed" with "error") and "run_dir" included. A device or operator
+    error aborts the run (AbortRun), recorded; Ctrl-C too."""
+    with Run(CALIBRATION_PROCEDURE, parameters=params, config=cfg.snapshot(), steps=list(STEPS)) as rn:
+        result = _steps(rn, cfg, params, element)
+        rn.finish(result, result.pop("status"), result.get("error"))
+    return rn.result
+
+
+def _steps(run: Run, cfg, params: dict, element: int | None) -> dict:
     """The steps; the result document with its "status" ("completed" or "failed", with
-    "error"). A device or operator error aborts the run (AbortRun), recorded; Ctrl-C too."""
+    "error")."""
     simulated = params["sim"]
     mass1, mass2, seconds, rate_hz = params["mass1_kg"], params["mass2_kg"], params["seconds"], params["rate_hz"]
     result: dict = {"status": "failed", "parameters": params}
@@ -298,7 +305,7 @@ def _result(result: dict, run, dev: _Devices, params: dict, cal, points, tare: f
                            "zero_error_counts": cal.zero_counts - dev.fake.model.offset}
 
 
-def format_report(result: dict) -> str:
+def report(result: dict) -> str:
     """The calibration, its check and the link, one line each (stdout; stderr with --json)."""
     cal, chk, st = result["calibration"], result["check"], result["stats"]
     mass2 = result["parameters"]["mass2_kg"]

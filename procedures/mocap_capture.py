@@ -7,9 +7,10 @@ Tracker, and a Clock), so the same code drives the real rig and the simulated on
 
 * `Capture`: the mocap frames (body poses, labelled markers) and arm joint states of one
   phase of a procedure, as arrays, with the joint positions interpolated to frame times;
-* `move_capture` / `servo_capture`: move an arm (move_jp, or a streamed servo_jp
-  trajectory) while ticking the clock, recording every joint state and mocap frame to the
-  run's MCAP and into a Capture;
+* `move_capture` / `servo_capture` / `settle`: move an arm (move_jp, or a streamed servo_jp
+  trajectory), or hold the arms, on the run engine's control loop, which ticks the clock
+  and records every joint state and mocap frame to the run's MCAP; the loop's step takes
+  them into a Capture;
 * `body_points`: a body's markers (N, P, 3), or, when the tracker gives poses only (ROS
   bridges publish PoseStamped per body), three virtual points rigidly attached to the
   pose, so the thesis's three-marker fits run on either;
@@ -31,8 +32,9 @@ import numpy as np
 
 from calibration.captures import Capture
 from drivers.interfaces import TrackerFrame
-from drivers.common.quaternion import matrix_to_quat_xyzw
 from rig.commands.exit_codes import InputError
+from rig.control.arm_command import ArmCommand, CommandKind
+from rig.runs.control_loop import ControlLoop
 from rig.runs.run import AbortRun
 
 # A move has arrived when the measured joints are this close to the goal and at rest. Looser
@@ -100,40 +102,28 @@ def _marker_index(label: str) -> int:
 
 
 # ------------------------------------------------------------------------------ moving
+# Every motion runs on the run engine's control loop (rig.runs.control_loop): it ticks the
+# clock, reads each arm's newest joint state and drains the tracker's frames into the
+# recording (joint names included, the commands not: a capture records what was measured);
+# the step here takes them into the phase's Collector.
 
-def _record_frames(run, collector: Collector, frames: list[TrackerFrame]) -> None:
-    rec = run.recorder
-    for f in frames:
-        collector.frames.append(f)
-        seen = [(b, pose) for b, pose in f.bodies.items() if pose is not None]
-        if seen:
-            # one batched conversion per frame: per-body calls cost more than the physics
-            quats = matrix_to_quat_xyzw(np.stack([pose.rotation for _, pose in seen]))
-            for (b, pose), q in zip(seen, quats):
-                rec.pose(f"/mocap/{b}/pose", f.t, pose.position, q, "mocap")
-        for m, v in f.markers.items():
-            if v is not None:
-                # one PoseStamped per labelled marker (identity orientation): ROS 2 has no
-                # stamped point in the message set the recorder writes
-                rec.pose(f"/mocap/markers/{m.replace(':', '/')}", f.t, v, (0.0, 0.0, 0.0, 1.0), "mocap")
+def _loop(rig, run, arms: list) -> ControlLoop:
+    return ControlLoop(run, rig.clock, {a.name: a for a in arms}, tracker=rig.tracker,
+                       record_commands=False, joint_names=True)
 
 
-def _tick(rig, run, collector: Collector, arms: list) -> dict[str, np.ndarray]:
-    """One clock period: tick, record each arm's joint state and new mocap frames."""
-    rig.clock.tick()
+def _collect(rig, collector: Collector, tick) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Take one tick's joint states and mocap frames into `collector`; each arm's (q, dq),
+    joints 1-3."""
     q = {}
-    for arm in arms:
-        js = arm.measured_js()
-        run.recorder.joint_state_sample(f"/{arm.name}/measured_js", js)
-        collector.add_js(arm.name, js.t, js.position)
-        q[arm.name] = (np.asarray(js.position, float)[:3], np.asarray(js.velocity, float)[:3])
-    frames = rig.tracker.frames()
-    if frames:
-        now = rig.clock.now()
+    for name, js in tick.js.items():
+        collector.add_js(name, js.t, js.position)
+        q[name] = (np.asarray(js.position, float)[:3], np.asarray(js.velocity, float)[:3])
+    if tick.frames:
         lag = _TrackerLag.of(rig.tracker)
-        lag.smallest = min(lag.smallest, now - frames[-1].t)
-        lag.newest = max(lag.newest, frames[-1].t)
-    _record_frames(run, collector, frames)
+        lag.smallest = min(lag.smallest, rig.clock.now() - tick.frames[-1].t)
+        lag.newest = max(lag.newest, tick.frames[-1].t)
+    collector.frames.extend(tick.frames)
     return q
 
 
@@ -169,8 +159,16 @@ def _catch_up(rig, run, collector: Collector, arms: list) -> None:
     if not math.isfinite(lag.smallest):
         return
     deadline = t_end + CATCH_UP_S
-    while lag.newest + lag.smallest < t_end and rig.clock.now() < deadline:
-        _tick(rig, run, collector, arms)
+
+    def behind() -> bool:
+        return lag.newest + lag.smallest < t_end and rig.clock.now() < deadline
+
+    def step(tick):
+        _collect(rig, collector, tick)
+        return {} if behind() else None
+
+    if behind():
+        _loop(rig, run, arms).run(step)
 
 
 def move_capture(rig, run, arm, goals: list[np.ndarray], collector: Collector,
@@ -186,14 +184,18 @@ def move_capture(rig, run, arm, goals: list[np.ndarray], collector: Collector,
         goal = np.asarray(goal, float)
         arm.move_jp(goal, wait=False)
         t_end = rig.clock.now() + timeout
-        while True:
-            q, dq = _tick(rig, run, collector, arms)[arm.name]
+
+        def arrive(tick):
+            q, dq = _collect(rig, collector, tick)[arm.name]
             if np.all(np.abs(q - goal) <= ARRIVED) and np.all(np.abs(dq) <= AT_REST):
-                break
+                return None
             if rig.clock.now() > t_end:
                 err = q - goal
                 raise AbortRun(f"{arm.name} did not reach {np.round(goal, 4).tolist()} within "
                                f"{timeout:.0f} s (error {np.round(err, 4).tolist()} rad, rad, m)")
+            return {}
+
+        _loop(rig, run, arms).run(arrive)
         if i == len(goals) - 1:
             _catch_up(rig, run, collector, arms)
         if step is not None:
@@ -205,25 +207,43 @@ def servo_capture(rig, run, arm, trajectory: Callable[[float], np.ndarray], dura
     """Stream servo_jp(trajectory(s)) for s in [0, duration] s of clock time, recording.
 
     trajectory: s -> (3,) joints; it must start where the arm is and respect the limits.
+    Each period sends the trajectory at the period's start, then the clock ticks.
     """
     t0 = rig.clock.now()
     n = int(round(duration * rig.clock.rate))
+    if n <= 0:
+        return
     shown = 0
-    for k in range(n):
-        s = rig.clock.now() - t0
-        arm.servo_jp(trajectory(s))
-        _tick(rig, run, collector, [arm])
+
+    def command() -> dict:
+        return {arm.name: ArmCommand(CommandKind.POSITION, q=trajectory(rig.clock.now() - t0))}
+
+    def stream(tick):
+        nonlocal shown
+        _collect(rig, collector, tick)
         if step is not None and step.total:
-            done = int(step.total * (k + 1) / n)
+            done = int(step.total * (tick.k + 1) / n)
             if done > shown:
                 step.advance(done - shown)
                 shown = done
+        # the next period's set-point, sent now (the last period's set-point was its last)
+        return command() if tick.k + 1 < n else {}
+
+    loop = _loop(rig, run, [arm])
+    loop.send(command(), t0)
+    loop.run(stream, ticks=n)
 
 
 def settle(rig, run, collector: Collector, arms: list, duration: float) -> None:
     """Tick for `duration` s recording (arms holding where they are)."""
-    for _ in range(int(round(duration * rig.clock.rate))):
-        _tick(rig, run, collector, arms)
+    n = int(round(duration * rig.clock.rate))
+
+    def hold(tick):
+        _collect(rig, collector, tick)
+        return {}
+
+    if n > 0:
+        _loop(rig, run, arms).run(hold, ticks=n)
 
 
 # ------------------------------------------------------------------------------ people

@@ -144,7 +144,7 @@ def rcm_frames_from_calibration(cfg, dev, run, arms: list[str], parameters: dict
     return frames, "measured in this run"
 
 
-def run_register(cfg, parameters: dict, run_root=None, progress: bool = True) -> dict:
+def run(cfg, parameters: dict, run_root=None, progress: bool = True) -> dict:
     arms = list(cfg.arms)
     if len(arms) < 2:
         raise InputError(f"{cfg.source}: registration needs at least two arms, got {arms}")
@@ -237,7 +237,7 @@ def command(ctx, parameters, as_json: bool) -> None:
     Transforms are 4x4 (m); the reference is the first arm of the configuration.
     """
     try:
-        result = run_register(config_from_context(ctx), parameters)
+        result = run(config_from_context(ctx), parameters)
     except FitError as exc:
         where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
         click.echo(f"rig {PROCEDURE}: refused: {exc}{where}", err=True)

@@ -94,7 +94,7 @@ def tip_jacobian_world(world, name: str, q: np.ndarray) -> np.ndarray:
     return world.arms[name].rcm_world[:3, :3] @ K.tip_jacobian_rcm(q)
 
 
-def run_selftest(cfg, duration: float, seed: int | None = None) -> dict:
+def run(cfg, duration: float, seed: int | None = None) -> dict:
     """Run the self-test on the simulated arms of `cfg`; the result with its checks."""
     from rig.model import psm_kinematics as K
     from rig.sim.world import world_from_config
@@ -303,9 +303,9 @@ def explain_tension(result: dict) -> list[str]:
     return lines
 
 
-def format_report(result: dict, duration: float) -> str:
+def report(result: dict) -> str:
     lines = [f"simulated rig ({result['config']}): each tool tip hangs {PRE_LIFT:g} s, then lifts "
-             f"{LIFT[2] * 1000:g} mm; {duration:g} s simulated after the lift"]
+             f"{LIFT[2] * 1000:g} mm; {result['simulated_time']:g} s simulated after the lift"]
     rows = [("check", "result", "measured", "bound")]
     rows += [(c["name"], "pass" if c["passed"] else "FAIL", c["shown"], c["bound_text"]) for c in result["checks"]]
     widths = [max(len(r[i]) for r in rows) for i in range(3)]
@@ -351,8 +351,8 @@ def command(ctx: click.Context, duration: float, seed: int | None, as_json: bool
     from rig.commands.options import config_from_context
 
     cfg = config_from_context(ctx)
-    result = run_selftest(cfg, duration, seed)
-    click.echo(format_report(result, duration), err=as_json)
+    result = run(cfg, duration, seed)
+    click.echo(report(result), err=as_json)
     if as_json:
         click.echo(result_json(result, indent=None))
     if result["status"] == "failed":

@@ -124,7 +124,7 @@ def _figures(prediction, block: str) -> dict:
             "blocks": blocks}
 
 
-def plot_efforts(predictions: list, labels: list[str], path: Path) -> None:
+def figures(predictions: list, labels: list[str], path: Path) -> None:
     """Measured against predicted effort per joint on the moving samples (stuck samples
     left as gaps), the held-out block shaded."""
     import matplotlib
@@ -163,7 +163,7 @@ def _fmt(values, digits: int = 4) -> str:
     return " / ".join("-" if v is None or not np.isfinite(v) else f"{v:.{digits}f}" for v in values)
 
 
-def report_text(result: dict) -> str:
+def report(result: dict) -> str:
     data = result["data"]
     lines = [f"rig validate: {data['source']} ({data['samples']} samples at {data['rate_hz']:g} Hz)"]
     models = [("A", result["model"])] + ([("B", result["compare"]["model"])] if "compare" in result else [])
@@ -251,7 +251,7 @@ def run(parameters: dict, run_dir: str | None = None, run_root=None, progress: b
                 path = rn.dir / "efforts.png"
                 labels = ["A " + Path(models[0].path).parent.name] + (
                     ["B " + Path(models[1].path).parent.name] if len(models) > 1 else [])
-                plot_efforts(predictions, labels, path)
+                figures(predictions, labels, path)
                 result["plots"] = {"efforts.png": str(path)}
             rn.finish(result)
     return rn.result
@@ -290,4 +290,4 @@ def command(run_dir, parameters, as_json: bool) -> None:
         where = f" (run folder {exc.run_dir})" if getattr(exc, "run_dir", None) else ""
         click.echo(f"rig {PROCEDURE}: {text}{where}", err=True)
         sys.exit(EXIT_INPUT)  # the recording or the model named cannot be used
-    emit_result(result, as_json, report_text(result))
+    emit_result(result, as_json, report(result))

@@ -33,7 +33,7 @@ STATUSES = ("completed", "failed", "aborted", "dry-run", "running", "interrupted
 
 # The figures each procedure's summary leads with in the list (the others follow in their
 # order), with the units the procedure computes them in (the summaries carry bare numbers):
-# cooperative's force errors in N and times in s (procedures/cooperative_report.py, _figures),
+# cooperative's force errors in N and times in s (procedures/cooperative_report.py, force_error_figures),
 # friction-ramp's breakaway forces of the prismatic joint 3 in N, identify's relative
 # validation errors (no units), discrepancy's verdict and the effects it added.
 KEY_FIGURES: dict[str, tuple[tuple[str, str], ...]] = {

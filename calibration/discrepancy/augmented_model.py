@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibration.discrepancy.detection import _variable
+from calibration.discrepancy.detection import detection_variable
 from calibration.discrepancy.refinement import Added
 from calibration.effects import CATALOGUE, friction_profile
 
@@ -127,7 +127,7 @@ class AugmentedModel:
         for a in self.added:
             j = a.joint - 1
             var = a.evidence["attribution"]["variable"]
-            x = _variable(self, var)
+            x = detection_variable(self, var)
             ho = self.mov_ho[j]
             pair = {"effect": a.effect, "joint": a.joint, "variable": var, "x": x[ho],
                     "before": (self.y - self.baseline_pred).reshape(-1, 3)[ho, j],

@@ -11,7 +11,7 @@ from calibration.discrepancy.residual_tests import binned_r2, heldout_r2, ljung_
 TRAVEL_SCALES = (0.005, 0.02)
 
 
-def _variable(w, name: str) -> np.ndarray:
+def detection_variable(w, name: str) -> np.ndarray:
     """The detection variable `name` (q1, dq2, travel3, ...) of ``w``: the `Discrepancy`."""
     p = w.p
     j = int(name[-1]) - 1

@@ -1,7 +1,7 @@
 """The control loop a procedure runs on the run engine: tick, read, step, check, send, time.
 
     loop = ControlLoop(run, rig.clock, {n: rig.arms[n] for n in names}, limits=limits,
-                       sensors=cells)
+                       sensors=cells)             # tracker=: a mocap Tracker drained too
     loop.prime()                                   # what the cells hold already, recorded
     loop.run(step, ticks=n, progress=st)           # step(tick) -> {arm: ArmCommand} or None
 
@@ -10,14 +10,17 @@ Each tick the loop
 1. ticks the rig clock (rig.devices.clock: the physics step, the wall clock's next period,
    or the world's /clock in lockstep) and reads its time;
 2. reads every arm (its newest measured_js, or every sample since the last tick with
-   `read="drain"`) and drains every force sensor, recording all of it;
+   `read="drain"`), drains every force sensor and the mocap tracker's frames, recording
+   all of it (a body occluded in a frame, or a marker lost, is not recorded in it; the
+   step still sees the frame, the body None);
 3. calls the procedure's step with a `Tick`: it computes the commands (timed with
    `tick.timed()`, or the whole step) and may set `tick.tension` and `tick.tips` for the
    limit checks; returning None ends the loop after this tick;
 4. checks the limits (rig.runs.safety: the tension ceiling, each arm's joints, velocities,
    efforts and workspace; a breach raises AbortRun, and the run engine holds the arms);
 5. sends each command (servo_jp, servo_jf, or servo_ci through the procedure's
-   `impedance` sender) and records it;
+   `impedance` sender) and records it (servo_jp and servo_jf unless `record_commands` is
+   off: the mocap captures record what was measured only);
 6. keeps the loop's timing: tick times, step compute times, the clock's overruns and
    skipped periods, ticks that found an arm's sample not renewed, jumps of the arms'
    clock and the age of their samples (`timing()`).
@@ -32,6 +35,8 @@ from typing import Callable, Iterator, Protocol
 
 import numpy as np
 
+from drivers.common.quaternion import matrix_to_quat_xyzw
+from drivers.interfaces import Tracker, TrackerFrame
 from rig.control.arm_command import ArmCommand, CommandKind
 
 
@@ -44,6 +49,32 @@ def force_topic(k: int) -> str:
     return "/loadcell/force" if k == 0 else f"/loadcell{k}/force"
 
 
+def body_topic(body: str) -> str:
+    """The recording's topic of a mocap rigid body's pose."""
+    return f"/mocap/{body}/pose"
+
+
+def marker_topic(label: str) -> str:
+    """The recording's topic of a labelled mocap marker ("body:Marker1"), a PoseStamped with
+    the identity orientation: ROS 2 has no stamped point in the message set recorded."""
+    return f"/mocap/markers/{label.replace(':', '/')}"
+
+
+def record_frames(recorder, frames: list[TrackerFrame]) -> None:
+    """Record mocap frames (drivers.interfaces.TrackerFrame): each seen body's pose and each
+    seen marker, at the frame's time; an occluded body or a lost marker (None) is skipped."""
+    for f in frames:
+        seen = [(b, pose) for b, pose in f.bodies.items() if pose is not None]
+        if seen:
+            # one batched conversion per frame: per-body calls cost more than the physics
+            quats = matrix_to_quat_xyzw(np.stack([pose.rotation for _, pose in seen]))
+            for (b, pose), q in zip(seen, quats):
+                recorder.pose(body_topic(b), f.t, pose.position, q, "mocap")
+        for m, v in f.markers.items():
+            if v is not None:
+                recorder.pose(marker_topic(m), f.t, v, (0.0, 0.0, 0.0, 1.0), "mocap")
+
+
 @dataclass
 class Tick:
     """One period of the loop, as the step sees it (times in s on the rig clock)."""
@@ -53,6 +84,7 @@ class Tick:
     js: dict                                   # arm -> its newest JointState
     joint_samples: dict                        # arm -> every JointState since the last tick (read="drain")
     forces: list                               # per sensor, its new ForceSamples, oldest first
+    frames: list = field(default_factory=list)  # the tracker's new TrackerFrames, oldest first
     tension: float | None = None               # N: set by the step, checked against the ceiling
     tips: dict = field(default_factory=dict)   # arm -> tool tip in the world (m): set by the step
     compute_s: float | None = None
@@ -100,11 +132,13 @@ class ArmClockWatch:
 
 
 class ControlLoop:
-    """A procedure's loop over `arms` (name -> Arm) and `sensors` (ForceSensors, the object's
-    elements in order) on `clock`, recorded by `run`; see the module docstring."""
+    """A procedure's loop over `arms` (name -> Arm), `sensors` (ForceSensors, the object's
+    elements in order) and `tracker` (a mocap Tracker) on `clock`, recorded by `run`; see
+    the module docstring. `joint_names`: record each joint state's joint names too."""
 
-    def __init__(self, run, clock, arms: dict, *, limits=None, sensors=(), read: str = "newest",
-                 impedance: ImpedanceSender | None = None, loop_time_topic: str | None = None):
+    def __init__(self, run, clock, arms: dict, *, limits=None, sensors=(), tracker: Tracker | None = None,
+                 read: str = "newest", impedance: ImpedanceSender | None = None,
+                 loop_time_topic: str | None = None, record_commands: bool = True, joint_names: bool = False):
         if read not in ("newest", "drain"):
             raise ValueError(f"read must be 'newest' or 'drain', got {read!r}")
         self.run_ = run
@@ -112,7 +146,10 @@ class ControlLoop:
         self.arms = dict(arms)
         self.limits = limits
         self.sensors = list(sensors)
+        self.tracker = tracker
         self.read = read
+        self.record_commands = record_commands
+        self.joint_names = joint_names
         self.impedance = impedance
         self.loop_time_topic = loop_time_topic
         self.watch = ArmClockWatch(list(self.arms))
@@ -146,8 +183,14 @@ class ControlLoop:
             out.append(new)
         return out
 
+    def _drain_tracker(self) -> list[TrackerFrame]:
+        if self.tracker is None:
+            return []
+        frames = self.tracker.frames()
+        record_frames(self.recorder, frames)
+        return frames
+
     def _read_arms(self, t: float) -> tuple[dict, dict]:
-        rec = self.recorder
         js, drained = {}, {}
         for n, arm in self.arms.items():
             if self.read == "drain":
@@ -156,21 +199,26 @@ class ControlLoop:
                 # step's to judge, not a fault of the read)
                 drained[n] = arm.drain_js()
                 for s in drained[n]:
-                    rec.joint_state(f"/{n}/measured_js", s.t, s.position, s.velocity, s.effort)
+                    self._record_js(n, s)
                 if drained[n]:
                     self._newest[n] = drained[n][-1]
                 if n in self._newest:
                     js[n] = self._newest[n]
             else:
                 js[n] = arm.measured_js()
-                rec.joint_state(f"/{n}/measured_js", js[n].t, js[n].position, js[n].velocity, js[n].effort)
+                self._record_js(n, js[n])
         if len(js) == len(self.arms):
             self.watch.see(t, js)
         return js, drained
 
+    def _record_js(self, arm: str, s) -> None:
+        self.recorder.joint_state(f"/{arm}/measured_js", s.t, s.position, s.velocity, s.effort,
+                                  s.name if self.joint_names else ())
+
     def send(self, commands: dict, t: float) -> None:
-        """Send each arm's command (checking a commanded effort against the limits first) and record it."""
-        rec = self.recorder
+        """Send each arm's command (checking a commanded effort against the limits first) and
+        record it (`record_commands`)."""
+        rec = self.recorder if self.record_commands else None
         for n, cmd in commands.items():
             arm = self.arms[n]
             if cmd.kind == CommandKind.POSITION:
@@ -178,16 +226,18 @@ class ControlLoop:
                     arm.servo_jp(cmd.q)
                 else:
                     arm.servo_jp(cmd.q, cmd.dq)
-                rec.joint_state(f"/{n}/servo_jp", t, cmd.q, () if cmd.dq is None else cmd.dq, ())
+                if rec is not None:
+                    rec.joint_state(f"/{n}/servo_jp", t, cmd.q, () if cmd.dq is None else cmd.dq, ())
             elif cmd.kind == CommandKind.IMPEDANCE:
                 if self.limits is not None:
                     self.limits.check_effort(n, cmd.feedforward)
-                self.impedance.send(n, cmd, t, rec)
+                self.impedance.send(n, cmd, t, self.recorder)  # it records what it sends
             else:
                 if self.limits is not None:
                     self.limits.check_effort(n, cmd.effort)
                 arm.servo_jf(cmd.effort)
-                rec.joint_state(f"/{n}/servo_jf", t, (), (), cmd.effort)
+                if rec is not None:
+                    rec.joint_state(f"/{n}/servo_jf", t, (), (), cmd.effort)
 
     def _check(self, tick: Tick, commands: dict) -> None:
         """The limits of this tick, arm by arm just before its command goes out."""
@@ -213,7 +263,7 @@ class ControlLoop:
                 self.clock.tick()
             t = self.clock.now()
             js, drained = self._read_arms(t)
-            tick = Tick(k, t, js, drained, self._drain_sensors())
+            tick = Tick(k, t, js, drained, self._drain_sensors(), self._drain_tracker())
             c0 = time.perf_counter()
             commands = step(tick)
             compute = tick.compute_s if tick.compute_s is not None else time.perf_counter() - c0

@@ -76,8 +76,8 @@ def _api_run(monkeypatch, patch):
     params = {"force": 5.0, "duration": 2.0, "settle": 1.0, "hold_after": 0.5, "deadband": 0.4,
               "tension_ceiling": 15.0}
     patch(monkeypatch)
-    return coop.run_cooperative(cfg, ["PSM1", "PSM2"], "PSM2", params, np.array([0.02, 0, 0]), np.zeros(3),
-                                "impedance", progress=False)
+    return coop.run(cfg, ["PSM1", "PSM2"], "PSM2", params, np.array([0.02, 0, 0]), np.zeros(3),
+                    "impedance", progress=False)
 
 
 def test_effort_ceiling_aborts_and_every_moved_arm_holds(monkeypatch):
@@ -184,8 +184,8 @@ def _api_run_serial_timeout(monkeypatch, patch):
     params = {"force": 5.0, "duration": 2.0, "settle": 1.0, "hold_after": 0.5, "deadband": 0.4,
               "tension_ceiling": 15.0, "tolerance": 2.0}
     patch(monkeypatch)
-    return coop.run_cooperative(cfg, ["PSM1", "PSM2"], "PSM2", params, np.array([0.02, 0, 0]), np.zeros(3),
-                                "impedance", progress=False)
+    return coop.run(cfg, ["PSM1", "PSM2"], "PSM2", params, np.array([0.02, 0, 0]), np.zeros(3),
+                    "impedance", progress=False)
 
 
 def test_force_loop_holds_while_samples_do_not_reach_it(monkeypatch):
@@ -211,7 +211,7 @@ def test_a_short_hold_up_while_moving_costs_the_triangle_little_tracking(monkeyp
     cfg.rig["rate"] = 250.0
     cfg.loadcell["stale_timeout"] = 0.5
     _held_up_reader(monkeypatch, 3 * 1125, 3 * 10)  # three cells, one call each per tick
-    result = coop.run_cooperative(cfg, ["PSM1", "PSM2", "PSM3"], "PSM3", dict(
+    result = coop.run(cfg, ["PSM1", "PSM2", "PSM3"], "PSM3", dict(
         force=5.0, duration=5.0, settle=2.0, hold_after=0.5, deadband=0.4, tension_ceiling=15.0, tolerance=0.5),
         np.array([0.05, 0, 0]), np.zeros(3), "impedance", progress=False)
     assert 38 <= result["loop_timing"]["force_hold_longest_ms"] <= 48, result["loop_timing"]
@@ -468,9 +468,9 @@ def test_a_run_that_misses_its_tolerance_ends_failed_not_completed():
 
 
 def test_a_tension_that_never_settles_is_missed():
-    from procedures.cooperative_report import _missed
+    from procedures.cooperative_report import missed_bound
 
     params = {"tolerance": 0.5, "force": 5.0, "settle": 2.0, "duration": 5.0, "hold_after": 2.0}
     # the string that was never tensioned: max error 5.07 N, settling 9.00 s of 9.00 s
-    assert "never settled" in _missed({"settling_time": 9.0, "max_error_during_motion": 5.073}, params)
-    assert _missed({"settling_time": 1.1, "max_error_during_motion": 0.12}, params) is None
+    assert "never settled" in missed_bound({"settling_time": 9.0, "max_error_during_motion": 5.073}, params)
+    assert missed_bound({"settling_time": 1.1, "max_error_during_motion": 0.12}, params) is None

@@ -12,11 +12,11 @@ STICTION = 1.0  # N, the simulated breakaway level of joint 3
 
 
 def _run(tmp_path, extra_toml="", values=None):
-    from procedures.friction_ramp import PARAMETERS, run_friction_ramp
+    from procedures import friction_ramp
 
     (tmp_path / "rig.toml").write_text(f"[effects.PSM1]\nstiction = [0.0, 0.0, {STICTION}]\n{extra_toml}")
     cfg = config.load(tmp_path / "rig.toml")
-    return run_friction_ramp(cfg, resolve(PARAMETERS, values or {}), progress=False)
+    return friction_ramp.run(cfg, resolve(friction_ramp.PARAMETERS, values or {}), progress=False)
 
 
 def _expected(world_params, effects_offset, comp_dyn, q3):
@@ -240,7 +240,7 @@ def test_a_stribeck_fit_that_did_not_converge_is_reported_in_plain_words_and_not
     Stribeck curve is said so without a shouted 'NOT resolved' on a completed run, and the
     model file compensates with the viscous + Coulomb fit, not the unconverged curve."""
     import calibration.friction_fit as ff
-    from procedures.friction_ramp import report_text
+    from procedures.friction_ramp import report
     from rig.model.model_file import load_model
 
     real = ff.fit_stribeck
@@ -254,7 +254,7 @@ def test_a_stribeck_fit_that_did_not_converge_is_reported_in_plain_words_and_not
     assert "stribeck" not in r["stick_slip"]["fits"] and "viscous_coulomb" in r["stick_slip"]["fits"]
     st = load_model(r["model"]).stick_slip()
     assert "stribeck" not in st.fits
-    text = report_text(r)
+    text = report(r)
     assert "NOT resolved" not in text and "Stribeck curve: not determined by the swept speeds" in text, text
     # where the model went: its own file, and what it holds
     assert f"model file written: {r['model']} (friction terms only" in text, text

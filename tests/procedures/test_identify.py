@@ -229,26 +229,27 @@ STICTION_RIG = "[effects.PSM1]\nstiction = [0.0, 0.0, 1.0]\n"
 
 
 def _live(tmp_path, values):
-    from procedures.identify import PARAMETERS, run_live
+    from procedures import identify
 
     (tmp_path / "rig.toml").write_text(STICTION_RIG)
     cfg = config.load(tmp_path / "rig.toml")
     assert cfg.arms["PSM1"]["sensor_noise"] is True
-    return run_live(cfg, resolve(PARAMETERS, values), progress=False)
+    return identify.run(cfg, resolve(identify.PARAMETERS, values), progress=False)
 
 
 def test_live_simulated_short(tmp_path):
     """A 10 s excitation on the simulated rig with sensor noise and joint-3 stiction:
     the SDP model must predict the true parameters' torques within 5 % per joint, and the
     measured ones where the joints move."""
-    from procedures.friction_ramp import PARAMETERS as RAMP, run_friction_ramp
+    from procedures import friction_ramp
     from rig.runs.model_results import latest_model
     from rig.model.psm_dynamics import PSMDynamics
 
     # friction-ramp first, then identify: the identified model file carries the ramp's
     # stick-slip terms (either order gives the same model)
     (tmp_path / "rig.toml").write_text(STICTION_RIG)
-    ramp = run_friction_ramp(config.load(tmp_path / "rig.toml"), resolve(RAMP, {"plots": False}), progress=False)
+    ramp = friction_ramp.run(config.load(tmp_path / "rig.toml"), resolve(friction_ramp.PARAMETERS, {"plots": False}),
+                             progress=False)
     assert ramp["status"] == "completed" and ramp["provenance"]["arms"][0]["name"] == "PSM1"
     r = _live(tmp_path, {"duration": 10.0, "starts": 1, "iterations": 5, "plots": False})
     assert r["status"] == "completed"

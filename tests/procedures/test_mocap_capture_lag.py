@@ -11,6 +11,8 @@ DT = 0.01
 
 
 class _Clock:
+    overruns = skipped = 0   # the rig clock's counters (rig.devices.clock.Clock)
+
     def __init__(self):
         self.t = 100.0
 

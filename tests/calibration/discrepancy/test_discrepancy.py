@@ -416,8 +416,8 @@ def test_outside_catalogue_is_not_named(workflow):
     assert 1 in closest and closest[1] is not None
     c = closest[1]
     assert c["delta_bic"] <= c["delta_bic_needed"] or c["heldout_variance_removed"] < c["heldout_gain_needed"]
-    from procedures.discrepancy import report_text
-    text = report_text(res | {"data": {"source": "sim"}, "baseline_kind": "thesis model", "model": "m.json"})
+    from procedures.discrepancy import report
+    text = report(res | {"data": {"source": "sim"}, "baseline_kind": "thesis model", "model": "m.json"})
     assert f"joint 1: closest catalogue effect {c['effect']}, not added" in text
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from drivers.interfaces import ForceSample, JointState
 from rig.control.arm_command import ArmCommand, CommandKind
-from rig.runs.control_loop import ControlLoop, force_topic
+from rig.runs.control_loop import ControlLoop, body_topic, force_topic, marker_topic
 from rig.runs.recording import read_recording
 from rig.runs.run import AbortRun, Run
 from rig.runs.safety import SafetyLimits
@@ -149,3 +149,77 @@ def test_the_arms_clock_is_watched_for_repeats_and_jumps(logs):
     assert timing["arm_clock_jump_max"] == pytest.approx(0.06)
     # ages on the loop's clock: a console clock that jumped ahead reads as samples from the future
     assert timing["sample_age_ms"] == pytest.approx([0.0, 10.0, -50.0, -50.0], abs=1e-9)
+
+
+class Tracker:
+    """Mocap frames by tick: the tool body turning about z and its three markers; on tick 2
+    the body is occluded and Marker2 lost, tick 3 delivers nothing (a stale stream), tick 4
+    a burst of two frames."""
+
+    bodies = ("tool",)
+
+    def __init__(self, clock):
+        self.clock, self.given = clock, []
+
+    def _frame(self, t):
+        from scipy.spatial.transform import Rotation
+
+        from drivers.interfaces import Pose, TrackerFrame
+
+        p = np.array([0.1, 0.2, 0.3 + t])
+        R = Rotation.from_euler("z", 10.0 * t).as_matrix()
+        markers = {f"tool:Marker{i}": p + 0.01 * i for i in (1, 2, 3)}
+        if self.clock.k == 2:
+            return TrackerFrame(t, {"tool": None}, markers | {"tool:Marker2": None})
+        return TrackerFrame(t, {"tool": Pose(t, p, R)}, markers)
+
+    def frames(self):
+        t = self.clock.now()
+        out = {3: [], 4: [self._frame(t - 0.005), self._frame(t)]}.get(self.clock.k, [self._frame(t)])
+        self.given.append(out)
+        return out
+
+
+def test_the_tracker_is_drained_into_the_recording_frame_by_frame(logs):
+    from scipy.spatial.transform import Rotation
+
+    clock = Clock()
+    arm = Arm("PSM1", clock)
+    tracker = Tracker(clock)
+    seen = []
+    with Run("loop", stream=io.StringIO()) as run:
+        loop = ControlLoop(run, clock, {"PSM1": arm}, tracker=tracker)
+        loop.run(lambda tick: seen.append(tick.frames) or {}, ticks=5)
+    # the step sees exactly what the tracker gave, tick by tick (none on the stale tick)
+    assert len(seen) == 5 and all(s is g for s, g in zip(seen, tracker.given))
+    assert [len(s) for s in seen] == [1, 1, 0, 2, 1]
+    assert seen[1][0].bodies["tool"] is None                 # occluded: the step sees None
+    frames = [f for s in seen for f in s]
+    rec = read_recording(run.dir / "run.mcap")
+    poses = rec.messages[body_topic("tool")]
+    shown = [f for f in frames if f.bodies["tool"] is not None]
+    assert len(poses) == len(shown) == 4                      # the occluded frame is not recorded
+    for (t_ns, msg), f in zip(poses, shown):
+        assert t_ns == round(f.t * 1e9)
+        p, o = msg.pose.position, msg.pose.orientation
+        assert [p.x, p.y, p.z] == pytest.approx(f.bodies["tool"].position, abs=1e-12)
+        q = Rotation.from_matrix(f.bodies["tool"].rotation).as_quat()
+        assert abs(np.dot([o.x, o.y, o.z, o.w], q)) == pytest.approx(1.0, abs=1e-12)
+        assert msg.header.frame_id == "mocap"
+    m2 = rec.messages[marker_topic("tool:Marker2")]
+    assert len(m2) == 4 and len(rec.messages[marker_topic("tool:Marker1")]) == 5
+    assert [m.pose.position.z for _, m in m2] == pytest.approx(
+        [f.markers["tool:Marker2"][2] for f in frames if f.markers["tool:Marker2"] is not None])
+
+
+def test_joint_names_and_commands_are_recorded_as_asked(logs):
+    clock = Clock()
+    arm = Arm("PSM1", clock)
+    named = JointState(0.0, np.zeros(3), np.zeros(3), np.zeros(3), ("yaw", "pitch", "insertion"))
+    arm.measured_js = lambda: named
+    with Run("loop", stream=io.StringIO()) as run:
+        loop = ControlLoop(run, clock, {"PSM1": arm}, record_commands=False, joint_names=True)
+        loop.run(lambda tick: {"PSM1": ArmCommand(CommandKind.POSITION, q=np.array([0.0, 0.0, 0.1]))}, ticks=2)
+    rec = read_recording(run.dir / "run.mcap")
+    assert "/PSM1/servo_jp" not in rec.messages and len(arm.sent) == 2    # sent, not recorded
+    assert list(rec.messages["/PSM1/measured_js"][0][1].name) == ["yaw", "pitch", "insertion"]

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 
-def plot_torques(t, tau, preds: dict, path: Path, title: str) -> None:
+def torques_figure(t, tau, preds: dict, path: Path, title: str) -> None:
     """Figure 5.2/5.3 style: (a) measured vs predicted torque per joint, (b) absolute errors."""
     import matplotlib
 
@@ -38,7 +38,7 @@ def plot_torques(t, tau, preds: dict, path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def plot_trajectory(t, q, dq, path: Path, title: str) -> None:
+def trajectory_figure(t, q, dq, path: Path, title: str) -> None:
     """Figure 5.1 style: position and velocity of the three joints."""
     import matplotlib
 

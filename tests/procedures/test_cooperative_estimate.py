@@ -23,7 +23,9 @@ def _invoke(*args):
     return res, (json.loads(lines[-1]) if lines else None)
 
 
-@pytest.mark.parametrize("obj", ["spring", "string"])
+# the spring on the estimate runs by default over the wire (tests/hil/test_chain.py); the
+# string, which drifted off after its move before the stretch filter, in-process here
+@pytest.mark.parametrize("obj", [pytest.param("spring", marks=pytest.mark.slow), "string"])
 def test_the_loop_closes_on_the_estimate_and_the_cell_judges_it(obj):
     res, data = _invoke("cooperative", *SHORT, "--object", obj, "--tension-source", "model")
     # completed: within the tolerance while moving and through the hold after the move,

@@ -99,6 +99,7 @@ class StretchFilter:
         self.shown_taut = np.zeros(n)      # lag(1 while taut): how much of a rest change it shows
         self.age = 0.0                     # s since the start
         self._history: list[tuple[float, np.ndarray]] = []   # (dt, lengths) over SETTLE / lag_rate
+        self._span = 0.0                   # s: the dt's in the history
 
     @property
     def variance(self) -> np.ndarray:
@@ -121,8 +122,9 @@ class StretchFilter:
         self.age += dt
         window = SETTLE / self.lag_rate
         self._history.append((dt, L.copy()))
-        while sum(h[0] for h in self._history[1:]) > window:
-            self._history.pop(0)
+        self._span += dt
+        while len(self._history) > 1 and self._span - self._history[0][0] > window:
+            self._span -= self._history.pop(0)[0]
         if first:
             self.tension = np.zeros(self.elements)
         for e in range(self.elements):
@@ -136,7 +138,7 @@ class StretchFilter:
         """The observer still settling: the torques alone, the rest length following them."""
         taut = not self.pulls_only or z > self.contact + 2.0 * s
         self.tension[e] = z if not self.pulls_only else (max(z, 0.0) if taut else 0.0)
-        if taut and self.tension[e] > 0.0 or not self.pulls_only:
+        if (taut and self.tension[e] > 0.0) or not self.pulls_only:
             self.rest[e] = L - self.tension[e] / self.k[e]
             self.P[e, 0, 0] = (s / self.k[e]) ** 2
             self.shown_stretch[e], self.shown_taut[e] = L - self.rest[e], 1.0

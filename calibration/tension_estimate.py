@@ -188,7 +188,10 @@ def tension_source(dynamics, effects, stick, rcm_frames: dict, arms, elements, g
     return TensionSource({a: TipForceEstimator(of(dynamics, a), list(of(effects, a) or []), gain, sigma,
                                                of(stick, a)) for a in arms}, rcm_frames, elements,
                          ambiguous_spread,
-                         None if stiffness is None else StretchFilter(len(elements), stiffness, pulls_only))
+                         None if stiffness is None else StretchFilter(
+                             len(elements), stiffness, pulls_only,
+                             # the torques show the tension through the observers' lag
+                             lag_rate=None if gain is None else float(np.min(gain))))
 
 
 def tension_figures(t: np.ndarray, estimate: np.ndarray, cell: np.ndarray, start: float, end: float) -> dict | None:

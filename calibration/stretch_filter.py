@@ -101,17 +101,6 @@ class StretchFilter:
         self._history: list[tuple[float, np.ndarray]] = []   # (dt, lengths) over SETTLE / lag_rate
         self._span = 0.0                   # s: the dt's in the history
 
-    @property
-    def variance(self) -> np.ndarray:
-        """The tension's variance per element from (rest, k)'s covariance (N^2)."""
-        if self.tension is None:
-            return np.full(self.elements, np.nan)
-        out = np.empty(self.elements)
-        for e in range(self.elements):
-            h = np.array([-self.k[e], self.tension[e] / self.k[e]])
-            out[e] = h @ self.P[e] @ h
-        return out
-
     def update(self, lengths: np.ndarray, measured: np.ndarray, spread: np.ndarray, dt: float) -> np.ndarray:
         """One tick: the elements' ``lengths`` (m), the torque estimate ``measured`` (N) and
         its ``spread`` (N), ``dt`` s since the last tick. Returns the tension per element (N)."""
